@@ -1,0 +1,59 @@
+"""Input checks for public boundaries: shapes, finiteness, echoing the bad value."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import NonFiniteError, ShapeError
+
+__all__ = ["as_points", "as_array", "check_finite"]
+
+
+def _describe(a) -> str:
+    try:
+        arr = np.asarray(a)
+        return f"array of shape {arr.shape} and dtype {arr.dtype}"
+    except Exception:  # pragma: no cover - exotic objects
+        return repr(type(a))
+
+
+def as_array(a, name: str, *, shape: tuple | None = None, dtype=np.float64, finite: bool = True) -> np.ndarray:
+    """Convert to an array and check its shape (``None`` entries match any size)."""
+    try:
+        arr = np.asarray(a, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{name}: cannot convert {_describe(a)} to {np.dtype(dtype).name}: {exc}") from None
+    if shape is not None:
+        ok = arr.ndim == len(shape) and all(s is None or s == d for s, d in zip(shape, arr.shape))
+        if not ok:
+            want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+            raise ShapeError(f"{name}: expected shape {want}, got {arr.shape}")
+    if finite:
+        check_finite(arr, name)
+    return arr
+
+
+def as_points(a, name: str, dim: int, *, min_count: int = 0, finite: bool = True) -> np.ndarray:
+    """Return a float64 (N, dim) array; a single point of shape (dim,) is promoted to (1, dim)."""
+    arr = as_array(a, name, finite=False)
+    if arr.ndim == 1 and arr.shape[0] == dim:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != dim:
+        raise ShapeError(f"{name}: expected shape (N, {dim}), got {arr.shape}")
+    if arr.shape[0] < min_count:
+        from .errors import TooFewPointsError
+
+        raise TooFewPointsError(f"{name}: need at least {min_count} points, got {arr.shape[0]}")
+    if finite:
+        check_finite(arr, name)
+    return arr
+
+
+def check_finite(arr: np.ndarray, name: str) -> None:
+    """Raise :class:`NonFiniteError` naming the first bad entry."""
+    if arr.dtype.kind in "fc" and not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))
+        first = tuple(int(i) for i in bad[0])
+        raise NonFiniteError(
+            f"{name}: {len(bad)} non-finite value(s), first at index {first} = {arr[first]!r}; expected finite numbers"
+        )

@@ -1,0 +1,1 @@
+"""Command-line interface: parses, prints, shows progress; the work is in the library."""
