@@ -1,0 +1,39 @@
+"""Shared test fixtures.
+
+Real data lives in ``../shared/data`` beside the repository (see its INDEX.md);
+tests that need it use the ``shared_data`` fixture and skip, with a clear reason,
+when it is absent. Set ``THERMOGRAMMETRY_DATA`` to point elsewhere.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get("THERMOGRAMMETRY_DATA", REPO_ROOT.parent / "shared" / "data"))
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """Root of the shared real-data folder; skips the test when it is missing."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"real data folder {SHARED_DATA} is absent (set THERMOGRAMMETRY_DATA)")
+    return SHARED_DATA
+
+
+def data_path(*parts: str) -> Path:
+    """Path under the shared data folder; skips the calling test when it does not exist."""
+    p = SHARED_DATA.joinpath(*parts)
+    if not p.exists():
+        pytest.skip(f"real data file {p} is absent")
+    return p
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    """A seeded generator; tests are deterministic."""
+    return np.random.default_rng(12345)
