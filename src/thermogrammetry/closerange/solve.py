@@ -1,0 +1,267 @@
+"""Seed 000's orientation chain on arrays: optical DLTs → pass points → thermal camera, with precision.
+
+:func:`solve_network` runs the chain of seed 000 §2 (Fig. 2):
+
+1. every optical image with ≥ 6 control points is positioned by DLT + least-squares refinement;
+2. pass points (ids without control coordinates) seen in ≥ 2 optical images are intersected;
+3. the thermal camera is positioned by DLT from the points it sees that now have coordinates
+   (pass points; control points too if they were measured there — none are needed).
+
+Each estimate carries its Jacobian with respect to the global observation vector (see
+:mod:`.network`), so the covariance of every derived quantity includes the error of every step
+before it. Covariances use the a-priori image σ (``sigma_px``) — with 6 control points a DLT has one
+redundant observation and its σ0 is no estimate of anything; σ0 is reported beside it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..errors import InvalidInputError, TooFewPointsError
+from ..results import Outcome
+from . import network as nw
+
+__all__ = ["Observations", "OrientedCamera", "NetworkResult", "solve_network"]
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Image measurements ``(image, id, x, y)`` in px with their a-priori σ (px) per image."""
+
+    images: tuple[str, ...]
+    ids: tuple[str, ...]
+    xy: np.ndarray  # (K, 2)
+    sigma_px: np.ndarray  # (K,)
+
+    @classmethod
+    def from_rows(cls, rows: Sequence[tuple[str, str, float, float]], sigma_px: float | Mapping[str, float] = 0.5):
+        images = tuple(str(r[0]) for r in rows)
+        ids = tuple(str(r[1]) for r in rows)
+        xy = np.array([[float(r[2]), float(r[3])] for r in rows], float).reshape(-1, 2)
+        if isinstance(sigma_px, Mapping):
+            sig = np.array([float(sigma_px.get(im, sigma_px.get("*", 0.5))) for im in images])
+        else:
+            sig = np.full(len(rows), float(sigma_px))
+        if np.any(sig <= 0):
+            raise InvalidInputError(f"sigma_px: expected positive values, got {sorted(set(sig.tolist()))}")
+        seen = set()
+        for im, i in zip(images, ids):
+            if (im, i) in seen:
+                raise InvalidInputError(f"point {i!r} is measured twice on image {im!r}; expected one row per point")
+            seen.add((im, i))
+        return cls(images, ids, xy, sig)
+
+    @property
+    def n(self) -> int:
+        return 2 * len(self.ids)
+
+    def on(self, image: str) -> list[int]:
+        return [k for k, im in enumerate(self.images) if im == image]
+
+    def cols(self, rows: Sequence[int]) -> np.ndarray:
+        rows = np.asarray(rows, int)
+        return np.column_stack([2 * rows, 2 * rows + 1]).ravel()
+
+    def cov_diag(self) -> np.ndarray:
+        """(2K,) variances of the observation vector (px²)."""
+        return np.repeat(self.sigma_px**2, 2)
+
+
+@dataclass
+class OrientedCamera:
+    """A camera positioned by DLT: coefficients in the normalised frame + derivatives."""
+
+    name: str
+    kind: str  # "optical" | "thermal"
+    L: np.ndarray  # (11,)
+    J: np.ndarray  # (11, n_obs) dL/dobs
+    ids: tuple[str, ...]  # points used
+    residuals: np.ndarray  # (N, 2) px
+    sigma0_px: float
+    outcome: Outcome
+
+    def P_world(self, frame: nw.Frame) -> np.ndarray:
+        """3×4 projection matrix in world coordinates (px, m)."""
+        return nw.dlt_matrix(self.L) @ frame.world_matrix()
+
+
+@dataclass
+class NetworkResult:
+    frame: nw.Frame
+    obs: Observations
+    cameras: dict[str, OrientedCamera]
+    thermal: str
+    control: dict[str, np.ndarray]
+    pass_ids: tuple[str, ...]
+    points_world: np.ndarray  # (n_pass, 3)
+    J_points: np.ndarray  # (3 n_pass, n_obs), world metres per px
+    warnings: list[str] = field(default_factory=list)
+
+    # -- covariance helpers --------------------------------------------------------------------
+    def cov(self, J: np.ndarray) -> np.ndarray:
+        """``J Σ_obs Jᵀ`` for any (m, n_obs) Jacobian."""
+        return (J * self.obs.cov_diag()) @ J.T
+
+    def point(self, pid: str) -> np.ndarray:
+        """World coordinates (m) of a control or pass point."""
+        if pid in self.control:
+            return self.control[pid]
+        return self.points_world[self.pass_ids.index(pid)]
+
+    def point_jacobian(self, pid: str) -> np.ndarray:
+        """(3, n_obs): zero for control points (fixed)."""
+        if pid in self.control:
+            return np.zeros((3, self.obs.n))
+        i = self.pass_ids.index(pid)
+        return self.J_points[3 * i:3 * i + 3]
+
+    @property
+    def point_sigmas(self) -> np.ndarray:
+        """(n_pass, 3) σX σY σZ (m)."""
+        return np.sqrt(np.diag(self.cov(self.J_points))).reshape(-1, 3)
+
+    def thermal_center(self) -> tuple[np.ndarray, np.ndarray]:
+        """Thermal projection centre (m) and its 3×3 covariance."""
+        cam = self.cameras[self.thermal]
+        C, J = _center_and_jacobian(cam, self.frame)
+        return C, self.cov(J)
+
+
+def _center_and_jacobian(cam: OrientedCamera, frame: nw.Frame) -> tuple[np.ndarray, np.ndarray]:
+    def center(L):
+        return frame.to_world(nw.camera_axis_center(nw.dlt_matrix(L))[1])
+
+    C = center(cam.L)
+    G = np.zeros((3, 11))
+    for k in range(11):
+        h = 1e-6 * max(1.0, abs(cam.L[k]))
+        e = np.zeros(11)
+        e[k] = h
+        G[:, k] = (center(cam.L + e) - center(cam.L - e)) / (2 * h)
+    return C, G @ cam.J
+
+
+def solve_network(
+    control: Mapping[str, Sequence[float]],
+    obs: Observations,
+    thermal: str,
+    *,
+    optical: Sequence[str] | None = None,
+) -> NetworkResult:
+    """Run seed 000's orientation chain.
+
+    Parameters
+    ----------
+    control : mapping id → (X, Y, Z) m
+        Control points (fixed).
+    obs : Observations
+        All image measurements, optical and thermal.
+    thermal : str
+        Name of the thermal image in ``obs``.
+    optical : names, optional
+        Optical images to use (default: every image except ``thermal``).
+
+    Raises
+    ------
+    TooFewPointsError, DegenerateInputError
+        An optical image with fewer than 6 / coplanar control points; fewer than 2 optical cameras;
+        fewer than 6 points with coordinates on the thermal image (the message lists those seen).
+    """
+    control = {str(k): np.asarray(v, float) for k, v in control.items()}
+    if thermal not in obs.images:
+        raise InvalidInputError(
+            f"thermal image {thermal!r} has no measurements; images measured: {sorted(set(obs.images))}"
+        )
+    if optical is None:
+        optical = [im for im in dict.fromkeys(obs.images) if im != thermal]
+    if len(control) < 6:
+        raise TooFewPointsError(f"{len(control)} control points ({', '.join(control)}): the DLT needs at least 6")
+    frame = nw.Frame.from_points(np.array(list(control.values())))
+    cams: dict[str, OrientedCamera] = {}
+    warnings: list[str] = []
+    for im in optical:
+        rows = [k for k in obs.on(im) if obs.ids[k] in control]
+        ids = [obs.ids[k] for k in rows]
+        Xn = frame.to_norm(np.array([control[i] for i in ids]).reshape(-1, 3))
+        nw.check_dlt_geometry(Xn, what="control points", ids=ids, image=im)
+        xy = obs.xy[rows]
+        L0 = nw.dlt_linear(Xn, xy)
+        rc = nw.refine_dlt(L0, Xn, xy)
+        J = np.zeros((11, obs.n))
+        J[:, obs.cols(rows)] = rc.dL_dobs
+        cams[im] = OrientedCamera(im, "optical", rc.L, J, tuple(ids), rc.residuals, rc.sigma0_px, rc.outcome)
+        if not rc.outcome.success:
+            warnings.append(f"DLT of {im!r}: {rc.outcome.termination}: {rc.outcome.reason}")
+    if len(cams) < 2:
+        raise TooFewPointsError(
+            f"{len(cams)} optical camera(s) ({', '.join(cams)}) could be positioned; intersecting pass points "
+            "needs at least 2 optical images with ≥ 6 control points each"
+        )
+    # -- pass points ---------------------------------------------------------------------------
+    index = {(im, i): k for k, (im, i) in enumerate(zip(obs.images, obs.ids))}
+    candidates = [i for i in dict.fromkeys(obs.ids) if i not in control]
+    pass_ids, Xs, Js = [], [], []
+    for pid in candidates:
+        seen = [im for im in cams if (im, pid) in index]
+        if len(seen) < 2:
+            if seen:
+                warnings.append(f"pass point {pid!r} is seen only on optical image {seen[0]!r}; not intersected")
+            continue
+        rows = [index[(im, pid)] for im in seen]
+        X, dXo, dXL, _, out = nw.triangulate_point([cams[im].L for im in seen], obs.xy[rows])
+        if not out.success:
+            warnings.append(f"pass point {pid!r}: {out.reason}")
+            continue
+        J = np.zeros((3, obs.n))
+        J[:, obs.cols(rows)] += dXo
+        for im, d in zip(seen, dXL):
+            J += d @ cams[im].J
+        pass_ids.append(pid)
+        Xs.append(X)
+        Js.append(J)
+    Xn_pass = np.array(Xs).reshape(-1, 3)
+    J_pass_n = np.vstack(Js) if Js else np.zeros((0, obs.n))
+    # -- thermal camera from pass points (no control coordinates needed) ---------------------------
+    trows = obs.on(thermal)
+    seen_ids = [obs.ids[k] for k in trows]
+    use = [k for k in trows if obs.ids[k] in pass_ids or obs.ids[k] in control]
+    use_ids = [obs.ids[k] for k in use]
+    if len(use) < 6:
+        no_xyz = [i for i in seen_ids if i not in use_ids]
+        raise TooFewPointsError(
+            f"thermal image {thermal!r}: {len(use)} points with coordinates seen "
+            f"({', '.join(use_ids) or 'none'}); the thermal camera needs at least 6 pass points measured on it "
+            f"and intersected from ≥ 2 optical images. Measured on the thermal image: {', '.join(seen_ids) or 'none'}"
+            + (f"; without 3D coordinates: {', '.join(no_xyz)}" if no_xyz else "")
+        )
+    Xn_t = np.array([control[i] if i in control else frame.to_world(Xn_pass[pass_ids.index(i)])
+                     for i in use_ids])
+    Xn_t = frame.to_norm(Xn_t)
+    nw.check_dlt_geometry(Xn_t, what="pass points", ids=use_ids, image=thermal)
+    L0 = nw.dlt_linear(Xn_t, obs.xy[use])
+    rc = nw.refine_dlt(L0, Xn_t, obs.xy[use])
+    Jt = np.zeros((11, obs.n))
+    Jt[:, obs.cols(use)] += rc.dL_dobs
+    JX = np.vstack([np.zeros((3, obs.n)) if i in control else J_pass_n[3 * pass_ids.index(i):3 * pass_ids.index(i) + 3]
+                    for i in use_ids])
+    Jt += rc.dL_dX @ JX
+    cams[thermal] = OrientedCamera(thermal, "thermal", rc.L, Jt, tuple(use_ids), rc.residuals, rc.sigma0_px,
+                                   rc.outcome)
+    if not rc.outcome.success:
+        warnings.append(f"DLT of thermal {thermal!r}: {rc.outcome.termination}: {rc.outcome.reason}")
+    return NetworkResult(
+        frame=frame,
+        obs=obs,
+        cameras=cams,
+        thermal=thermal,
+        control=control,
+        pass_ids=tuple(pass_ids),
+        points_world=frame.to_world(Xn_pass) if len(Xn_pass) else Xn_pass,
+        J_points=J_pass_n * frame.scale,
+        warnings=warnings,
+    )
+
+
