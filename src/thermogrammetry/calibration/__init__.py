@@ -1,0 +1,40 @@
+"""Camera calibration: target detection, 3D test fields, staged self-calibration, reports.
+
+Public entry points (imported lazily so that ``import thermogrammetry.calibration`` stays light):
+
+- :func:`calibrate` / :class:`SelfCalibrationOptions` / :class:`CameraSetup` /
+  :class:`ImageMeasurements` — staged self-calibrating bundle adjustment (seed 001 strategy), in
+  :mod:`thermogrammetry.calibration.selfcal`;
+- :func:`parse_control_csv` / :func:`parse_measurements_csv` — the 3D test-field CSV formats, in
+  :mod:`thermogrammetry.calibration.testfield_csv`;
+- :func:`write_outputs` — camera.json, calibration.json, report.html and exports into a project
+  store, in :mod:`thermogrammetry.calibration.outputs`;
+- target detection (``detect*.py``) is written by the detection engineer.
+"""
+
+from __future__ import annotations
+
+_LAZY = {
+    "calibrate": "selfcal",
+    "SelfCalibrationOptions": "selfcal",
+    "CameraSetup": "selfcal",
+    "ImageMeasurements": "selfcal",
+    "CalibrationResult": "selfcal",
+    "CameraCalibration": "selfcal",
+    "parse_control_csv": "testfield_csv",
+    "parse_measurements_csv": "testfield_csv",
+    "read_control_csv": "testfield_csv",
+    "read_measurements_csv": "testfield_csv",
+    "write_outputs": "outputs",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'thermogrammetry.calibration' has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(f"{__name__}.{mod}"), name)
