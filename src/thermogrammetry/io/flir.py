@@ -4,7 +4,7 @@ Own parser of FLIR's FFF container (layout as documented by ExifTool's FLIR modu
 of it and only little-endian records, which is why it fails on the DJI XT2/XTR FLIR cores):
 
 FFF header (0x40 bytes)
-    ``0x00`` "FFF\\0" (or "AFF\\0"), ``0x04`` creator string[16], ``0x14`` int32 format version (100..199;
+    ``0x00`` "FFF\\0" (or "AFF\\0"), ``0x04`` creator string[16], ``0x14`` int32 format version (100..299;
     its byte order decides the header's byte order), ``0x18`` int32 offset of the record directory,
     ``0x1c`` int32 number of directory entries.
 Directory entry (0x20 bytes)
@@ -46,7 +46,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..errors import CorruptFileError, UnsupportedFormatError
+from ..errors import CorruptFileError, InvalidInputError, UnsupportedFormatError
 from ..radiometry.atmosphere import AtmosphericCoefficients
 from ..radiometry.measurement import MeasurementParams
 from ..radiometry.planck import PlanckConstants
@@ -77,7 +77,7 @@ def _endian_of_header(buf: bytes) -> str | None:
         return None
     for e in (">", "<"):
         ver = struct.unpack(e + "I", buf[0x14:0x18])[0]
-        if 100 <= ver < 200:
+        if 100 <= ver < 300:  # FLIR: 100..1xx; Workswell WIRIS writes 211
             return e
     return None
 
@@ -301,13 +301,15 @@ def iter_fff_frames(buf: bytes, where: str = "<bytes>") -> Iterator[FFFFrame]:
         raise UnsupportedFormatError(f"{where}: no FLIR FFF frame with raw data found")
 
 
-def flir_app1_fff(segments, where: str) -> bytes:
-    """Reassemble the FFF blob split over the FLIR APP1 segments (``FLIR\\0`` + 0x01 + part + last)."""
+def flir_app1_fff(segments, where: str, magic: bytes = b"FLIR\x00") -> bytes:
+    """Reassemble the FFF blob split over the APP1 segments (``FLIR\\0`` + 0x01 + part + last; Workswell
+    uses ``WORK\\0`` with the same layout)."""
     parts: dict[int, bytes] = {}
     last = None
-    for p in app_payload(segments, 0xE1, b"FLIR\x00"):
-        if len(p) < 8:
-            continue
+    payloads = [p for p in app_payload(segments, 0xE1, magic) if len(p) >= 8]
+    if len(payloads) > 1 and all(p[6] == 0 and p[7] == 0 for p in payloads):
+        return b"".join(p[8:] for p in payloads)  # Workswell: no part numbers, segments in file order
+    for p in payloads:
         idx, tot = p[6], p[7]
         last = tot if last is None else last
         parts.setdefault(idx, p[8:])
@@ -324,10 +326,21 @@ def flir_app1_fff(segments, where: str) -> bytes:
 
 def _metadata_from_frame(fr: FFFFrame, path: Path, reader: str, frame_index: int | None, exif: dict, xmp: dict) -> ThermalMetadata:
     ci = fr.camera_info
-    planck = PlanckConstants(ci["planck_r1"], ci["planck_r2"], ci["planck_b"], ci["planck_f"], ci["planck_o"])
-    coeffs = AtmosphericCoefficients(ci["alpha1"], ci["alpha2"], ci["beta1"], ci["beta2"], ci["x"])
+    notes = [f"FLIR FFF raw data ({fr.raw_format}); temperatures from the full FLIR measurement equation"]
+    try:
+        planck: PlanckConstants | None = PlanckConstants(ci["planck_r1"], ci["planck_r2"], ci["planck_b"], ci["planck_f"], ci["planck_o"])
+    except InvalidInputError:
+        planck = None
+        notes = [f"FFF container without a Planck calibration (R1={ci['planck_r1']:g}, R2={ci['planck_r2']:g}, "
+                 f"B={ci['planck_b']:g}): raw counts only -- the file does not say how to convert them to temperature"]
+    try:
+        coeffs = AtmosphericCoefficients(ci["alpha1"], ci["alpha2"], ci["beta1"], ci["beta2"], ci["x"])
+    except InvalidInputError:
+        coeffs = AtmosphericCoefficients()
+    if ci["alpha1"] == 0 and ci["alpha2"] == 0 and ci["x"] == 0:
+        coeffs = AtmosphericCoefficients()
     params = MeasurementParams(
-        emissivity=float(ci["emissivity"]),
+        emissivity=float(ci["emissivity"]) if 0 < ci["emissivity"] <= 1 else 1.0,
         reflected_temperature_k=float(ci["reflected_temperature_k"]),
         atmospheric_temperature_k=float(ci["atmospheric_temperature_k"]),
         relative_humidity=float(min(max(ci["relative_humidity"], 0.0), 1.0)),
@@ -352,20 +365,30 @@ def _metadata_from_frame(fr: FFFFrame, path: Path, reader: str, frame_index: int
         source_path=str(path),
         reader=reader,
         frame_index=frame_index,
-        notes=[f"FLIR FFF raw data ({fr.raw_format}); temperatures from the full FLIR measurement equation"],
+        notes=notes,
         extra={k: v for k, v in ci.items() if k in ("lens", "part_number", "software", "field_of_view_deg", "range_min_k", "range_max_k")},
         exif=exif,
     )
 
 
-def _read_flir_jpeg(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalImage]:
+def _read_app1_fff(path: Path, data: bytes, opts: ReadOptions, magic: bytes, reader: str) -> Iterator[ThermalImage]:
     segs = jpeg_segments(data, path)
-    fff = flir_app1_fff(segs, str(path))
+    fff = flir_app1_fff(segs, str(path), magic)
     fr = parse_fff(fff, 0, str(path))
     exif = read_exif(data)
     xmp = parse_xmp(data[: segs[-1].offset] if segs else data)
-    md = _metadata_from_frame(fr, path, "flir_rjpeg", None, exif, xmp)
+    md = _metadata_from_frame(fr, path, reader, None, exif, xmp)
+    if exif.get("make"):
+        md.make = exif["make"]
     yield ThermalImage.from_raw(fr.raw_counts, md, opts)
+
+
+def _read_flir_jpeg(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalImage]:
+    return _read_app1_fff(path, data, opts, b"FLIR\x00", "flir_rjpeg")
+
+
+def _read_workswell_jpeg(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalImage]:
+    return _read_app1_fff(path, data, opts, b"WORK\x00", "workswell_rjpeg")
 
 
 def _read_fff(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalImage]:
@@ -384,11 +407,20 @@ def _sniff_flir_jpeg(head: bytes, path: Path) -> bool:
     return k >= 4 and head[k - 4 : k - 2] == b"\xff\xe1"
 
 
+def _sniff_workswell_jpeg(head: bytes, path: Path) -> bool:
+    if not head.startswith(b"\xff\xd8"):
+        return False
+    k = head.find(b"WORK\x00\x01")
+    return k >= 4 and head[k - 4 : k - 2] == b"\xff\xe1"
+
+
 def _sniff_fff(head: bytes, path: Path) -> bool:
     return _endian_of_header(head[:0x40]) is not None
 
 
 register_reader("flir_rjpeg", _sniff_flir_jpeg, _read_flir_jpeg, priority=10,
                 description="FLIR radiometric JPEG (FFF in APP1), incl. DJI XT2/XTR FLIR cores")
+register_reader("workswell_rjpeg", _sniff_workswell_jpeg, _read_workswell_jpeg, priority=10,
+                description="Workswell WIRIS radiometric JPEG (FFF-like container in APP1; raw counts)")
 register_reader("flir_fff", _sniff_fff, _read_fff, priority=10,
                 description="FLIR FFF frame, SEQ sequence, CSQ sequence (JPEG-LS)")

@@ -1,0 +1,73 @@
+"""Temperature matrices in CSV or NPY files, with an explicit unit.
+
+A matrix file holds only numbers, so the unit must be declared: ``read_thermal(path, unit="C")``.  Without
+it the reader refuses the file (:class:`ConfigError`) rather than guess between kelvin and °C.  CSV: comma,
+semicolon, tab or whitespace separated rows of equal length; a first line that does not parse as numbers
+is taken as a header and skipped; empty cells / ``nan`` are no-data.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ..errors import ConfigError, CorruptFileError, UnsupportedFormatError
+from ..radiometry.encoding import to_kelvin
+from .thermal import ReadOptions, ThermalImage, ThermalMetadata, register_reader
+
+__all__ = ["read_matrix"]
+
+
+def _need_unit(path: Path, opts: ReadOptions) -> str:
+    if opts.unit is None:
+        raise ConfigError(f"{path}: a temperature matrix carries no unit; pass unit='K' or unit='C' (--unit)")
+    return opts.unit
+
+
+def _parse_csv(path: Path, text: str) -> np.ndarray:
+    rows = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        for sep in (",", ";", "\t", None):
+            cells = s.split(sep) if sep else s.split()
+            if len(cells) > 1 or sep is None:
+                break
+        try:
+            rows.append([float(c) if c.strip() else np.nan for c in cells])
+        except ValueError:
+            if not rows:  # header line
+                continue
+            raise CorruptFileError(f"{path}: line {lineno} has a non-numeric cell: {s[:80]!r}") from None
+        if len(rows[-1]) != len(rows[0]):
+            raise CorruptFileError(f"{path}: line {lineno} has {len(rows[-1])} values, the first row has {len(rows[0])}")
+    if not rows:
+        raise CorruptFileError(f"{path}: no numeric rows")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def read_matrix(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalImage]:
+    """Reader for ``.npy`` / ``.csv`` / ``.txt`` temperature matrices (registered)."""
+    unit = _need_unit(path, opts)
+    if data.startswith(b"\x93NUMPY"):
+        try:
+            arr = np.load(io.BytesIO(data), allow_pickle=False)
+        except Exception as exc:
+            raise CorruptFileError(f"{path}: NPY file cannot be read ({exc}): truncated?") from None
+    else:
+        arr = _parse_csv(path, data.decode("utf-8", "replace"))
+    if arr.ndim != 2 or arr.dtype.kind not in "fiu":
+        raise UnsupportedFormatError(f"{path}: expected a 2-D numeric matrix, got shape {arr.shape} dtype {arr.dtype}")
+    md = ThermalMetadata(source_path=str(path), reader="matrix", notes=[f"temperature matrix declared in {unit}"])
+    yield ThermalImage(None, to_kelvin(arr, unit), md)
+
+
+def _sniff(head: bytes, path: Path) -> bool:
+    return head.startswith(b"\x93NUMPY") or path.suffix.lower() in (".csv", ".txt", ".tsv")
+
+
+register_reader("matrix", _sniff, read_matrix, priority=0, description="CSV/NPY temperature matrix with explicit unit")
