@@ -1,0 +1,436 @@
+"""Small self-calibrating bundle adjustment (dense Levenberg–Marquardt) with precision.
+
+INTERIM SOLVER. The project's adjustment engine (:mod:`thermogrammetry.adjustment`) is being
+written at the same time as this module; until its API is settled the self-calibration solves its
+normal equations here, densely (calibration problems are small: tens of images, a few hundred
+unknowns). Everything the calibration needs from a solver goes through the single call
+:func:`solve_bundle`, so switching to the engine is a change in one place.
+
+Model
+-----
+Observations are measured pixel coordinates (OpenCV convention) of object points seen by a camera
+in a pose (``cam_from_world``), optionally through a rig offset (``cam_from_reference``)::
+
+    Xc = R_rig (R_pose X + t_pose) + t_rig
+    xy = project_correction_form(Xc; camera parameters)          (see ``_model.py``)
+
+Unknowns: the free intrinsic parameters of every camera, 6 per free pose (rotation increment δ with
+``R ← exp([δ]×) R``, translation t), 6 per free rig offset, 3 per free object point (with an optional
+a-priori standard deviation acting as a weighted pseudo-observation; a point without prior is fixed).
+
+The estimate minimises ``Σ ((xy_obs − xy)/σ)²`` (Gauss–Markov model with uncorrelated image
+coordinates of a-priori standard deviation σ, in px). Precision: ``Σxx = σ0² N⁻¹`` with
+``σ0² = vᵀPv / r``; redundancy numbers ``r_i = 1 − (A N⁻¹ Aᵀ P)_ii``; Baarda's normalised
+residuals ``w_i = v_i / (σ_i sqrt(r_i))`` (Baarda 1968; Förstner 1987).
+
+References
+----------
+Baarda, W., 1968. A testing procedure for use in geodetic networks. Netherlands Geodetic Commission.
+Brown, D.C., 1971. Close-range camera calibration. Photogramm. Eng. 37(8), 855–866.
+Fraser, C.S., 1997. Digital camera self-calibration. ISPRS J. Photogramm. Remote Sens. 52, 149–159.
+Triggs, B., McLauchlan, P., Hartley, R., Fitzgibbon, A., 2000. Bundle adjustment — a modern synthesis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..results import Outcome, Termination
+from . import _model
+
+__all__ = ["CameraBlock", "BundleProblem", "BundleSolution", "solve_bundle", "residuals", "rotation_exp"]
+
+try:  # small dense problems run much faster on one BLAS thread than on contended cores
+    from threadpoolctl import threadpool_limits as _threadpool_limits
+except ImportError:  # pragma: no cover - optional
+    _threadpool_limits = None
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(N,3) -> (N,3,3) cross-product matrices."""
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1] = -v[..., 2]
+    S[..., 0, 2] = v[..., 1]
+    S[..., 1, 0] = v[..., 2]
+    S[..., 1, 2] = -v[..., 0]
+    S[..., 2, 0] = -v[..., 1]
+    S[..., 2, 1] = v[..., 0]
+    return S
+
+
+def rotation_exp(w: np.ndarray) -> np.ndarray:
+    """Rodrigues: rotation vectors (N,3) (radians) -> rotation matrices (N,3,3)."""
+    w = np.atleast_2d(w)
+    th = np.linalg.norm(w, axis=1)
+    S = _skew(w)
+    small = th < 1e-8
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th**2 / 24.0, (1 - np.cos(ths)) / ths**2)
+    return np.eye(3)[None] + a[:, None, None] * S + b[:, None, None] * (S @ S)
+
+
+@dataclass
+class CameraBlock:
+    """One camera (intrinsics) in a bundle: correction-form parameters and which of them are free."""
+
+    params: np.ndarray  # (12,) layout _model.PARAM_NAMES
+    free: np.ndarray  # (12,) bool
+    image_size: tuple[int, int]
+    pitch_mm: tuple[float, float]
+    name: str = ""
+
+
+@dataclass
+class BundleProblem:
+    """What is estimated (see module docstring). Arrays are copied by :func:`solve_bundle`."""
+
+    cameras: list[CameraBlock]
+    R: np.ndarray  # (F,3,3) cam_from_world rotations (reference sensor for rig frames)
+    t: np.ndarray  # (F,3)
+    points: np.ndarray  # (M,3) metres
+    obs_camera: np.ndarray  # (N,) int
+    obs_pose: np.ndarray  # (N,) int
+    obs_point: np.ndarray  # (N,) int
+    obs_xy: np.ndarray  # (N,2) px
+    obs_sigma: np.ndarray  # (N,2) px
+    obs_rig: np.ndarray | None = None  # (N,) int, -1 = no rig offset
+    rig_R: np.ndarray | None = None  # (G,3,3) cam_from_reference
+    rig_t: np.ndarray | None = None  # (G,3)
+    pose_free: np.ndarray | None = None  # (F,) bool, default all free
+    point_prior_std: np.ndarray | None = None  # (M,3) metres; None/NaN/0 = fixed point
+
+    def __post_init__(self):
+        n = self.obs_xy.shape[0]
+        if self.obs_rig is None:
+            self.obs_rig = -np.ones(n, dtype=int)
+        if self.rig_R is None:
+            self.rig_R = np.zeros((0, 3, 3))
+            self.rig_t = np.zeros((0, 3))
+        if self.pose_free is None:
+            self.pose_free = np.ones(self.R.shape[0], dtype=bool)
+
+
+@dataclass
+class BundleSolution:
+    """Estimate and precision. ``covariance`` is σ0² N⁻¹ over the unknown vector described by ``layout``."""
+
+    outcome: Outcome
+    cameras: list[CameraBlock]
+    R: np.ndarray
+    t: np.ndarray
+    rig_R: np.ndarray
+    rig_t: np.ndarray
+    points: np.ndarray
+    residuals_px: np.ndarray  # (N,2) observed - computed
+    redundancy: np.ndarray  # (N,2)
+    sigma0: float  # a-posteriori σ0 (unitless, relative to obs_sigma)
+    dof: int
+    iterations: int
+    cofactor: np.ndarray  # N^-1 (unknowns x unknowns)
+    layout: dict = field(default_factory=dict)  # block name -> slice / index arrays
+    camera_std: list = field(default_factory=list)  # per camera (12,) std (NaN where fixed)
+    camera_cov: list = field(default_factory=list)  # per camera (12,12) covariance (0 where fixed)
+    pose_std: np.ndarray | None = None  # (F,6) rot (rad), t (m)
+    rig_std: np.ndarray | None = None  # (G,6)
+    rig_cov: list = field(default_factory=list)  # (G) (6,6)
+
+    @property
+    def normalized_residuals(self) -> np.ndarray:
+        """Baarda's w = v / (σ sqrt(r)) with the a-priori σ (N,2); NaN where r≈0."""
+        return self._w
+
+
+def _layout(problem: BundleProblem):
+    idx = 0
+    cam_slices = []
+    for cb in problem.cameras:
+        k = int(np.count_nonzero(cb.free))
+        cam_slices.append(np.arange(idx, idx + k))
+        idx += k
+    F = problem.R.shape[0]
+    pose_index = -np.ones(F, dtype=int)
+    for f in range(F):
+        if problem.pose_free[f]:
+            pose_index[f] = idx
+            idx += 6
+    G = problem.rig_R.shape[0]
+    rig_index = np.arange(idx, idx + 6 * G, 6) if G else np.zeros(0, dtype=int)
+    idx += 6 * G
+    M = problem.points.shape[0]
+    point_index = -np.ones(M, dtype=int)
+    ps = problem.point_prior_std
+    if ps is not None:
+        ps = np.asarray(ps, float)
+        free_pts = np.all(np.isfinite(ps) & (ps > 0), axis=1)
+        # only points that are observed can be free
+        observed = np.zeros(M, dtype=bool)
+        observed[problem.obs_point] = True
+        for m in np.nonzero(free_pts & observed)[0]:
+            point_index[m] = idx
+            idx += 3
+    return {"cameras": cam_slices, "pose": pose_index, "rig": rig_index, "point": point_index, "n": idx}
+
+
+def _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True):
+    """Residuals (N,2) px (obs - computed), validity, and the Jacobian of computed xy wrt unknowns (2N, n)."""
+    N = problem.obs_xy.shape[0]
+    n = lay["n"]
+    Xw = pts[problem.obs_point]
+    Rf = R[problem.obs_pose]
+    RX = np.einsum("nij,nj->ni", Rf, Xw)
+    Y = RX + t[problem.obs_pose]
+    has_rig = problem.obs_rig >= 0
+    Xc = Y.copy()
+    Rr = np.broadcast_to(np.eye(3), (N, 3, 3)).copy()
+    if np.any(has_rig):
+        g = problem.obs_rig[has_rig]
+        Rr[has_rig] = rigR[g]
+        Xc[has_rig] = np.einsum("nij,nj->ni", rigR[g], Y[has_rig]) + rigt[g]
+    xy = np.empty((N, 2))
+    ok = np.zeros(N, dtype=bool)
+    Jpt = np.zeros((N, 2, 3))
+    J = np.zeros((2 * N, n)) if want_jac else None
+    for ci, cb in enumerate(cams):
+        sel = np.nonzero(problem.obs_camera == ci)[0]
+        if sel.size == 0:
+            continue
+        xyc, Jp3, Jpar, okc = _model.project(Xc[sel], cb.params, cb.image_size, cb.pitch_mm, jacobians=want_jac)
+        xy[sel] = xyc
+        ok[sel] = okc
+        if want_jac:
+            Jpt[sel] = Jp3
+            cols = lay["cameras"][ci]
+            if cols.size:
+                Jf = Jpar[:, :, cb.free]
+                J[2 * sel, cols[0] : cols[-1] + 1] = Jf[:, 0, :]
+                J[2 * sel + 1, cols[0] : cols[-1] + 1] = Jf[:, 1, :]
+    res = problem.obs_xy - xy
+    if not want_jac:
+        return res, ok, None
+    rows = np.arange(N)
+    # pose block
+    pidx = lay["pose"][problem.obs_pose]
+    has_pose = pidx >= 0
+    if np.any(has_pose):
+        JR = np.einsum("nij,njk->nik", Jpt, Rr)  # d xy / d Y
+        Jrot = -np.einsum("nij,njk->nik", JR, _skew(RX))
+        r = rows[has_pose]
+        cols = pidx[has_pose][:, None] + np.arange(6)[None, :]
+        blk = np.concatenate([Jrot[has_pose], JR[has_pose]], axis=2)  # (k,2,6)
+        J[(2 * r)[:, None], cols] = blk[:, 0, :]
+        J[(2 * r + 1)[:, None], cols] = blk[:, 1, :]
+    if np.any(has_rig):
+        gidx = lay["rig"][problem.obs_rig[has_rig]]
+        RY = np.einsum("nij,nj->ni", Rr[has_rig], Y[has_rig])
+        Jrot = -np.einsum("nij,njk->nik", Jpt[has_rig], _skew(RY))
+        blk = np.concatenate([Jrot, Jpt[has_rig]], axis=2)
+        r = rows[has_rig]
+        cols = gidx[:, None] + np.arange(6)[None, :]
+        J[(2 * r)[:, None], cols] = blk[:, 0, :]
+        J[(2 * r + 1)[:, None], cols] = blk[:, 1, :]
+    qidx = lay["point"][problem.obs_point]
+    has_pt = qidx >= 0
+    if np.any(has_pt):
+        blk = np.einsum("nij,njk->nik", Jpt[has_pt], np.einsum("nij,njk->nik", Rr[has_pt], Rf[has_pt]))
+        r = rows[has_pt]
+        cols = qidx[has_pt][:, None] + np.arange(3)[None, :]
+        J[(2 * r)[:, None], cols] = blk[:, 0, :]
+        J[(2 * r + 1)[:, None], cols] = blk[:, 1, :]
+    return res, ok, J
+
+
+def _apply(problem, cams, R, t, rigR, rigt, pts, lay, dx):
+    cams2 = []
+    for ci, cb in enumerate(cams):
+        p = cb.params.copy()
+        cols = lay["cameras"][ci]
+        p[cb.free] += dx[cols]
+        cams2.append(CameraBlock(p, cb.free, cb.image_size, cb.pitch_mm, cb.name))
+    R2 = R.copy()
+    t2 = t.copy()
+    fr = np.nonzero(lay["pose"] >= 0)[0]
+    if fr.size:
+        d = dx[lay["pose"][fr][:, None] + np.arange(6)[None, :]]
+        R2[fr] = rotation_exp(d[:, :3]) @ R[fr]
+        t2[fr] = t[fr] + d[:, 3:]
+    rigR2 = rigR.copy()
+    rigt2 = rigt.copy()
+    if rigR.shape[0]:
+        d = dx[lay["rig"][:, None] + np.arange(6)[None, :]]
+        rigR2 = rotation_exp(d[:, :3]) @ rigR
+        rigt2 = rigt + d[:, 3:]
+    pts2 = pts.copy()
+    fp = np.nonzero(lay["point"] >= 0)[0]
+    if fp.size:
+        pts2[fp] = pts[fp] + dx[lay["point"][fp][:, None] + np.arange(3)[None, :]]
+    return cams2, R2, t2, rigR2, rigt2, pts2
+
+
+def residuals(problem: BundleProblem) -> tuple[np.ndarray, np.ndarray]:
+    """Observed − computed image coordinates (N,2) px at the problem's current values, and validity (N,)."""
+    lay = _layout(problem)
+    res, ok, _ = _evaluate(problem, problem.cameras, problem.R, problem.t, problem.rig_R, problem.rig_t,
+                           problem.points, lay, want_jac=False)
+    return res, ok
+
+
+def solve_bundle(problem: BundleProblem, *, max_iterations: int = 50, tolerance: float = 1e-10) -> BundleSolution:
+    """Levenberg–Marquardt on the dense normal equations; returns the estimate with precision.
+
+    Failure to converge or a singular normal matrix is reported through ``solution.outcome``
+    (:class:`~thermogrammetry.results.Termination`), never raised.
+    """
+    if _threadpool_limits is not None:
+        with _threadpool_limits(limits=1, user_api="blas"):
+            return _solve_bundle(problem, max_iterations, tolerance)
+    return _solve_bundle(problem, max_iterations, tolerance)
+
+
+def _solve_bundle(problem: BundleProblem, max_iterations: int, tolerance: float) -> BundleSolution:
+    cams = [CameraBlock(np.asarray(c.params, float).copy(), np.asarray(c.free, bool).copy(), tuple(c.image_size), tuple(c.pitch_mm), c.name) for c in problem.cameras]
+    R = np.asarray(problem.R, float).copy()
+    t = np.asarray(problem.t, float).copy()
+    rigR = np.asarray(problem.rig_R, float).copy()
+    rigt = np.asarray(problem.rig_t, float).copy()
+    pts = np.asarray(problem.points, float).copy()
+    lay = _layout(problem)
+    n = lay["n"]
+    sig = problem.obs_sigma
+    prior_pts = problem.points.copy()
+    fp = np.nonzero(lay["point"] >= 0)[0]
+    pstd = np.asarray(problem.point_prior_std, float)[fp] if fp.size else np.zeros((0, 3))
+
+    def full_system(cams, R, t, rigR, rigt, pts, want_jac=True):
+        res, ok, J = _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac)
+        e = (res / sig).ravel()
+        if want_jac:
+            J = J / sig.ravel()[:, None]
+        if fp.size:
+            ep = ((prior_pts[fp] - pts[fp]) / pstd).ravel()
+            e = np.concatenate([e, ep])
+            if want_jac:
+                Jp = np.zeros((3 * fp.size, n))
+                cols = (lay["point"][fp][:, None] + np.arange(3)[None, :]).ravel()
+                Jp[np.arange(3 * fp.size), cols] = 1.0 / pstd.ravel()
+                J = np.vstack([J, Jp])
+        return e, ok, J, res
+
+    e, ok, J, res = full_system(cams, R, t, rigR, rigt, pts)
+    nobs = e.size
+    dof = nobs - n
+    if dof <= 0:
+        return _fail(problem, cams, R, t, rigR, rigt, pts, res, Termination.TOO_FEW_OBSERVATIONS,
+                     f"{nobs} observations for {n} unknowns: redundancy {dof} <= 0", lay)
+    if not np.all(ok):
+        return _fail(problem, cams, R, t, rigR, rigt, pts, res, Termination.DEGENERATE,
+                     f"{np.count_nonzero(~ok)} observations project behind a camera or outside the model's range at the start", lay)
+    cost = float(e @ e)
+    lam = 1e-4
+    it = 0
+    term = Termination.MAX_ITERATIONS
+    reason = f"no convergence in {max_iterations} iterations"
+    for it in range(1, max_iterations + 1):
+        Nm = J.T @ J
+        g = J.T @ e
+        d = np.sqrt(np.maximum(np.diag(Nm), 1e-300))
+        Ns = Nm / d[:, None] / d[None, :]
+        gs = g / d
+        improved = False
+        for _ in range(12):
+            A = Ns + lam * np.eye(n)
+            try:
+                step_s = np.linalg.solve(A, gs)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            # e = (obs - computed)/σ and J = d computed/dx / σ, so e(x+dx) ≈ e - J dx: N dx = Jᵀe
+            dx = step_s / d
+            cand = _apply(problem, cams, R, t, rigR, rigt, pts, lay, dx)
+            e2, ok2, _, _ = full_system(*cand, want_jac=False)
+            cost2 = float(e2 @ e2) if np.all(ok2) and np.all(np.isfinite(e2)) else np.inf
+            if cost2 <= cost:
+                improved = True
+                break
+            lam *= 10
+        if not improved:
+            term = Termination.CONVERGED if lam > 1e8 else Termination.NUMERICAL_FAILURE
+            reason = "no further decrease of the cost" if term is Termination.CONVERGED else "step rejected repeatedly"
+            break
+        cams, R, t, rigR, rigt, pts = cand
+        rel = (cost - cost2) / max(cost, 1e-300)
+        cost = cost2
+        lam = max(lam / 10, 1e-12)
+        e, ok, J, res = full_system(cams, R, t, rigR, rigt, pts)
+        if rel < tolerance or np.max(np.abs(step_s)) < 1e-10:
+            term = Termination.CONVERGED
+            reason = f"relative cost decrease {rel:.1e} < {tolerance:.0e}"
+            break
+    # precision at the solution
+    Nm = J.T @ J
+    d = np.sqrt(np.maximum(np.diag(Nm), 1e-300))
+    Ns = Nm / d[:, None] / d[None, :]
+    try:
+        ev = np.linalg.eigvalsh(Ns)
+        cond = ev[-1] / max(ev[0], 1e-300)
+        if ev[0] <= 1e-14 * ev[-1]:
+            return _fail(problem, cams, R, t, rigR, rigt, pts, res, Termination.RANK_DEFICIENT,
+                         f"normal matrix is singular (condition {cond:.1e}): the free parameters are not determined by this geometry", lay)
+        Q = np.linalg.inv(Ns) / d[:, None] / d[None, :]
+    except np.linalg.LinAlgError:
+        return _fail(problem, cams, R, t, rigR, rigt, pts, res, Termination.NUMERICAL_FAILURE, "normal matrix inversion failed", lay)
+    s02 = cost / dof
+    s0 = float(np.sqrt(s02))
+    h = ((J @ Q) * J).sum(axis=1)  # leverage of every (weighted) observation
+    Nobs = problem.obs_xy.shape[0]
+    rnum = np.clip(1.0 - h[: 2 * Nobs], 0.0, 1.0).reshape(Nobs, 2)
+    cov = s02 * Q
+    sol = BundleSolution(Outcome(term, reason), cams, R, t, rigR, rigt, pts, res, rnum, s0, dof, it, Q, lay)
+    _fill_std(sol, cov)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sol._w = np.where(rnum > 1e-6, res / (sig * np.sqrt(rnum)), np.nan)
+    return sol
+
+
+def _fill_std(sol: BundleSolution, cov: np.ndarray) -> None:
+    lay = sol.layout
+    sol.camera_std = []
+    sol.camera_cov = []
+    for ci, cb in enumerate(sol.cameras):
+        std = np.full(_model.N_PARAMS, np.nan)
+        C = np.zeros((_model.N_PARAMS, _model.N_PARAMS))
+        cols = lay["cameras"][ci]
+        fi = np.nonzero(cb.free)[0]
+        if cols.size:
+            std[fi] = np.sqrt(np.diag(cov)[cols])
+            C[np.ix_(fi, fi)] = cov[np.ix_(cols, cols)]
+        sol.camera_std.append(std)
+        sol.camera_cov.append(C)
+    F = sol.R.shape[0]
+    ps = np.full((F, 6), np.nan)
+    for f in range(F):
+        i = lay["pose"][f]
+        if i >= 0:
+            ps[f] = np.sqrt(np.diag(cov)[i : i + 6])
+    sol.pose_std = ps
+    G = sol.rig_R.shape[0]
+    sol.rig_std = np.full((G, 6), np.nan)
+    sol.rig_cov = []
+    for g in range(G):
+        i = lay["rig"][g]
+        sol.rig_std[g] = np.sqrt(np.diag(cov)[i : i + 6])
+        sol.rig_cov.append(cov[i : i + 6, i : i + 6])
+
+
+def _fail(problem, cams, R, t, rigR, rigt, pts, res, term, reason, lay):
+    N = problem.obs_xy.shape[0]
+    sol = BundleSolution(Outcome(term, reason), cams, R, t, rigR, rigt, pts, res, np.full((N, 2), np.nan), float("nan"), 0, 0,
+                         np.zeros((0, 0)), lay)
+    sol.camera_std = [np.full(_model.N_PARAMS, np.nan) for _ in cams]
+    sol.camera_cov = [np.zeros((_model.N_PARAMS, _model.N_PARAMS)) for _ in cams]
+    sol.pose_std = np.full((R.shape[0], 6), np.nan)
+    sol.rig_std = np.full((rigR.shape[0], 6), np.nan)
+    sol._w = np.full((N, 2), np.nan)
+    return sol

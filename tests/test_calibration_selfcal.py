@@ -1,0 +1,220 @@
+"""Self-calibration on the synthetic seed-001 test field (FLIR A320, Table 2 distortion, 0.4 px noise).
+
+Tolerances are derived from the injected noise (σ = 0.4 px per image coordinate, iid Gaussian):
+- a single calibration: every estimated parameter within 3 of its *reported* σ of the truth
+  (P(|z| > 3) = 0.27 % per parameter);
+- σx, σy (Table 4) estimated from ~1100 residual pairs: relative sampling error ≈ 1/sqrt(2 r) ≈ 2 %,
+  so the ±10 % band asked by the issue is ~5 sampling σ wide;
+- Monte-Carlo: the empirical standard deviation of n = 200 runs has relative sampling error
+  ≈ 1/sqrt(2(n-1)) = 5 %, so the ±25 % band of the issue is ~5 sampling σ wide.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from thermogrammetry.calibration import _model
+from thermogrammetry.calibration.bundle import rotation_exp
+from thermogrammetry.calibration.selfcal import (
+    CameraSetup,
+    ImageMeasurements,
+    SelfCalibrationOptions,
+    calibrate,
+)
+from thermogrammetry.errors import ConfigError, InvalidInputError
+from thermogrammetry.synthetic.testfield import make_testfield, resample_noise
+
+NOISE_PX = 0.4
+STAGE2 = ["c_mm", "x0_mm", "y0_mm", "K1", "K2", "K3", "P1", "P2"]
+
+
+def _inputs(tf, xy=None, nominal_c=18.0):
+    T = tf.truth
+    xy = tf.xy_px if xy is None else xy
+    cams = [CameraSetup("FLIR A320", T.image_size, T.pixel_pitch_um, {"c_mm": nominal_c})]
+    ims = [ImageMeasurements(n, 0, tf.obs_point[tf.obs_image == f], xy[tf.obs_image == f]) for f, n in enumerate(T.image_names)]
+    return cams, ims
+
+
+@pytest.fixture(scope="module")
+def field():
+    return make_testfield(np.random.default_rng(2024), noise_px=NOISE_PX)
+
+
+@pytest.fixture(scope="module")
+def staged(field):
+    cams, ims = _inputs(field)
+    return calibrate(cams, field.truth.points, ims)
+
+
+def test_testfield_layout(field):
+    T = field.truth
+    assert T.points.shape == (77, 3)
+    depths = np.unique(T.points[:, 1])
+    assert depths.size == 3 and np.allclose(np.diff(depths), 0.7)
+    assert sorted(set(np.round(T.roll_deg))) == [0, 90, 180, 270]
+    assert T.image_size == (320, 240) and T.pixel_pitch_um == 25.0
+    # every image sees most of the field
+    counts = np.bincount(field.obs_image)
+    assert counts.min() >= 50
+    # the injected noise is what we asked for (1000+ samples: ±10 %)
+    d = field.xy_px - field.xy_true_px
+    assert 0.9 * NOISE_PX < d.std() < 1.1 * NOISE_PX
+
+
+def test_staged_selfcalibration_recovers_table2(staged, field):
+    r = staged
+    assert r.outcome.success, r.outcome.reason
+    cam = r.cameras[0]
+    truth = dict(zip(_model.PARAM_NAMES, field.truth.params))
+    for name in STAGE2:
+        i = _model.PARAM_NAMES.index(name)
+        z = (cam.params[i] - truth[name]) / cam.std[i]
+        assert abs(z) < 3.0, f"{name}: {cam.params[i]:.6g} vs truth {truth[name]:.6g}, z = {z:.2f}"
+    # not estimated: stay exactly at nominal zero and carry no std
+    for name in ("K4", "K5", "B1", "B2"):
+        i = _model.PARAM_NAMES.index(name)
+        assert cam.params[i] == 0.0 and np.isnan(cam.std[i])
+    # Table 4: σx, σy equal the injected noise within 10 % (px and µm)
+    sx, sy = cam.sigma_xy_px
+    assert 0.9 * NOISE_PX < sx < 1.1 * NOISE_PX
+    assert 0.9 * NOISE_PX < sy < 1.1 * NOISE_PX
+    assert cam.sigma_xy_um[0] == pytest.approx(sx * 25.0, rel=1e-12)
+    # with unit a-priori weights σ0 is the image noise in px
+    assert 0.9 * NOISE_PX < r.sigma0 < 1.1 * NOISE_PX
+    # all 16 images used, none silently dropped
+    assert len(r.images_used) == 16 and r.images_rejected == {}
+    # stage 1 ran with the nominal 18 mm and was visibly worse than stage 2
+    assert r.stage1["c_mm"] == [18.0]
+    assert r.stage1["rms_px"] > 1.1 * r.rms_px
+    # clean Gaussian data: data snooping at 3.29 flags ~0.1 % of coordinates, not more than ~1 %
+    assert len(r.blunders) < 0.01 * field.xy_px.shape[0]
+
+
+def test_significance_and_correlation_reports(staged):
+    cam = staged.cameras[0]
+    tests = {t.name: t for t in cam.tests}
+    assert set(tests) == {"x0_mm", "y0_mm", "K1", "K2", "K3", "P1", "P2"}
+    # K1 of Table 2 is ~9 of its σ away from zero: must be found significant
+    assert tests["K1"].significant and tests["K1"].t > tests["K1"].critical
+    for t in tests.values():
+        assert t.t == pytest.approx(abs(t.value) / t.std)
+    # the radial terms of a polynomial are highly correlated: K2-K3 must be flagged
+    pairs = {(a, b) for a, b, _ in cam.correlation_warnings}
+    assert ("K2", "K3") in pairs
+    for _, _, rho in cam.correlation_warnings:
+        assert 0.9 < abs(rho) <= 1.0
+
+
+def test_blunders_are_found(field):
+    xy = field.xy_px.copy()
+    rng = np.random.default_rng(7)
+    bad = rng.choice(xy.shape[0], 8, replace=False)
+    xy[bad] += rng.choice([-1, 1], size=(8, 2)) * rng.uniform(4.0, 8.0, size=(8, 2))  # 10-20 σ
+    cams, ims = _inputs(field, xy)
+    r = calibrate(cams, field.truth.points, ims)
+    assert r.outcome.success
+    found = {(b["image"], b["point"]) for b in r.blunders}
+    planted = {(field.truth.image_names[field.obs_image[i]], int(field.obs_point[i])) for i in bad}
+    assert planted <= found
+    assert len(found) <= len(planted) + 0.01 * xy.shape[0]
+    assert 0.9 * NOISE_PX < r.cameras[0].sigma_xy_px[0] < 1.1 * NOISE_PX
+
+
+def test_reported_sigma_matches_monte_carlo(field):
+    """200 noise realisations of the same geometry, adjusted from the truth (no snooping, so
+    every run uses the same observations): the scatter of the estimates equals the reported σ."""
+    n = 200
+    T = field.truth
+    rng = np.random.default_rng(99)
+    xy_all = resample_noise(field, rng, n)
+    opt = SelfCalibrationOptions(snooping=False)
+    est, rep, s0 = [], [], []
+    idx = [_model.PARAM_NAMES.index(p) for p in STAGE2]
+    poses = list(zip(T.R, T.t))
+    for k in range(n):
+        cams, ims = _inputs(field, xy_all[k])
+        r = calibrate(cams, T.points, ims, options=opt, initial={0: T.params.copy()}, initial_poses=poses)
+        assert r.outcome.success
+        est.append(r.cameras[0].params[idx])
+        rep.append(r.cameras[0].std[idx])
+        s0.append(r.sigma0)
+    est = np.array(est)
+    rep = np.array(rep)
+    scatter = est.std(axis=0, ddof=1)
+    reported = np.sqrt(np.mean(rep**2, axis=0))
+    ratio = reported / scatter
+    assert np.all((ratio > 0.75) & (ratio < 1.25)), dict(zip(STAGE2, np.round(ratio, 3)))
+    # unbiased: the mean is within 4 standard errors of the truth (standard error = scatter/sqrt(n))
+    bias_z = (est.mean(axis=0) - T.params[idx]) / (scatter / np.sqrt(n))
+    assert np.all(np.abs(bias_z) < 4.0), dict(zip(STAGE2, np.round(bias_z, 2)))
+    assert 0.95 * NOISE_PX < np.mean(s0) < 1.05 * NOISE_PX
+
+
+def test_k45_and_affinity_on_request(field):
+    cams, ims = _inputs(field)
+    r = calibrate(cams, field.truth.points, ims, options=SelfCalibrationOptions(k45=True, affinity=True))
+    assert r.outcome.success
+    cam = r.cameras[0]
+    for name in ("K4", "K5", "B1", "B2"):
+        i = _model.PARAM_NAMES.index(name)
+        assert cam.free[i] and np.isfinite(cam.std[i]) and cam.std[i] > 0
+        # truth is 0: the estimate must be compatible with it
+        assert abs(cam.params[i]) < 3.5 * cam.std[i]
+    assert {t.name for t in cam.tests} >= {"K4", "K5", "B1", "B2"}
+
+
+def test_options_are_validated():
+    with pytest.raises(ConfigError, match="unknown self-calibration option"):
+        SelfCalibrationOptions.from_dict({"k45": True, "kk": 1})
+    with pytest.raises(ConfigError, match="Q9"):
+        SelfCalibrationOptions(fixed=("Q9",))
+    with pytest.raises(InvalidInputError, match="pixel_pitch_um"):
+        CameraSetup("x", (320, 240), -1.0)
+
+
+def test_image_with_too_few_points_gets_a_verdict(field):
+    cams, ims = _inputs(field)
+    ims[3] = ImageMeasurements(ims[3].name, 0, ims[3].point_index[:4], ims[3].xy_px[:4])
+    r = calibrate(cams, field.truth.points, ims)
+    assert r.outcome.success
+    assert "only 4 measured points" in r.images_rejected[ims[3].name]
+    assert len(r.images_used) == 15
+
+
+def test_rig_relative_orientation(field):
+    """A second (RGB-like) camera rigidly mounted beside the thermal one, same frames."""
+    T = field.truth
+    rng = np.random.default_rng(5)
+    R_rel = rotation_exp(np.array([[0.01, -0.03, 0.02]]))[0]
+    t_rel = np.array([-0.08, 0.01, 0.005])  # 8 cm baseline
+    p2 = np.zeros(12)
+    p2[0], p2[1], p2[2] = 8.0, 0.05, -0.03
+    p2[3] = -1e-3
+    size2, pitch2 = (1280, 960), 6.0
+    ims = []
+    for f, n in enumerate(T.image_names):
+        m = field.obs_image == f
+        ims.append(ImageMeasurements(n, 0, field.obs_point[m], field.xy_px[m], frame=n))
+        R2 = R_rel @ T.R[f]
+        t2 = R_rel @ T.t[f] + t_rel
+        Xc = T.points @ R2.T + t2
+        xy, _, _, ok = _model.project(Xc, p2, size2, (pitch2 * 1e-3,) * 2, jacobians=False)
+        vis = ok & (xy[:, 0] > 0) & (xy[:, 0] < size2[0] - 1) & (xy[:, 1] > 0) & (xy[:, 1] < size2[1] - 1)
+        idx = np.nonzero(vis)[0]
+        ims.append(ImageMeasurements(n + "_rgb", 1, idx, xy[idx] + rng.normal(0, 0.3, (idx.size, 2)), frame=n))
+    cams = [CameraSetup("thermal", T.image_size, T.pixel_pitch_um, {"c_mm": 18.0}),
+            CameraSetup("rgb", size2, pitch2, {"c_mm": 7.5})]
+    r = calibrate(cams, T.points, ims, rig=True)
+    assert r.outcome.success, r.outcome.reason
+    assert len(r.relative) == 1
+    ro = r.relative[0]
+    dt = ro.t - t_rel
+    ang = np.linalg.norm(rotation_exp(np.zeros((1, 3)))[0] - ro.R @ R_rel.T)
+    # within 4 reported σ per translation component; rotation close at the σ level
+    assert np.all(np.abs(dt) < 4 * ro.std[3:]), (dt, ro.std[3:])
+    assert ang < 4 * np.linalg.norm(ro.std[:3])
+    assert ro.baseline_m == pytest.approx(np.linalg.norm(t_rel), abs=4 * np.linalg.norm(ro.std[3:]))
+    c2 = r.cameras[1]
+    assert abs(c2.params[0] - 8.0) < 4 * c2.std[0]
