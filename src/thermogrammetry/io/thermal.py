@@ -341,9 +341,17 @@ def sniff_reader(path: str | Path, head: bytes | None = None) -> ReaderSpec:
                 return spec
         except Exception:  # a sniffer must never make reading fail; treat as "not mine"
             continue
-    kinds = ", ".join(r.description or r.name for r in registered_readers())
-    what = "empty file" if not head else f"first bytes {head[:8]!r}"
-    raise UnsupportedFormatError(f"{p}: not a radiometric thermal format we know ({what}); readable formats: {kinds}")
+    kinds = ", ".join(r.name for r in registered_readers())
+    if not head:
+        what = "empty file"
+    elif head.startswith(b"\xff\xd8"):
+        what = ("a JPEG without radiometric data: no FLIR/Workswell FFF block in APP1, no DJI thermal block in "
+                "APP3/APP4 -- an ordinary visible or palette-rendered image")
+    elif head[:4] in (b"II*\x00", b"MM\x00*"):
+        what = "a TIFF no reader accepts"
+    else:
+        what = f"unknown content, first bytes {head[:8]!r}"
+    raise UnsupportedFormatError(f"{p}: not a radiometric thermal file: {what} (readers: {kinds})")
 
 
 def _options(frames, unit, scale, offset, dji_sdk, overrides) -> ReadOptions:

@@ -1,0 +1,131 @@
+"""Batch conversion of radiometric thermal files to temperature TIFFs (the library side of
+``thermogrammetry convert``).
+
+One output TIFF per image or sequence frame (``<stem>.tif``, ``<stem>_f00003.tif`` for frames), float32 in
+K or °C or 16-bit with GDAL scale/offset, with EXIF/GPS/XMP kept (:func:`~.tiff.write_temperature_tiff`).
+A file that cannot be converted (unknown format, truncated, raw counts only) is recorded as a failure with
+its reason and the batch goes on; each output is written atomically, so a failure never leaves a partial
+file behind.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..errors import ConfigError, ThermogrammetryError
+from ..radiometry.encoding import Encoding, TemperatureUnit
+from .thermal import iter_thermal
+from .tiff import write_temperature_tiff
+
+__all__ = ["ConvertOptions", "FileResult", "ConvertReport", "convert_files"]
+
+
+@dataclass(frozen=True)
+class ConvertOptions:
+    """Typed options of :func:`convert_files`.
+
+    ``overrides``: measurement parameters replacing the files' (``emissivity``, ``distance_m``,
+    ``relative_humidity`` fraction, ``reflected_temperature_k``, ``atmospheric_temperature_k``).
+    ``dji_sdk``: path of DJI's Thermal SDK library for DJI R-JPEGs.
+    """
+
+    unit: TemperatureUnit = TemperatureUnit.K
+    encoding: Encoding = Encoding.FLOAT32
+    overrides: dict = field(default_factory=dict)
+    dji_sdk: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "unit", TemperatureUnit(self.unit))
+        object.__setattr__(self, "encoding", Encoding(self.encoding))
+
+
+@dataclass
+class FileResult:
+    path: str
+    ok: bool
+    reader: str = ""
+    outputs: list[str] = field(default_factory=list)
+    shape: tuple[int, int] | None = None
+    t_min_k: float | None = None
+    t_max_k: float | None = None
+    message: str = ""
+    seconds: float = 0.0
+
+
+@dataclass
+class ConvertReport:
+    results: list[FileResult] = field(default_factory=list)
+
+    @property
+    def failures(self) -> list[FileResult]:
+        return [r for r in self.results if not r.ok]
+
+    @property
+    def n_outputs(self) -> int:
+        return sum(len(r.outputs) for r in self.results)
+
+
+def convert_files(
+    inputs: Sequence[str | Path],
+    out_dir: str | Path,
+    options: ConvertOptions | None = None,
+    *,
+    on_file_done: Callable[[FileResult], None] | None = None,
+) -> ConvertReport:
+    """Convert every input file; never stops at a bad file (see module docstring).
+
+    Returns
+    -------
+    ConvertReport with one :class:`FileResult` per input, in input order.
+    """
+    opts = options or ConvertOptions()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    used: set[str] = set()
+    report = ConvertReport()
+    for src in inputs:
+        p = Path(src)
+        t0 = time.perf_counter()
+        res = FileResult(str(p), ok=False)
+        written: list[Path] = []
+        try:
+            stem = p.stem
+            k = 2
+            while stem in used:
+                stem = f"{p.stem}_{k}"
+                k += 1
+            used.add(stem)
+            frames = list(iter_thermal(p, dji_sdk=opts.dji_sdk, **opts.overrides))
+            multi = len(frames) > 1
+            lo, hi = np.inf, -np.inf
+            for i, img in enumerate(frames):
+                t = img.require_temperature()
+                name = f"{stem}_f{img.metadata.frame_index if img.metadata.frame_index is not None else i:05d}.tif" if multi else f"{stem}.tif"
+                target = out / name
+                write_temperature_tiff(target, t, unit=opts.unit, encoding=opts.encoding, metadata=img.metadata)
+                written.append(target)
+                if np.any(np.isfinite(t)):
+                    lo, hi = min(lo, float(np.nanmin(t))), max(hi, float(np.nanmax(t)))
+                res.reader, res.shape = img.metadata.reader or "", img.shape
+            res.ok = True
+            res.outputs = [str(w) for w in written]
+            res.t_min_k, res.t_max_k = (lo, hi) if np.isfinite(lo) else (None, None)
+            res.message = f"{len(written)} frame(s)"
+        except (ThermogrammetryError, OSError, ValueError, ConfigError) as exc:
+            # keep the batch going; remove this file's partial outputs (frames already written)
+            for w in written:
+                try:
+                    w.unlink()
+                except OSError:
+                    pass
+            res.message = str(exc) or type(exc).__name__
+        res.seconds = time.perf_counter() - t0
+        report.results.append(res)
+        if on_file_done is not None:
+            on_file_done(res)
+    return report
