@@ -45,6 +45,7 @@ __all__ = [
     "cosine_emissivity",
     "pixel_rays_from_projection",
     "convex_mask",
+    "convex_inset",
     "PlaneRaster",
     "plane_rasters",
 ]
@@ -137,21 +138,28 @@ def pixel_rays_from_projection(P, image_size) -> tuple[np.ndarray, np.ndarray]:
     return C, d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def convex_mask(polygon_xy, image_size) -> np.ndarray:
-    """(h, w) bool: pixel centres inside (or on) the convex hull of (N ≥ 3, 2) px vertices."""
+def convex_inset(polygon_xy, image_size) -> np.ndarray:
+    """(h, w) signed distance (px) of every pixel centre inside the convex hull of (N ≥ 3, 2) px
+    vertices: positive inside (distance to the nearest edge), negative outside; −inf for a
+    degenerate hull."""
     from scipy.spatial import ConvexHull, QhullError
 
     P = np.asarray(polygon_xy, float)
     w, h = (int(image_size[0]), int(image_size[1]))
     try:
         hull = ConvexHull(P)
-    except QhullError:
-        return np.zeros((h, w), bool)
+    except (QhullError, ValueError):
+        return np.full((h, w), -np.inf)
     u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
-    inside = np.ones((h, w), bool)
-    for a, b, c in hull.equations:
-        inside &= a * u + b * v + c <= 1e-9
-    return inside
+    dist = np.full((h, w), np.inf)
+    for a, b, c in hull.equations:  # unit outward normals: a u + b v + c <= 0 inside
+        dist = np.minimum(dist, -(a * u + b * v + c))
+    return dist
+
+
+def convex_mask(polygon_xy, image_size) -> np.ndarray:
+    """(h, w) bool: pixel centres inside (or on) the convex hull of (N ≥ 3, 2) px vertices."""
+    return convex_inset(polygon_xy, image_size) >= -1e-9
 
 
 @dataclass
@@ -164,15 +172,19 @@ class PlaneRaster:
     angle_rad : (h, w) angle between the line of sight and the normal (NaN off the planes)
     axis_angle_rad : (h, w) angle between the camera axis and the normal (seed 000 eq. 6)
     distance_m : (h, w) camera centre → surface along the line of sight (NaN off the planes)
+    inset_px : (h, w) distance of the pixel centre from its polygon's edge (px; NaN off the planes)
+    cover : (h, w) int, how many polygons (grown by ``margin_px``) contain the pixel centre
     """
 
     plane: np.ndarray
     angle_rad: np.ndarray
     axis_angle_rad: np.ndarray
     distance_m: np.ndarray
+    inset_px: np.ndarray
+    cover: np.ndarray
 
 
-def plane_rasters(C, rays, axis, planes, polygons_xy) -> PlaneRaster:
+def plane_rasters(C, rays, axis, planes, polygons_xy, *, margin_px: float = 0.0) -> PlaneRaster:
     """Intersect every pixel's line of sight with the planes inside their projected polygons.
 
     Parameters
@@ -188,11 +200,15 @@ def plane_rasters(C, rays, axis, planes, polygons_xy) -> PlaneRaster:
     idx = np.full((h, w), -1)
     angle = np.full((h, w), np.nan)
     axang = np.full((h, w), np.nan)
+    inset = np.full((h, w), np.nan)
+    cover = np.zeros((h, w), int)
     if len(planes) != len(polygons_xy):
         raise InvalidInputError(f"{len(planes)} planes but {len(polygons_xy)} polygons; expected one per plane")
     for j, ((n, d), poly) in enumerate(zip(planes, polygons_xy)):
         n = np.asarray(n, float)
-        inside = convex_mask(poly, (w, h))
+        ins = convex_inset(poly, (w, h))
+        inside = ins >= -1e-9
+        cover += ins > -margin_px
         den = rays @ n
         with np.errstate(divide="ignore", invalid="ignore"):
             s = -(n @ C + d) / den
@@ -201,7 +217,8 @@ def plane_rasters(C, rays, axis, planes, polygons_xy) -> PlaneRaster:
         idx[take] = j
         angle[take] = np.arccos(np.clip(np.abs(den[take]) / np.linalg.norm(n), 0.0, 1.0))
         axang[take] = np.arccos(np.clip(abs(n @ axis) / np.linalg.norm(n), 0.0, 1.0))
-    return PlaneRaster(idx, angle, axang, np.where(idx >= 0, best, np.nan))
+        inset[take] = ins[take]
+    return PlaneRaster(idx, angle, axang, np.where(idx >= 0, best, np.nan), inset, cover)
 
 
 EmissivityModel = Callable[[np.ndarray], np.ndarray]

@@ -48,6 +48,8 @@ __all__ = [
     "dlt_matrix",
     "decompose_projection",
     "camera_axis_center",
+    "L_from_pose",
+    "resect_known_interior",
 ]
 
 
@@ -354,3 +356,89 @@ def decompose_projection(P) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         K = -K
     K = K / K[2, 2]
     return K, R, C
+
+
+def _rot(w) -> np.ndarray:
+    """Rodrigues: axis-angle (3,) → rotation matrix."""
+    th = float(np.linalg.norm(w))
+    if th < 1e-15:
+        return np.eye(3)
+    k = w / th
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
+
+
+def L_from_pose(K, R, C, frame: Frame) -> np.ndarray:
+    """DLT coefficients (normalised frame) of the pinhole camera ``K R [I | −C]`` (world)."""
+    P = np.asarray(K, float) @ np.hstack([R, -(R @ np.asarray(C, float))[:, None]])
+    Pn = P @ np.linalg.inv(frame.world_matrix())
+    return (Pn / Pn[2, 3]).ravel()[:11]
+
+
+def resect_known_interior(K, Xn, xy_ideal, frame: Frame, *, R0=None, C0=None, max_iterations: int = 50):
+    """Space resection with known interior orientation (ideal pinhole ``K``; distortion removed).
+
+    Unknowns: a rotation increment (axis-angle on ``R0``) and the projection centre ``C`` (world, m).
+    The start comes from ``R0, C0`` or from OpenCV's ``solvePnP`` (works for coplanar points, where
+    the 11-parameter DLT is singular).
+
+    Returns
+    -------
+    RefinedCamera whose ``L`` is the equivalent DLT of the resected camera, with ``dL_dobs`` and
+    ``dL_dX`` for error propagation through the 6 pose parameters; plus ``(R, C)`` as a tuple.
+    """
+    import cv2
+
+    Xn = np.asarray(Xn, float)
+    xy = np.asarray(xy_ideal, float)
+    K = np.asarray(K, float)
+    N = len(Xn)
+    if N < 4:
+        raise TooFewPointsError(f"{N} points: a resection with known interior orientation needs at least 4")
+    Xw = frame.to_world(Xn)
+    if R0 is None or C0 is None:
+        ok, rvec, tvec = cv2.solvePnP(Xw, xy, K, None, flags=cv2.SOLVEPNP_SQPNP if N >= 3 else 0)
+        if not ok:
+            raise DegenerateInputError("space resection: OpenCV solvePnP found no start pose")
+        R0 = cv2.Rodrigues(rvec)[0]
+        C0 = (-R0.T @ tvec).ravel()
+    R0 = np.asarray(R0, float)
+    C0 = np.asarray(C0, float)
+
+    def L_of(p):
+        return L_from_pose(K, _rot(p[:3]) @ R0, C0 + p[3:], frame)
+
+    def jac_p(p):
+        G = np.zeros((11, 6))
+        for k in range(6):
+            e = np.zeros(6)
+            e[k] = 1e-7
+            G[:, k] = (L_of(p + e) - L_of(p - e)) / 2e-7
+        return G
+
+    p = np.zeros(6)
+    term, reason, it = Termination.MAX_ITERATIONS, f"no convergence in {max_iterations} iterations", 0
+    for it in range(1, max_iterations + 1):
+        L = L_of(p)
+        proj, JL, _ = dlt_jacobians(L, Xn)
+        J = JL.reshape(2 * N, 11) @ jac_p(p)
+        step = np.linalg.lstsq(J, -(proj - xy).ravel(), rcond=None)[0]
+        p = p + step
+        if np.linalg.norm(step) < 1e-13 * (1 + np.linalg.norm(p)):
+            term, reason = Termination.CONVERGED, f"step below 1e-13 after {it} iterations"
+            break
+    L = L_of(p)
+    Gp = jac_p(p)
+    proj, JL, JX = dlt_jacobians(L, Xn)
+    J = JL.reshape(2 * N, 11) @ Gp
+    Ninv = np.linalg.pinv(J.T @ J)
+    JXb = np.zeros((2 * N, 3 * N))
+    for i in range(N):
+        JXb[2 * i:2 * i + 2, 3 * i:3 * i + 3] = JX[i]
+    dL_dobs = Gp @ Ninv @ J.T
+    dL_dX = -Gp @ Ninv @ J.T @ JXb
+    res = proj - xy
+    red = 2 * N - 6
+    s0 = float(np.sqrt((res**2).sum() / red)) if red > 0 else float("nan")
+    rc = RefinedCamera(L, J.T @ J, dL_dobs, dL_dX, res, s0, it, Outcome(term, reason))
+    return rc, (_rot(p[:3]) @ R0, C0 + p[3:])

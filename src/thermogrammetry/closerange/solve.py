@@ -99,6 +99,7 @@ class NetworkResult:
     points_world: np.ndarray  # (n_pass, 3)
     J_points: np.ndarray  # (3 n_pass, n_obs), world metres per px
     warnings: list[str] = field(default_factory=list)
+    known: tuple[str, ...] = ()  # images positioned with a known interior orientation
 
     # -- covariance helpers --------------------------------------------------------------------
     def cov(self, J: np.ndarray) -> np.ndarray:
@@ -144,12 +145,45 @@ def _center_and_jacobian(cam: OrientedCamera, frame: nw.Frame) -> tuple[np.ndarr
     return C, G @ cam.J
 
 
+def _undistort_with_jacobian(camera, xy) -> tuple[np.ndarray, np.ndarray]:
+    """Ideal (undistorted) px and the (2N, 2N) block-diagonal derivative d ideal / d measured."""
+    xy = np.asarray(xy, float)
+    ideal = np.asarray(camera.undistort(xy), float)
+    N = len(xy)
+    D = np.zeros((2 * N, 2 * N))
+    h = 1e-4
+    for c in range(2):
+        e = np.zeros(2)
+        e[c] = h
+        d = (np.asarray(camera.undistort(xy + e), float) - np.asarray(camera.undistort(xy - e), float)) / (2 * h)
+        for i in range(N):
+            D[2 * i:2 * i + 2, 2 * i + c] = d[i]
+    return ideal, D
+
+
+def _orient(image, camera, Xn, xy, frame, what, ids):
+    """DLT + refinement, or resection when the interior orientation is known. Returns (rc, D)."""
+    if camera is None:
+        nw.check_dlt_geometry(Xn, what=what, ids=ids, image=image)
+        L0 = nw.dlt_linear(Xn, xy)
+        return nw.refine_dlt(L0, Xn, xy), np.eye(2 * len(xy))
+    ideal, D = _undistort_with_jacobian(camera, xy)
+    if len(Xn) < 4:
+        raise TooFewPointsError(
+            f"{len(Xn)} {what} on image {image!r} ({', '.join(ids)}): a resection with known interior "
+            "orientation needs at least 4"
+        )
+    rc, _ = nw.resect_known_interior(np.asarray(camera.K, float), Xn, ideal, frame)
+    return rc, D
+
+
 def solve_network(
     control: Mapping[str, Sequence[float]],
     obs: Observations,
     thermal: str,
     *,
     optical: Sequence[str] | None = None,
+    known: Mapping[str, object] | None = None,
 ) -> NetworkResult:
     """Run seed 000's orientation chain.
 
@@ -163,6 +197,10 @@ def solve_network(
         Name of the thermal image in ``obs``.
     optical : names, optional
         Optical images to use (default: every image except ``thermal``).
+    known : mapping image name → camera, optional
+        Known interior orientation (``thermogrammetry.Camera`` or anything with ``.K`` and
+        ``.undistort``): that image is positioned by space resection (6 pose parameters) from its
+        undistorted measurements instead of the 11-parameter DLT — the remedy for coplanar control.
 
     Raises
     ------
@@ -182,16 +220,20 @@ def solve_network(
     frame = nw.Frame.from_points(np.array(list(control.values())))
     cams: dict[str, OrientedCamera] = {}
     warnings: list[str] = []
+    known = dict(known or {})
+    unknown_names = sorted(set(known) - set(obs.images))
+    if unknown_names:
+        raise InvalidInputError(
+            f"camera file(s) given for image(s) {unknown_names} that have no measurements; images measured: "
+            f"{sorted(set(obs.images))}"
+        )
     for im in optical:
         rows = [k for k in obs.on(im) if obs.ids[k] in control]
         ids = [obs.ids[k] for k in rows]
         Xn = frame.to_norm(np.array([control[i] for i in ids]).reshape(-1, 3))
-        nw.check_dlt_geometry(Xn, what="control points", ids=ids, image=im)
-        xy = obs.xy[rows]
-        L0 = nw.dlt_linear(Xn, xy)
-        rc = nw.refine_dlt(L0, Xn, xy)
+        rc, D = _orient(im, known.get(im), Xn, obs.xy[rows], frame, "control points", ids)
         J = np.zeros((11, obs.n))
-        J[:, obs.cols(rows)] = rc.dL_dobs
+        J[:, obs.cols(rows)] = rc.dL_dobs @ D
         cams[im] = OrientedCamera(im, "optical", rc.L, J, tuple(ids), rc.residuals, rc.sigma0_px, rc.outcome)
         if not rc.outcome.success:
             warnings.append(f"DLT of {im!r}: {rc.outcome.termination}: {rc.outcome.reason}")
@@ -229,7 +271,7 @@ def solve_network(
     seen_ids = [obs.ids[k] for k in trows]
     use = [k for k in trows if obs.ids[k] in pass_ids or obs.ids[k] in control]
     use_ids = [obs.ids[k] for k in use]
-    if len(use) < 6:
+    if len(use) < (4 if thermal in known else 6):
         no_xyz = [i for i in seen_ids if i not in use_ids]
         raise TooFewPointsError(
             f"thermal image {thermal!r}: {len(use)} points with coordinates seen "
@@ -240,11 +282,9 @@ def solve_network(
     Xn_t = np.array([control[i] if i in control else frame.to_world(Xn_pass[pass_ids.index(i)])
                      for i in use_ids])
     Xn_t = frame.to_norm(Xn_t)
-    nw.check_dlt_geometry(Xn_t, what="pass points", ids=use_ids, image=thermal)
-    L0 = nw.dlt_linear(Xn_t, obs.xy[use])
-    rc = nw.refine_dlt(L0, Xn_t, obs.xy[use])
+    rc, D = _orient(thermal, known.get(thermal), Xn_t, obs.xy[use], frame, "pass points", use_ids)
     Jt = np.zeros((11, obs.n))
-    Jt[:, obs.cols(use)] += rc.dL_dobs
+    Jt[:, obs.cols(use)] += rc.dL_dobs @ D
     JX = np.vstack([np.zeros((3, obs.n)) if i in control else J_pass_n[3 * pass_ids.index(i):3 * pass_ids.index(i) + 3]
                     for i in use_ids])
     Jt += rc.dL_dX @ JX
@@ -262,6 +302,7 @@ def solve_network(
         points_world=frame.to_world(Xn_pass) if len(Xn_pass) else Xn_pass,
         J_points=J_pass_n * frame.scale,
         warnings=warnings,
+        known=tuple(known),
     )
 
 

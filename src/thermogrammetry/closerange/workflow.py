@@ -54,6 +54,9 @@ class CloseRangeConfig:
     relative_humidity : fraction in [0, 1], for the transmission
     air_c : air temperature (°C) for the transmission; default ``ambient_c``
     max_angle_deg : corrections beyond this line-of-sight angle are marked invalid
+    edge_margin_px : pixels closer than this to a plane polygon's edge are marked invalid (mixed
+        pixels; the polygon's vertices are uncertain by the image precision)
+    max_sigma_k : pixels whose propagated 1-σ exceeds this (K) are marked invalid; None: no limit
     """
 
     sigma_px: float = 0.5
@@ -65,6 +68,8 @@ class CloseRangeConfig:
     relative_humidity: float = 0.5
     air_c: float | None = None
     max_angle_deg: float = 80.0
+    edge_margin_px: float = 1.5
+    max_sigma_k: float | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "angle_mode", AngleMode(self.angle_mode))
@@ -242,7 +247,7 @@ def correct_thermal_image(
     _, rays = corr.pixel_rays_from_projection(P, (w, h))
     polys = [nw.dlt_project(net.cameras[net.thermal].L, net.frame.to_norm(np.array([net.point(i) for i in p.ids])))
              for p in planes]
-    pr = corr.plane_rasters(C, rays, axis, [(p.normal, p.d) for p in planes], polys)
+    pr = corr.plane_rasters(C, rays, axis, [(p.normal, p.d) for p in planes], polys, margin_px=cfg.edge_margin_px)
     on = pr.plane >= 0
     angle = pr.angle_rad if cfg.angle_mode == AngleMode.LOS else pr.axis_angle_rad
     # σ of the angle per pixel: gradient w.r.t. (normal, L_thermal), joint covariance of both
@@ -282,17 +287,25 @@ def correct_thermal_image(
     else:
         tau = np.where(on, 1.0, np.nan)
     Tc = corr.correct_temperature(T0, eps, cfg.ambient_k, transmission=np.where(on, tau, 1.0), atmosphere_k=cfg.air_k)
-    valid = on & np.isfinite(T0) & np.isfinite(Tc) & (angle < np.radians(cfg.max_angle_deg))
+    with np.errstate(invalid="ignore"):
+        valid = (on & np.isfinite(T0) & np.isfinite(Tc) & (angle < np.radians(cfg.max_angle_deg))
+                 & (pr.inset_px >= cfg.edge_margin_px) & (pr.cover == 1))
     # dε/dθ by central difference of the model (analytic −sin θ for the cosine law)
     hth = 1e-6
     a0 = np.where(valid, angle, 0.5)
     deps = (emis_f(a0 + hth) - emis_f(np.maximum(a0 - hth, 0))) / (a0 + hth - np.maximum(a0 - hth, 0))
     sigma_k = np.where(valid, np.abs(corr.dT_deps(np.where(valid, Tc, 300.0), np.where(valid, eps, 1.0),
                                                   cfg.ambient_k) * deps) * sig_angle, np.nan)
+    if cfg.max_sigma_k is not None:
+        with np.errstate(invalid="ignore"):
+            valid &= sigma_k <= cfg.max_sigma_k
+        sigma_k = np.where(valid, sigma_k, np.nan)
     notes = []
     n_out = int((on & ~valid).sum())
     if n_out:
-        notes.append(f"{n_out} pixels on planes left uncorrected (angle ≥ {cfg.max_angle_deg}° or no real solution)")
+        notes.append(f"{n_out} pixels on planes left uncorrected (within {cfg.edge_margin_px} px of an edge or of "
+                     "another plane's polygon, "
+                     f"angle ≥ {cfg.max_angle_deg}°, above max_sigma_k or no real solution)")
     return CorrectionResult(
         corrected_k=np.where(valid, Tc, T0), valid=valid, sigma_k=sigma_k, angle_rad=angle,
         sigma_angle_rad=sig_angle, distance_m=pr.distance_m, plane=pr.plane, emissivity=eps, transmission=tau,

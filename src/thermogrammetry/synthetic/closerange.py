@@ -42,6 +42,7 @@ __all__ = [
     "CloseRangeScene",
     "make_closerange_scene",
     "measure",
+    "measurements_csv",
     "render_thermal",
     "fit_plane_exact",
     "convex_polygon_mask",
@@ -72,7 +73,7 @@ TABLE1_PASS: dict[str, tuple[float, float, float]] = {
 }
 #: faces of the device picked by marked points (listed around the face)
 DEFAULT_PLANES: dict[str, tuple[str, ...]] = {
-    "front": ("1", "4", "13", "12"),
+    "front": ("1", "4", "3", "2"),
     "top": ("2", "3", "8", "6"),
     "right": ("4", "9", "17", "3"),
 }
@@ -171,16 +172,16 @@ def make_closerange_scene(
     *,
     n_optical: int = 2,
     distance_m: float = 2.0,
-    baseline_m: float = 1.0,
+    baseline_m: float = 1.2,
     control: Mapping[str, Sequence[float]] | None = None,
     passpoints: Mapping[str, Sequence[float]] | None = None,
     planes: Mapping[str, Sequence[str]] | None = None,
     face_temperatures_k: Mapping[str, float] | None = None,
     ambient_k: float = 295.15,
-    optical_size: tuple[int, int] = (768, 576),
-    optical_focal_px: float = 1500.0,
-    thermal_size: tuple[int, int] = (320, 240),
-    thermal_focal_px: float = 700.0,
+    optical_size: tuple[int, int] = (1600, 1200),
+    optical_focal_px: float = 3000.0,
+    thermal_size: tuple[int, int] = (640, 480),
+    thermal_focal_px: float = 1400.0,
     thermal_center: Sequence[float] | None = None,
 ) -> CloseRangeScene:
     """Build the replica of seed 000: Table 1 points, optical cameras ~2 m away, one thermal camera.
