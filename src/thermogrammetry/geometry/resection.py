@@ -1,0 +1,300 @@
+"""Space resection: exterior orientation of one image from control points, known (or partly
+unknown) interior orientation, with the covariance of the six parameters and of the projection centre.
+
+1. **Initial pose**: a linear DLT on the undistorted normalised rays (≥ 6 non-coplanar points;
+   Abdel-Aziz & Karara 1971) or OpenCV's SQPnP (coplanar or few points; Terzakis & Lourakis 2020),
+   or a pose given by the caller.
+2. **Least squares** on the collinearity equations in the image (the camera's full model, distortion
+   included): parameters are a world-frame rotation increment δ (``R ← R·exp([δ]×)``) and the
+   projection centre ``C``; optionally interior parameters of the camera (e.g. c, x0, y0).
+3. **Precision**: covariance of (δ, C) from the adjustment; converted to (ω, φ, κ, X0, Y0, Z0) with
+   the analytic Jacobian of :func:`~thermogrammetry.geometry.rotations.opk_to_increment_jacobian`.
+
+References
+----------
+Kraus, K. (2007). *Photogrammetry*, 2nd ed., §4.2 (spatial resection).
+Abdel-Aziz, Y. I., Karara, H. M. (1971). Direct linear transformation ... (seed 000 ref. [1]).
+Terzakis, G., Lourakis, M. (2020). A consistently fast and globally optimal solution to the
+perspective-n-point problem. ECCV 2020 (SQPnP).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from .._validate import as_points
+from ..adjustment.dense import DenseOptions, DenseResult, solve_dense
+from ..errors import InvalidInputError, ShapeError, TooFewPointsError
+from ..results import Outcome, Termination
+from . import rotations as rot
+from ._camera import as_camera
+from .dlt import _COPLANAR_TOL, decompose_projection, dlt_linear
+from .pose import Pose
+
+__all__ = ["ResectionResult", "resection"]
+
+_DEFAULT_INTERIOR = {
+    "photogrammetric": ("c_mm", "x0_mm", "y0_mm"),
+    "opencv": ("fx", "fy", "cx", "cy"),
+    "pinhole": ("fx", "fy", "cx", "cy"),
+}
+
+
+@dataclass(frozen=True, eq=False)
+class ResectionResult:
+    """Result of :func:`resection`.
+
+    Attributes
+    ----------
+    pose : Pose
+        cam_from_world.
+    camera : Camera-like
+        The camera (with refined interior parameters when they were free).
+    omega, phi, kappa : float
+        Radians; ``center`` (3,) metres.
+    covariance_opk : ndarray (6, 6)
+        A posteriori covariance of (ω, φ, κ, X0, Y0, Z0) (rad², m²).
+    covariance_opk_prior : ndarray (6, 6)
+        Same with the a-priori image precision ``sigma_px``.
+    covariance_increment : ndarray (6, 6)
+        A posteriori covariance of (δx, δy, δz, X0, Y0, Z0), δ a small world-frame rotation (no gimbal lock).
+    center_covariance, center_covariance_prior : ndarray (3, 3)
+    interior_names : tuple, interior : ndarray, interior_std, interior_std_prior : ndarray
+        Free interior parameters (empty when the interior orientation was fixed).
+    residuals_px : ndarray (N, 2)
+    rms_px, sigma0 : float
+    init_method : str
+        ``"dlt"``, ``"sqpnp"`` or ``"given"``.
+    adjustment : DenseResult
+    outcome : Outcome
+    """
+
+    pose: Pose
+    camera: object
+    omega: float
+    phi: float
+    kappa: float
+    center: np.ndarray
+    covariance_opk: np.ndarray
+    covariance_opk_prior: np.ndarray
+    covariance_increment: np.ndarray
+    center_covariance: np.ndarray
+    center_covariance_prior: np.ndarray
+    interior_names: tuple
+    interior: np.ndarray
+    interior_std: np.ndarray
+    interior_std_prior: np.ndarray
+    residuals_px: np.ndarray
+    rms_px: float
+    sigma0: float
+    init_method: str
+    adjustment: DenseResult
+    outcome: Outcome
+
+    @property
+    def termination(self) -> Termination:
+        return self.outcome.termination
+
+    @property
+    def reason(self) -> str:
+        return self.outcome.reason
+
+    @property
+    def success(self) -> bool:
+        return self.outcome.success
+
+    @property
+    def center_std(self) -> np.ndarray:
+        """A posteriori σ of X0, Y0, Z0 (m)."""
+        return np.sqrt(np.clip(np.diag(self.center_covariance), 0, None))
+
+    @property
+    def center_std_prior(self) -> np.ndarray:
+        """A priori σ of X0, Y0, Z0 (m) from ``sigma_px``."""
+        return np.sqrt(np.clip(np.diag(self.center_covariance_prior), 0, None))
+
+    @property
+    def opk_std(self) -> np.ndarray:
+        """A posteriori σ of (ω, φ, κ) in radians."""
+        return np.sqrt(np.clip(np.diag(self.covariance_opk)[:3], 0, None))
+
+
+def _initial_pose(cam, X, x, method):
+    rays = cam.unproject(x)
+    xn = rays[:, :2] / rays[:, 2:3]
+    c = X - X.mean(0)
+    s = np.linalg.svd(c, compute_uv=False)
+    coplanar = s[2] / s[0] < _COPLANAR_TOL if s[0] > 0 else True
+    if method == "auto":
+        method = "dlt" if (X.shape[0] >= 6 and not coplanar) else "sqpnp"
+    if method == "dlt":
+        P = dlt_linear(X, xn)
+        _, R, C = decompose_projection(P)
+        return Pose.from_center(R, C), "dlt"
+    import cv2
+
+    origin = X.mean(0)
+    ok, rvec, tvec = cv2.solvePnP((X - origin).astype(np.float64), xn.astype(np.float64), np.eye(3), None,
+                                  flags=cv2.SOLVEPNP_SQPNP)
+    if not ok:
+        return None, "sqpnp"
+    R = rot.matrix_from_axis_angle(rvec.ravel())
+    C = -R.T @ tvec.ravel() + origin
+    return Pose.from_center(R, C), "sqpnp"
+
+
+def resection(
+    camera,
+    points_world,
+    xy_px,
+    *,
+    sigma_px: float = 1.0,
+    method: str = "auto",
+    initial_pose: Pose | None = None,
+    free_interior: bool | Sequence[str] = False,
+    options: DenseOptions | None = None,
+) -> ResectionResult:
+    """Exterior orientation of one image from control points (space resection).
+
+    Parameters
+    ----------
+    camera : Camera or (3, 3) K
+        Interior orientation (kept fixed unless ``free_interior``).
+    points_world : array_like (N, 3)
+        Control points, metres. N ≥ 3 (≥ 4 for a unique solution; ≥ 6 non-coplanar for the DLT start).
+    xy_px : array_like (N, 2)
+        Measured image coordinates, pixels (OpenCV origin).
+    sigma_px : float
+        A-priori σ of an image coordinate (px).
+    method : {"auto", "dlt", "sqpnp"}
+        Initialisation; ``"auto"``: DLT for ≥ 6 non-coplanar points, else SQPnP. Ignored when
+        ``initial_pose`` is given.
+    initial_pose : Pose, optional
+    free_interior : bool or sequence of str
+        Estimate interior parameters too: ``True`` frees c, x0, y0 (``c_mm x0_mm y0_mm`` for the
+        photogrammetric model, ``fx fy cx cy`` for pinhole/OpenCV), or name camera parameters.
+        Needs non-coplanar points; an undetermined set gives ``Termination.RANK_DEFICIENT``.
+    options : DenseOptions, optional
+
+    Returns
+    -------
+    ResectionResult
+
+    Raises
+    ------
+    TooFewPointsError, ShapeError, NonFiniteError, InvalidInputError
+    """
+    cam = as_camera(camera)
+    X = as_points(points_world, "points_world", 3)
+    x = as_points(xy_px, "xy_px", 2)
+    if X.shape[0] != x.shape[0]:
+        raise ShapeError(f"points_world has {X.shape[0]} rows but xy_px has {x.shape[0]}; expected one image point per control point")
+    if method not in ("auto", "dlt", "sqpnp"):
+        raise InvalidInputError(f"method: {method!r}; expected 'auto', 'dlt' or 'sqpnp'")
+    if not (np.isfinite(sigma_px) and sigma_px > 0):
+        raise InvalidInputError(f"sigma_px: {sigma_px!r}; expected a positive number of pixels")
+    if free_interior is True:
+        model = str(getattr(cam, "model", "pinhole"))
+        model = getattr(getattr(cam, "model", None), "value", model)
+        inames = _DEFAULT_INTERIOR.get(model, ("fx", "fy", "cx", "cy"))
+    elif free_interior is False or free_interior is None:
+        inames = ()
+    else:
+        inames = tuple(free_interior)
+    pnames = tuple(cam.param_names)
+    for nm in inames:
+        if nm not in pnames:
+            raise InvalidInputError(f"free_interior: {nm!r} is not a parameter of this camera; expected some of {pnames}")
+    iidx = np.array([pnames.index(nm) for nm in inames], int)
+    need = 3 if not inames else int(np.ceil((6 + len(inames)) / 2))
+    if X.shape[0] < need:
+        raise TooFewPointsError(
+            f"space resection needs at least {need} control points for {6 + len(inames)} unknowns "
+            f"(4 or more for a unique pose), got {X.shape[0]}"
+        )
+    if initial_pose is not None:
+        if not isinstance(initial_pose, Pose):
+            raise ShapeError(f"initial_pose: expected a Pose, got {type(initial_pose).__name__}")
+        pose0, init = initial_pose, "given"
+    else:
+        if method == "dlt" and X.shape[0] < 6:
+            raise TooFewPointsError(f"method='dlt' needs at least 6 control points, got {X.shape[0]}")
+        pose0, init = _initial_pose(cam, X, x, method)
+        if pose0 is None:
+            nan6 = np.full((6, 6), np.nan)
+            return ResectionResult(Pose.identity(), cam, np.nan, np.nan, np.nan, np.full(3, np.nan), nan6, nan6, nan6,
+                                   nan6[:3, :3], nan6[:3, :3], inames, np.full(len(inames), np.nan),
+                                   np.full(len(inames), np.nan), np.full(len(inames), np.nan),
+                                   np.full(x.shape, np.nan), np.nan, np.nan, init, None,
+                                   Outcome(Termination.DEGENERATE, "SQPnP found no pose for these points"))
+    p_int0 = np.asarray(cam.params, float)[iidx] if inames else np.zeros(0)
+    base_params = np.asarray(cam.params, float).copy()
+
+    def camera_of(pint):
+        if not inames:
+            return cam
+        p = base_params.copy()
+        p[iidx] = pint
+        return cam.with_params(p)
+
+    # parameter vector: rvec (3, absolute, updated multiplicatively), C (3), interior (k)
+    x0 = np.concatenate([rot.axis_angle_from_matrix(pose0.R), pose0.center, p_int0])
+
+    def fun(p):
+        R = rot.matrix_from_axis_angle(p[:3])
+        C = p[3:6]
+        c = camera_of(p[6:])
+        d = X - C
+        Xc = d @ R.T
+        uv, Jp, Jk = c.project_jacobian(Xc)
+        n = X.shape[0]
+        J = np.zeros((n, 2, 6 + len(inames)))
+        # X_cam = R exp([δ]×)(X − C):  ∂/∂δ = −R [X − C]×,  ∂/∂C = −R
+        dXd = -np.einsum("ij,njk->nik", R, rot.skew(d))
+        J[:, :, 0:3] = Jp @ dXd
+        J[:, :, 3:6] = Jp @ (-R)
+        if inames:
+            J[:, :, 6:] = Jk[:, :, iidx]
+        return (uv - x).ravel(), J.reshape(2 * n, -1)
+
+    def update(p, dp):
+        R = rot.matrix_from_axis_angle(p[:3]) @ rot.matrix_from_axis_angle(dp[:3])
+        return np.concatenate([rot.axis_angle_from_matrix(R), p[3:6] + dp[3:6], p[6:] + dp[6:]])
+
+    names = ["dx_rot", "dy_rot", "dz_rot", "X0", "Y0", "Z0", *inames]
+    adj = solve_dense(fun, x0, weights=np.full(2 * X.shape[0], 1.0 / sigma_px**2), update=update,
+                      param_names=names, options=options)
+    R = rot.matrix_from_axis_angle(adj.x[:3])
+    C = adj.x[3:6]
+    pose = Pose.from_center(R, C)
+    cam_out = camera_of(adj.x[6:])
+    o, f, k = (float(a) for a in rot.opk_from_matrix(rot.PHOTO_FROM_CAM @ R))
+    A = rot.opk_to_increment_jacobian(o, f, k)
+    T = np.eye(6)
+    with np.errstate(all="ignore"):
+        try:
+            T[:3, :3] = np.linalg.inv(A)
+        except np.linalg.LinAlgError:
+            T[:3, :3] = np.nan
+    cov_inc = adj.covariance[:6, :6]
+    cov_opk = T @ cov_inc @ T.T
+    cov_opk_p = T @ adj.covariance_prior[:6, :6] @ T.T
+    outcome = adj.outcome
+    depth = (X - C) @ R[2]
+    if outcome.success and np.any(depth <= 0):
+        outcome = Outcome(Termination.DEGENERATE,
+                          f"{int(np.sum(depth <= 0))} of {X.shape[0]} control points lie behind the estimated camera")
+    res = adj.residuals.reshape(-1, 2)
+    istd = np.sqrt(np.clip(np.diag(adj.covariance)[6:], 0, None))
+    istd_p = np.sqrt(np.clip(np.diag(adj.covariance_prior)[6:], 0, None))
+    return ResectionResult(
+        pose=pose, camera=cam_out, omega=o, phi=f, kappa=k, center=C.copy(),
+        covariance_opk=cov_opk, covariance_opk_prior=cov_opk_p, covariance_increment=cov_inc,
+        center_covariance=adj.covariance[3:6, 3:6], center_covariance_prior=adj.covariance_prior[3:6, 3:6],
+        interior_names=inames, interior=adj.x[6:].copy(), interior_std=istd, interior_std_prior=istd_p,
+        residuals_px=res, rms_px=float(np.sqrt(np.mean(res**2))), sigma0=float(adj.sigma0),
+        init_method=init, adjustment=adj, outcome=outcome,
+    )
