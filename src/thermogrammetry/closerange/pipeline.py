@@ -174,13 +174,13 @@ def _step_planes(project: ProjectStore) -> dict:
     inp, net = _solve(project)
     planes = estimate_planes(net, inp["planes"])
     lines = ["name,normal_x,normal_y,normal_z,angle_deg,distance_m,sigma_angle_deg,sigma_distance_m,"
-             "los_angle_deg,perpendicular_m,sigma_normal_deg,rms_m,ids"]
+             "los_angle_deg,perpendicular_m,sigma_normal_deg,rms_m,d_m,ids"]
     for p in planes:
         sn = float(np.degrees(np.sqrt(max(np.trace(p.cov_normal), 0.0))))
         lines.append(
             f"{p.name},{p.normal[0]:.8f},{p.normal[1]:.8f},{p.normal[2]:.8f},{np.degrees(p.angle_rad):.4f},"
             f"{p.distance_m:.5f},{np.degrees(p.sigma_angle_rad):.4f},{p.sigma_distance_m:.5f},"
-            f"{np.degrees(p.los_angle_rad):.4f},{p.perpendicular_m:.5f},{sn:.4f},{p.rms_m:.6f},{' '.join(p.ids)}")
+            f"{np.degrees(p.los_angle_rad):.4f},{p.perpendicular_m:.5f},{sn:.4f},{p.rms_m:.6f},{p.d:.6f},{' '.join(p.ids)}")
     project.write_text("planes.csv", "\n".join(lines) + "\n")
     return {p.name: {"angle_deg": float(np.degrees(p.angle_rad)), "distance_m": p.distance_m} for p in planes}
 

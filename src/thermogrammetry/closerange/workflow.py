@@ -26,6 +26,8 @@ __all__ = [
     "CorrectionResult",
     "correct_thermal_image",
     "thermal_geometry",
+    "camera_rays",
+    "correct_oriented_image",
 ]
 
 
@@ -319,3 +321,102 @@ def _transmission(distance_m, air_k, rh):
     except ImportError:  # radiometry not installed yet
         from ._interim import atmospheric_transmission
     return atmospheric_transmission(distance_m, air_k, rh)
+
+
+def camera_rays(camera, R, t, image_size=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Projection centre, viewing axis and unit world rays (h, w, 3) of every pixel of an oriented camera.
+
+    Parameters
+    ----------
+    camera : ``thermogrammetry.Camera`` (distortion honoured through ``unproject``) or a (3, 3) ``K``
+    R, t : pose ``cam_from_world``
+    image_size : (w, h); default ``camera.image_size``
+    """
+    R = np.asarray(R, float)
+    t = np.asarray(t, float).reshape(3)
+    if hasattr(camera, "unproject"):
+        w, h = image_size or camera.image_size
+        unproject = camera.unproject
+    else:
+        K = np.asarray(camera, float)
+        if image_size is None:
+            raise InvalidInputError("image_size: required when the camera is given as a K matrix")
+        w, h = image_size
+
+        def unproject(xy):
+            return np.column_stack([xy, np.ones(len(xy))]) @ np.linalg.inv(K).T
+
+    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    d_cam = np.asarray(unproject(np.column_stack([u.ravel(), v.ravel()])), float)
+    d = d_cam @ R  # R^T d_cam for every row
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return -R.T @ t, R[2].copy(), d.reshape(h, w, 3)
+
+
+def correct_oriented_image(
+    temperature_k,
+    camera,
+    R,
+    t,
+    planes: Sequence[tuple[Sequence[float], float]],
+    config: CloseRangeConfig | None = None,
+    *,
+    polygons_world: Sequence[np.ndarray] | None = None,
+    sigma_angle_rad=None,
+) -> CorrectionResult:
+    """General case: correct a thermal image of an oriented camera over given planes.
+
+    Parameters
+    ----------
+    temperature_k : (h, w) apparent temperatures, K
+    camera, R, t : see :func:`camera_rays`
+    planes : sequence of (normal (3,), d) with ``normal · X + d = 0`` (m)
+    polygons_world : optional (N_i ≥ 3, 3) outlines of each plane (m); default: the whole image
+    sigma_angle_rad : optional per-pixel or scalar angle σ for the uncertainty map
+    """
+    cfg = config or CloseRangeConfig()
+    T0 = np.asarray(temperature_k, float)
+    if T0.ndim != 2:
+        raise InvalidInputError(f"temperature_k: expected a 2D image, got shape {T0.shape}")
+    h, w = T0.shape
+    C, axis, rays = camera_rays(camera, R, t, (w, h))
+    if polygons_world is None:
+        big = np.array([[-1e6, -1e6], [1e6 + w, -1e6], [1e6 + w, 1e6 + h], [-1e6, 1e6 + h]])
+        polys = [big] * len(planes)
+    else:
+        Rm = np.asarray(R, float)
+        tv = np.asarray(t, float).reshape(3)
+        polys = []
+        for Pw in polygons_world:
+            Xc = np.asarray(Pw, float) @ Rm.T + tv
+            if hasattr(camera, "project"):
+                polys.append(np.asarray(camera.project(Xc), float))
+            else:
+                uvw = Xc @ np.asarray(camera, float).T
+                polys.append(uvw[:, :2] / uvw[:, 2:3])
+    planes = [(np.asarray(n, float) / np.linalg.norm(n), float(d) / np.linalg.norm(n)) for n, d in planes]
+    pr = corr.plane_rasters(C, rays, axis, planes, polys, margin_px=cfg.edge_margin_px)
+    on = pr.plane >= 0
+    angle = pr.angle_rad if cfg.angle_mode == AngleMode.LOS else pr.axis_angle_rad
+    emis_f = cfg.emissivity_function()
+    eps = np.where(on, emis_f(np.where(on, angle, 0.0)), np.nan)
+    tau = (np.where(on, _transmission(np.where(on, pr.distance_m, 0.0), cfg.air_k, cfg.relative_humidity), np.nan)
+           if cfg.transmission else np.where(on, 1.0, np.nan))
+    Tc = corr.correct_temperature(T0, eps, cfg.ambient_k, transmission=np.where(on, tau, 1.0), atmosphere_k=cfg.air_k)
+    margin_ok = pr.inset_px >= (cfg.edge_margin_px if polygons_world is not None else -np.inf)
+    with np.errstate(invalid="ignore"):
+        valid = on & np.isfinite(T0) & np.isfinite(Tc) & (angle < np.radians(cfg.max_angle_deg)) & margin_ok
+        if polygons_world is not None:
+            valid &= pr.cover == 1
+    sig_a = np.full((h, w), np.nan) if sigma_angle_rad is None else np.broadcast_to(
+        np.asarray(sigma_angle_rad, float), (h, w)).copy()
+    a0 = np.where(valid, angle, 0.5)
+    hth = 1e-6
+    deps = (emis_f(a0 + hth) - emis_f(np.maximum(a0 - hth, 0))) / (a0 + hth - np.maximum(a0 - hth, 0))
+    sigma_k = np.where(valid, np.abs(corr.dT_deps(np.where(valid, Tc, 300.0), np.where(valid, eps, 1.0),
+                                                  cfg.ambient_k) * deps) * sig_a, np.nan)
+    return CorrectionResult(
+        corrected_k=np.where(valid, Tc, T0), valid=valid, sigma_k=sigma_k, angle_rad=angle,
+        sigma_angle_rad=np.where(valid, sig_a, np.nan), distance_m=pr.distance_m, plane=pr.plane, emissivity=eps,
+        transmission=tau, notes=[],
+    )

@@ -1,0 +1,99 @@
+"""``thermogrammetry closerange``: seed 000's multi-camera DLT workflow with directional correction."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from .app import app
+
+
+def _unit_of(img) -> str:
+    """Unit the input file stored its temperatures in (K unless the reader says °C)."""
+    m = img.metadata.extra.get("uint16_mapping") if img.metadata.extra else None
+    if m is not None:
+        return str(getattr(m, "unit", "K")).upper().lstrip("°")[:1]
+    for note in img.metadata.notes:
+        if note.strip().endswith(" in C"):
+            return "C"
+    return "K"
+
+
+def read_text(path: Path, what: str) -> str:
+    from ..errors import DataFileError
+
+    try:
+        return Path(path).read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise DataFileError(f"{what} {path}: cannot be read ({exc.strerror or exc})") from None
+
+
+@app.command("closerange")
+def closerange(
+    control: Path = typer.Option(..., "--control", help="control.csv: id,X,Y,Z (m)."),
+    measurements: Path = typer.Option(..., "--measurements", help="measurements.csv: image,id,x,y (px, OpenCV origin) for all images."),
+    thermal: str = typer.Option(..., "--thermal", help="Name of the thermal image in measurements.csv."),
+    planes: Path = typer.Option(..., "--planes", help="planes.csv: name,id1,id2,id3[,...]."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output folder."),
+    thermal_image: Optional[Path] = typer.Option(None, "--thermal-image", help="The thermal image (any format thermogrammetry reads)."),
+    camera: List[str] = typer.Option([], "--camera", help="IMAGE_NAME=camera.json: known interior orientation (from `calibrate`)."),
+    ambient_c: float = typer.Option(22.0, "--ambient-c", help="Reflected ambient temperature (°C)."),
+    sigma_px: float = typer.Option(0.5, "--sigma-px", help="A-priori σ of the image measurements (px)."),
+    thermal_unit: Optional[str] = typer.Option(None, "--thermal-unit", help="K or C, for a float image that does not declare its unit."),
+    max_angle_deg: float = typer.Option(80.0, "--max-angle-deg", help="No correction beyond this viewing angle."),
+) -> None:
+    """Orient optical cameras by DLT, intersect pass points, position the thermal camera from pass
+    points only, fit planes and correct the thermal image per pixel (Sawicki, Stein, Więcek)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from ..closerange.pipeline import closerange_steps, write_inputs
+    from ..closerange.workflow import CloseRangeConfig
+    from ..errors import ThermogrammetryError
+    from ..pipeline import FolderProject, run_steps
+
+    console = Console()
+    try:
+        cams = {}
+        for spec in camera:
+            if "=" not in spec:
+                raise typer.BadParameter(f"--camera {spec!r}: expected IMAGE_NAME=camera.json")
+            name, path = spec.split("=", 1)
+            from ..camera import Camera
+
+            cams[name.strip()] = Camera.load(Path(path)).to_dict()
+        thermal_k, unit = None, "K"
+        if thermal_image is not None:
+            from ..io import read_thermal
+
+            img = read_thermal(thermal_image, unit=thermal_unit)
+            thermal_k = img.require_temperature()
+            unit = (thermal_unit or _unit_of(img)).upper().lstrip("°")
+        cfg = CloseRangeConfig(ambient_c=ambient_c, sigma_px=sigma_px, max_angle_deg=max_angle_deg)
+        project = FolderProject(out)
+        write_inputs(project, control_csv=read_text(control, "control file"),
+                     measurements_csv=read_text(measurements, "measurements file"),
+                     planes_csv=read_text(planes, "planes file"), thermal=thermal, config=cfg, cameras=cams,
+                     thermal_k=thermal_k, thermal_unit=unit)
+        reports = run_steps(project, closerange_steps(),
+                            on_step=lambda r: console.print(f"[{'green' if r.ok else 'red'}]{r.name}[/] {r.seconds:.2f} s"))
+    except ThermogrammetryError as exc:
+        console.print(f"[red]error:[/] {exc}")
+        raise typer.Exit(2)
+    failed = [r for r in reports if not r.ok]
+    if failed:
+        console.print(f"[red]error in step {failed[0].name}:[/] {failed[0].error}")
+        raise typer.Exit(2)
+    t = Table(title="planes")
+    lines = project.read_text("planes.csv").strip().splitlines()
+    for h in ("name", "angle_deg", "sigma_angle_deg", "distance_m"):
+        t.add_column(h)
+    head = lines[0].split(",")
+    for ln in lines[1:]:
+        c = dict(zip(head, ln.split(",")))
+        t.add_row(c["name"], c["angle_deg"], c["sigma_angle_deg"], c["distance_m"])
+    console.print(t)
+    console.print(f"outputs in {out}: points.csv cameras.json planes.csv"
+                  + (" corrected.tif" if thermal_image is not None else "") + " report.html")
