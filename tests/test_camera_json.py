@@ -159,3 +159,23 @@ def test_bad_values(tmp_path):
     d["std"] = {"K9": 1.0}
     with pytest.raises(ConfigError, match=r"param_std: unknown parameter\(s\) 'K9'"):
         Camera.load(write(tmp_path, d))
+
+
+def test_json_round_trip_is_bit_exact_for_arbitrary_values(tmp_path):
+    # property test: any finite parameter values (tiny, huge, negative zero) survive save/load unchanged
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    finite = st.floats(min_value=-1e12, max_value=1e12, allow_nan=False, allow_infinity=False)
+    positive = st.floats(min_value=1e-6, max_value=1e6, allow_nan=False, allow_infinity=False)
+
+    @settings(max_examples=60, deadline=None, database=None, derandomize=True)
+    @given(c=positive, rest=st.lists(finite, min_size=11, max_size=11), pitch=positive,
+           size=st.tuples(st.integers(1, 100000), st.integers(1, 100000)))
+    def check(c, rest, pitch, size):
+        cam = Camera("photogrammetric", size, [c, *rest], pixel_pitch_um=pitch)
+        back = Camera.load(cam.save(tmp_path / "h.json"))
+        assert back == cam
+        np.testing.assert_array_equal(np.signbit(back.params), np.signbit(cam.params))
+
+    check()
