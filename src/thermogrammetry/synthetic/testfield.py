@@ -217,7 +217,7 @@ def make_testfield(
         yb = -(xy[:, 1] - (h - 1) / 2) * pitch_mm[1] - pvec[2]
         D, _ = _model.correction_jacobians(xb, yb, pvec)
         det = (1 + D[:, 0, 0]) * (1 + D[:, 1, 1]) - D[:, 0, 1] * D[:, 1, 0]
-        inside = (xy[:, 0] >= 0) & (xy[:, 0] <= w - 1) & (xy[:, 1] >= 0) & (xy[:, 1] <= h - 1)
+        inside = (xy[:, 0] >= 1) & (xy[:, 0] <= w - 2) & (xy[:, 1] >= 1) & (xy[:, 1] <= h - 2)
         keep = ok & inside & (det > fold_guard)
         idx = np.nonzero(keep)[0]
         oi.append(np.full(idx.size, f))

@@ -1,0 +1,300 @@
+"""``thermogrammetry calibrate``: camera calibration with standard deviations (seed 001 / seed 003).
+
+Routes (public contract)::
+
+    thermogrammetry calibrate IMAGES... --target chessboard --corners 6x5 --spacing-mm 100 -o OUT
+    thermogrammetry calibrate IMAGES... --target circles --grid 7x4 --spacing-mm 50 [--asymmetric] -o OUT
+    thermogrammetry calibrate --control control.csv --measurements measurements.csv \\
+        --image-size 320x240 --pixel-pitch-um 25 --focal-mm 18 -o OUT
+
+IMAGES may be files or folders (8-bit JPEG/PNG, 16-bit TIFF/PNG, float TIFF). Everything is computed
+in memory and written to OUT only at the end (each file atomically), so a failed run leaves OUT as
+it was. Bad input exits with status 2 and a message naming the file (and row).
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+from typing import List, Optional
+
+import numpy as np
+import typer
+
+from .app import app
+
+_IMAGE_EXT = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".pgm", ".pnm"}
+_SIZE = re.compile(r"^\s*(\d+)\s*[xX×]\s*(\d+)\s*$")
+
+
+def _pair(text: str, flag: str) -> tuple[int, int]:
+    m = _SIZE.match(text or "")
+    if not m or int(m.group(1)) <= 0 or int(m.group(2)) <= 0:
+        raise typer.BadParameter(f"{flag} {text!r}: expected COLUMNSxROWS with positive integers, e.g. 6x5")
+    return int(m.group(1)), int(m.group(2))
+
+
+def _expand(paths: List[Path]) -> list[Path]:
+    from ..errors import DataFileError
+
+    out: list[Path] = []
+    for p in paths:
+        if p.is_dir():
+            files = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in _IMAGE_EXT)
+            if not files:
+                raise DataFileError(f"{p}: folder holds no image files ({', '.join(sorted(_IMAGE_EXT))})")
+            out.extend(files)
+        elif p.is_file():
+            out.append(p)
+        else:
+            raise DataFileError(f"{p}: no such file or folder")
+    return out
+
+
+def read_image(path: Path) -> np.ndarray:
+    """Read an 8-bit JPEG/PNG, a 16-bit TIFF/PNG or a float TIFF as an array (no rescaling)."""
+    import cv2
+
+    from ..errors import UnsupportedFormatError
+
+    img = None
+    if path.suffix.lower() in (".tif", ".tiff"):
+        try:
+            import tifffile
+
+            img = tifffile.imread(str(path))
+        except Exception:  # noqa: BLE001 - fall back to OpenCV's reader
+            img = None
+    if img is None:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise UnsupportedFormatError(f"{path}: cannot read as an image (expected JPEG, PNG or TIFF)")
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[0] in (1, 3, 4) and img.shape[2] not in (1, 3, 4):  # planar TIFF
+        img = np.moveaxis(img, 0, -1)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    return img
+
+
+def _detector(kind: str):
+    """The detection engineer's function for ``kind`` (chessboard / circles)."""
+    import importlib
+
+    names = {"chessboard": [("detect_chessboard", "detect_chessboard"), ("detect", "detect_chessboard")],
+             "circles": [("detect_circles", "detect_circle_grid"), ("detect_circlegrid", "detect_circle_grid"),
+                         ("detect_circle_grid", "detect_circle_grid"), ("detect", "detect_circle_grid"),
+                         ("detect_circles", "detect_circles")]}[kind]
+    for mod, fn in names:
+        try:
+            m = importlib.import_module(f"thermogrammetry.calibration.{mod}")
+        except ImportError:
+            continue
+        if hasattr(m, fn):
+            return getattr(m, fn)
+    return None
+
+
+def _fallback_circles(image, spec, image_id):
+    """INTERIM circle-grid detection (cv2.findCirclesGrid on a contrast-stretched image) used only
+    while the detection engineer's circle-grid detector is absent."""
+    import cv2
+
+    from ..calibration.detect_common import Detection, normalize_to_u8, to_gray_float
+
+    gray = to_gray_float(image, image_id)
+    h, w = gray.shape
+    u8 = normalize_to_u8(gray)
+    flags = cv2.CALIB_CB_ASYMMETRIC_GRID if spec.asymmetric else cv2.CALIB_CB_SYMMETRIC_GRID
+    for img in (u8, 255 - u8):
+        ok, centers = cv2.findCirclesGrid(img, spec.pattern_size, flags=flags)
+        if ok:
+            return Detection(image_id, True, centers.reshape(-1, 2).astype(float), np.arange(spec.n_points), "cv2.findCirclesGrid (interim)",
+                             (w, h), "interim")
+    return Detection.failure(image_id, "cv2.findCirclesGrid found no grid (normal or inverted contrast)", (w, h))
+
+
+@app.command("calibrate")
+def calibrate(
+    images: Optional[List[Path]] = typer.Argument(None, help="Images (or folders of images) of a target."),
+    target: Optional[str] = typer.Option(None, "--target", help="Target kind: chessboard or circles."),
+    corners: Optional[str] = typer.Option(None, "--corners", help="Chessboard inner corners COLUMNSxROWS (OpenCV patternSize), e.g. 6x5."),
+    grid: Optional[str] = typer.Option(None, "--grid", help="Circle grid COLUMNSxROWS of centres, e.g. 7x4."),
+    spacing_mm: Optional[float] = typer.Option(None, "--spacing-mm", help="Square size / centre spacing in mm."),
+    asymmetric: bool = typer.Option(False, "--asymmetric", help="Asymmetric (staggered) circle grid."),
+    diameter_mm: Optional[float] = typer.Option(None, "--diameter-mm", help="Circle diameter in mm (perspective-bias correction)."),
+    control: Optional[Path] = typer.Option(None, "--control", help="Control points CSV: id,X,Y,Z[,sX,sY,sZ] (metres)."),
+    measurements: Optional[Path] = typer.Option(None, "--measurements", help="Image measurements CSV: image,id,x,y[,sx,sy] (pixels)."),
+    image_size: Optional[str] = typer.Option(None, "--image-size", help="WIDTHxHEIGHT in pixels (CSV route), e.g. 320x240."),
+    pixel_pitch_um: Optional[float] = typer.Option(None, "--pixel-pitch-um", help="Pixel pitch in micrometres."),
+    focal_mm: Optional[float] = typer.Option(None, "--focal-mm", help="Nominal focal length in mm (required for the CSV route)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
+    k45: bool = typer.Option(False, "--k45", help="Also estimate K4, K5 (seed 003)."),
+    affinity: bool = typer.Option(False, "--affinity", help="Also estimate affinity/shear B1, B2."),
+    name: str = typer.Option("camera", "--name", help="Camera name written into camera.json."),
+) -> None:
+    """Calibrate a (thermal) camera: parameters with standard deviations, report and exports in OUT."""
+    from rich.console import Console
+
+    from ..errors import ThermogrammetryError
+
+    err = Console(stderr=True)
+    try:
+        run = _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, control, measurements, image_size,
+                   pixel_pitch_um, focal_mm, output, k45, affinity, name)
+    except typer.BadParameter as exc:
+        err.print(f"[bold red]error:[/] {exc}", markup=True, highlight=False)
+        raise typer.Exit(2) from None
+    except ThermogrammetryError as exc:
+        err.print(f"[bold red]error:[/] {type(exc).__name__}: {exc}", markup=True, highlight=False)
+        err.print(f"nothing was written to {output}", highlight=False)
+        raise typer.Exit(2) from None
+    if run is None:
+        raise typer.Exit(1)
+
+
+def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, control, measurements, image_size,
+         pixel_pitch_um, focal_mm, output, k45, affinity, name):
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from ..calibration.outputs import flush, write_outputs
+    from ..calibration.selfcal import SelfCalibrationOptions
+    from ..calibration.testfield_csv import read_control_csv, read_measurements_csv
+    from ..calibration.workflow import calibrate_detections, calibrate_testfield
+    from ..pipeline import FolderProject, MemoryProject
+
+    console = Console()
+    csv_route = control is not None or measurements is not None
+    if csv_route:
+        if images:
+            raise typer.BadParameter("give either IMAGES with --target, or --control and --measurements, not both")
+        if control is None or measurements is None:
+            raise typer.BadParameter("the test-field route needs both --control and --measurements")
+        missing = [f for f, v in (("--image-size", image_size), ("--pixel-pitch-um", pixel_pitch_um), ("--focal-mm", focal_mm)) if v is None]
+        if missing:
+            raise typer.BadParameter(f"the test-field route needs {', '.join(missing)} (e.g. --image-size 320x240 --pixel-pitch-um 25 --focal-mm 18)")
+        if pixel_pitch_um <= 0 or focal_mm <= 0:
+            raise typer.BadParameter(f"--pixel-pitch-um {pixel_pitch_um} / --focal-mm {focal_mm}: expected positive numbers")
+        size = _pair(image_size, "--image-size")
+        opt = SelfCalibrationOptions(k45=k45, affinity=affinity)
+        ctl = read_control_csv(control)
+        meas = read_measurements_csv(measurements)
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=console, transient=True) as prog:
+            task = prog.add_task("resection", total=len(meas.images()))
+
+            def cb(stage, done, total):
+                prog.update(task, description=stage, completed=done if stage == "resection" else total, total=max(total, 1))
+
+            run = calibrate_testfield(ctl, meas, image_size=size, pixel_pitch_um=pixel_pitch_um, focal_mm=focal_mm,
+                                      options=opt, camera_name=name, progress=cb)
+    else:
+        if not images:
+            raise typer.BadParameter("no IMAGES given (or use --control/--measurements for a 3D test field)")
+        if target is None:
+            raise typer.BadParameter("--target is required with IMAGES: chessboard or circles")
+        kind = target.strip().lower()
+        if kind in ("circle", "circlegrid", "circle-grid"):
+            kind = "circles"
+        if kind not in ("chessboard", "circles"):
+            raise typer.BadParameter(f"--target {target!r}: expected chessboard or circles")
+        if spacing_mm is None or spacing_mm <= 0:
+            raise typer.BadParameter("--spacing-mm is required and must be positive (square size or centre spacing in mm)")
+        from ..calibration.detect_common import ChessboardSpec, CircleGridSpec
+
+        if kind == "chessboard":
+            if corners is None:
+                raise typer.BadParameter("--corners COLUMNSxROWS is required for --target chessboard (inner corners, e.g. 6x5)")
+            cols, rows = _pair(corners, "--corners")
+            spec = ChessboardSpec(cols, rows, spacing_mm, corner0_square="any")
+            desc = f"chessboard {cols}x{rows} inner corners, {spacing_mm:g} mm squares"
+        else:
+            if grid is None:
+                raise typer.BadParameter("--grid COLUMNSxROWS is required for --target circles (circle centres, e.g. 7x4)")
+            cols, rows = _pair(grid, "--grid")
+            spec = CircleGridSpec(cols, rows, spacing_mm, asymmetric=asymmetric, diameter_mm=diameter_mm)
+            desc = f"{'asymmetric' if asymmetric else 'symmetric'} circle grid {cols}x{rows}, {spacing_mm:g} mm spacing"
+        detect = _detector(kind)
+        interim = detect is None
+        if interim:
+            detect = _fallback_circles
+        files = _expand(images)
+        from ..errors import InvalidInputError
+
+        dets = []
+        first_size = None
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=console, transient=True) as prog:
+            task = prog.add_task("detecting target", total=len(files))
+            for f in files:
+                img = read_image(f)
+                size = (int(img.shape[1]), int(img.shape[0]))
+                if first_size is None:
+                    first_size = (size, f)
+                elif size != first_size[0]:
+                    raise InvalidInputError(
+                        f"mixed image sizes: {f} is {size[0]}x{size[1]} but {first_size[1]} is "
+                        f"{first_size[0][0]}x{first_size[0][1]}; calibrate the images of one camera (one size) per run")
+                dets.append(detect(img, spec, f.name))
+                prog.advance(task)
+        prog_desc = {"kind": kind, "description": desc, "pattern": [cols, rows], "spacing_mm": spacing_mm,
+                     "asymmetric": bool(asymmetric) if kind == "circles" else None,
+                     "detector": "interim cv2.findCirclesGrid" if interim else f"{detect.__module__}.{detect.__name__}"}
+        opt = SelfCalibrationOptions(k45=k45, affinity=affinity)
+        run = calibrate_detections(dets, spec.object_points() * 1e-3, target=prog_desc, pixel_pitch_um=pixel_pitch_um,
+                                   focal_mm=focal_mm, options=opt, camera_name=name)
+    res = run.result
+    if not res.outcome.success:
+        Console(stderr=True).print(f"[bold red]calibration failed:[/] {res.outcome.termination.value}: {res.outcome.reason}; "
+                                   f"nothing was written to {output}", highlight=False)
+        return None
+    mem = MemoryProject()
+    summary = write_outputs(mem, run)
+    keys = flush(mem, FolderProject(output))
+    _summary(console, run, output, keys, summary)
+    return run
+
+
+def _summary(console, run, output, keys, summary) -> None:
+    from rich.table import Table
+
+    from ..calibration import _model
+
+    r = run.result
+    n_img = len(r.images)
+    console.print(f"[bold]calibration[/] {r.outcome.termination.value}: {len(r.images_used)}/{n_img} images used, "
+                  f"RMS {r.rms_px:.3f} px, σ0 {r.sigma0:.3f}, redundancy {r.dof}", highlight=False)
+    for cc in r.cameras:
+        t = Table(title=f"{cc.name} {cc.image_size[0]}x{cc.image_size[1]}, pitch {cc.pixel_pitch_um[0]:g} µm"
+                  + (" (assumed)" if run.meta.get("pixel_pitch_assumed") else ""), show_edge=False)
+        for col in ("parameter", "value", "std", "unit", "t", "signif."):
+            t.add_column(col, justify="right")
+        tests = {x.name: x for x in cc.tests}
+        for i, n in enumerate(_model.PARAM_NAMES):
+            if cc.free[i]:
+                x = tests.get(n)
+                t.add_row(n, f"{cc.params[i]:.6g}", f"{cc.std[i]:.2g}", _model.PARAM_UNITS[i],
+                          "" if x is None else f"{x.t:.1f}", "" if x is None else ("yes" if x.significant else "no"))
+        console.print(t)
+        sx, sy = cc.sigma_xy_px
+        ux, uy = cc.sigma_xy_um
+        console.print(f"σx {sx:.3f} px ({ux:.2f} µm), σy {sy:.3f} px ({uy:.2f} µm)", highlight=False)
+        for a, b, rho in cc.correlation_warnings:
+            console.print(f"[yellow]warning:[/] |ρ({a}, {b})| = {abs(rho):.3f} > 0.9", highlight=False)
+    rej = r.images_rejected
+    if rej:
+        console.print(f"[yellow]{len(rej)} image(s) rejected[/]:", highlight=False)
+        for k, (nm, why) in enumerate(rej.items()):
+            if k == 5:
+                console.print(f"  ... and {len(rej) - 5} more (see calibration.json)")
+                break
+            console.print(f"  {nm}: {why}", highlight=False)
+    if r.blunders:
+        console.print(f"{len(r.blunders)} observation(s) rejected as blunders ({r.snooping_test})", highlight=False)
+    for cam, info in summary["exports"].items():
+        o = info.get("opencv", {})
+        if o.get("max_residual_px") is not None:
+            console.print(f"OpenCV/COLMAP export: conversion max residual {o['max_residual_px']:.3f} px", highlight=False)
+    console.print(f"wrote {len(keys)} files to {output}: {', '.join(k for k in keys if '/' not in k)}", highlight=False)
