@@ -213,7 +213,7 @@ def fit_camera(target_model, image_size, rays, xy_px, *, init: dict | None = Non
 
 
 def convert_camera(camera: Camera, target_model, *, free: Sequence[str] | None = None, pixel_pitch_um=None,
-                   grid_step_px: float | None = None) -> CameraConversion:
+                   grid_step_px: float | None = None, rational: bool | None = None) -> CameraConversion:
     """Convert ``camera`` to ``target_model`` by least squares over a dense grid over the whole image.
 
     Parameters
@@ -227,6 +227,12 @@ def convert_camera(camera: Camera, target_model, *, free: Sequence[str] | None =
         Pixel pitch of the target (default: the source's; required for a photogrammetric target).
     grid_step_px : float, optional
         Grid spacing in pixels (default ``max(w, h)/64``); the grid includes the outer pixel borders.
+    rational : bool, optional
+        OpenCV target only, when ``free`` is not given: also estimate the rational terms k4..k6.
+        ``None`` (default) decides from the data: if the polynomial fit (k1..k3) leaves more than
+        0.1 px, a rational fit is tried and kept when it at least halves the maximum residual and its
+        denominator ``1 + k4 r2 + k5 r2^2 + k6 r2^3`` stays above 0.5 over the image (no pole near the
+        frame). ``outcome.reason`` and ``free`` say which was kept.
 
     Returns
     -------
@@ -251,8 +257,11 @@ def convert_camera(camera: Camera, target_model, *, free: Sequence[str] | None =
     grid = image_grid(camera.image_size, grid_step_px)
     rays = camera.unproject(grid)
     ok = np.all(np.isfinite(rays), axis=1)
+    auto_free = free is None
     if free is None:
         free = default_free_params(camera, target)
+        if target is CameraModel.OPENCV and rational is not None:
+            free = tuple(k for k in free if k not in ("k4", "k5", "k6")) + (("k4", "k5", "k6") if rational else ())
     pitch_tuple = None if pitch is None else tuple(np.broadcast_to(np.asarray(pitch, float), (2,)))
     init = _initial_params(target, camera.K, camera.image_size, pitch_tuple)
     if target is CameraModel.OPENCV and "skew" not in free:
@@ -261,6 +270,19 @@ def convert_camera(camera: Camera, target_model, *, free: Sequence[str] | None =
         init["B2"] = 0.0
     res = fit_camera(target, camera.image_size, rays[ok], grid[ok], init=init, free=free,
                      pixel_pitch_um=pitch, name=camera.name)
+    if (auto_free and rational is None and target is CameraModel.OPENCV and "k4" not in free
+            and res.success and res.max_residual_px > 0.1):
+        rat = fit_camera(target, camera.image_size, rays[ok], grid[ok], init=res.camera.param_dict,
+                         free=tuple(free) + ("k4", "k5", "k6"), pixel_pitch_um=pitch, name=camera.name)
+        if rat.success and rat.max_residual_px < 0.5 * res.max_residual_px:
+            p = rat.camera.param_dict
+            r2 = np.sum((rays[ok][:, :2] / rays[ok][:, 2:3]) ** 2, axis=1)
+            den = 1.0 + r2 * (p["k4"] + r2 * (p["k5"] + r2 * p["k6"]))
+            if den.min() > 0.5:
+                note = (f"rational k4..k6 kept: max residual {rat.max_residual_px:.3g} px instead of "
+                        f"{res.max_residual_px:.3g} px with k1..k3 only")
+                res = CameraConversion(rat.camera, rat.max_residual_px, rat.rms_residual_px, rat.n_points,
+                                       Outcome(rat.outcome.termination, f"{note}; {rat.outcome.reason}"), rat.free)
     nbad = int((~ok).sum())
     if nbad:
         reason = f"{res.outcome.reason}; {nbad} of {len(grid)} grid pixels have no ray in the source camera and were left out"
