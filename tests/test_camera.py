@@ -302,3 +302,7 @@ def test_params_layout_and_repr():
     r = repr(cam)
     assert "model='photogrammetric'" in r and "c_mm=17.2262±0.13" in r and "K4" not in r
     assert not cam.params.flags.writeable
+    import pickle
+
+    back = pickle.loads(pickle.dumps(cam))
+    assert back == cam and not back.params.flags.writeable

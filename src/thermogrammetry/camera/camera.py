@@ -540,3 +540,6 @@ class Camera:
                 and np.array_equal(self._params, other._params) and same_std and self._name == other._name)
 
     __hash__ = None  # mutable-looking numpy content; not hashable
+
+    def __reduce__(self):  # pickling (dask workers) through the validated dict form keeps arrays read-only
+        return (Camera.from_dict, (self.to_dict(),))
