@@ -1,0 +1,117 @@
+"""The closerange workflow as pipeline steps and as the CLI verb (outputs, units, errors)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+
+import numpy as np
+import pytest
+
+from thermogrammetry.closerange.pipeline import closerange_steps, write_inputs
+from thermogrammetry.closerange.tables import parse_control, parse_measurements, parse_planes
+from thermogrammetry.errors import DataFileError, InvalidInputError
+from thermogrammetry.pipeline import MemoryProject, run_steps
+from thermogrammetry.synthetic.closerange import make_closerange_scene, measure, measurements_csv, render_thermal
+
+
+@pytest.fixture(scope="module")
+def case():
+    s = make_closerange_scene()
+    rows = measure(s, 0.5, np.random.default_rng(5))
+    return s, rows, render_thermal(s)
+
+
+def test_pipeline_outputs_in_memory(case):
+    s, rows, img = case
+    p = MemoryProject()
+    write_inputs(p, control_csv=s.control_csv(), measurements_csv=measurements_csv(rows), planes_csv=s.planes_csv(),
+                 thermal="thermal", thermal_k=img["temperature_k"], thermal_unit="C")
+    reps = run_steps(p, closerange_steps())
+    assert [r.status for r in reps] == ["ok"] * 4, [r.error for r in reps]
+    pts = list(csv.DictReader(io.StringIO(p.read_text("points.csv"))))
+    assert list(pts[0])[:7] == ["id", "X", "Y", "Z", "sX", "sY", "sZ"]
+    passp = {r["id"]: r for r in pts if r["kind"] == "pass"}
+    assert set(passp) == set(s.passpoints)
+    for pid, r in passp.items():  # within 4.5 sigma per coordinate (33 coordinates)
+        for k, ax in enumerate("XYZ"):
+            assert abs(float(r[ax]) - s.passpoints[pid][k]) < 4.5 * float(r["s" + ax])
+    cams = p.read_json("cameras.json")["cameras"]
+    assert set(cams) == {"opt1", "opt2", "thermal"}
+    C = s.camera("thermal").pose.center
+    th = cams["thermal"]
+    for k, ax in enumerate(("X0", "Y0", "Z0")):
+        assert abs(th["exterior"][ax] - C[k]) < 3 * th["exterior_std"][ax]
+    # optical interior orientation recovered by the DLT decomposition (fx = 3000 px)
+    assert abs(cams["opt1"]["interior"]["fx_px"] - 3000.0) < 4 * cams["opt1"]["interior_std"]["fx_px"]
+    pl = list(csv.DictReader(io.StringIO(p.read_text("planes.csv"))))
+    assert list(pl[0])[:6] == ["name", "normal_x", "normal_y", "normal_z", "angle_deg", "distance_m"]
+    assert [r["name"] for r in pl] == ["front", "top", "right"]
+    # corrected.tif: float32 in the input unit (°C here)
+    import tifffile
+
+    arr = tifffile.imread(io.BytesIO(p.read_bytes("corrected.tif")))
+    assert arr.dtype == np.float32 and arr.shape == img["temperature_k"].shape
+    outside = ~img["inside"]
+    assert np.allclose(arr[outside], img["temperature_k"][outside] - 273.15, atol=1e-4)
+    html = p.read_text("report.html")
+    assert "Final Computed 3D Pass Points Coordinates" in html and "data:image/png;base64" in html
+
+
+def test_tables_errors():
+    with pytest.raises(DataFileError, match="lacks column 'Z'"):
+        parse_control("id,X,Y\n1,2,3\n", "c.csv")
+    with pytest.raises(InvalidInputError, match=r"c.csv row 2: Y='abc' is not a number"):
+        parse_control("id,X,Y,Z\n1,2,abc,3\n", "c.csv")
+    with pytest.raises(InvalidInputError, match="measured twice"):
+        parse_measurements("image,id,x,y\na,1,2,3\na,1,4,5\n")
+    with pytest.raises(InvalidInputError, match="plane 'p' has 2 point id"):
+        parse_planes("name,id1,id2,id3\np,1,2,\n")
+    assert parse_planes("name,id1,id2,id3,id4\np,1,2,3,\nq,4,5,6,7\n") == {"p": ("1", "2", "3"), "q": ("4", "5", "6", "7")}
+
+
+def test_cli_closerange_and_correct(case, tmp_path):
+    from thermogrammetry.cli.main import main
+    from thermogrammetry.io.tiff import write_temperature_tiff
+
+    s, rows, img = case
+    (tmp_path / "control.csv").write_text(s.control_csv())
+    (tmp_path / "measurements.csv").write_text(measurements_csv(rows))
+    (tmp_path / "planes.csv").write_text(s.planes_csv())
+    write_temperature_tiff(tmp_path / "thermal.tif", img["temperature_k"], unit="K")
+    out = tmp_path / "OUT"
+    rc = main(["closerange", "--control", str(tmp_path / "control.csv"), "--measurements",
+               str(tmp_path / "measurements.csv"), "--thermal", "thermal", "--thermal-image",
+               str(tmp_path / "thermal.tif"), "--planes", str(tmp_path / "planes.csv"), "--ambient-c", "22",
+               "-o", str(out)])
+    assert rc == 0
+    for f in ("points.csv", "cameras.json", "planes.csv", "corrected.tif", "report.html"):
+        assert (out / f).is_file()
+    from thermogrammetry.io import read_thermal
+
+    corr = read_thermal(out / "corrected.tif").temperature_k
+    assert np.nanmax(corr) > np.nanmax(img["temperature_k"]) + 2  # corrected upwards on the hot faces
+    # general case with the oriented thermal camera and the fitted planes
+    rc = main(["correct", "--thermal-image", str(tmp_path / "thermal.tif"), "--cameras", str(out / "cameras.json"),
+               "--thermal", "thermal", "--planes", str(out / "planes.csv"), "--ambient-c", "22", "-o",
+               str(tmp_path / "OUT2")])
+    assert rc == 0
+    ang = read_thermal(tmp_path / "OUT2" / "corrected.tif").temperature_k
+    assert ang.shape == corr.shape
+    assert json.loads((out / "cameras.json").read_text())["thermal"] == "thermal"
+
+
+def test_cli_bad_input_exit_code(case, tmp_path, capsys):
+    from thermogrammetry.cli.main import main
+
+    s, rows, _ = case
+    (tmp_path / "control.csv").write_text(s.control_csv())
+    few = [r for r in rows if r[0] != "thermal" or r[1] in ("1", "4", "5")]
+    (tmp_path / "m.csv").write_text(measurements_csv(few))
+    (tmp_path / "planes.csv").write_text(s.planes_csv())
+    rc = main(["closerange", "--control", str(tmp_path / "control.csv"), "--measurements", str(tmp_path / "m.csv"),
+               "--thermal", "thermal", "--planes", str(tmp_path / "planes.csv"), "-o", str(tmp_path / "O")])
+    assert rc == 2
+    text = capsys.readouterr().out
+    assert "1, 4, 5" in text and "at least 6" in text
