@@ -32,7 +32,7 @@ from ..errors import InvalidInputError, ShapeError, TooFewPointsError
 from ..results import Outcome, Termination
 from . import rotations as rot
 
-__all__ = ["Similarity", "HelmertResult", "helmert", "umeyama"]
+__all__ = ["Similarity", "HelmertResult", "helmert", "umeyama", "similarity_residuals"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -167,6 +167,24 @@ class HelmertResult:
         return Y, np.einsum("nij,jk,nlk->nil", J, C, J)
 
 
+def similarity_residuals(params, source, target):
+    """Misclosures ``s·R·X + T − Y`` (3N,) and analytic Jacobian (3N, 7).
+
+    ``params = [rvec (3), T (3), s]``; derivatives w.r.t. the increment ``[δ, T, s]`` with
+    ``R ← exp([δ]×)·R``: ``∂/∂δ = −s [R X]×``, ``∂/∂T = I``, ``∂/∂s = R X``.
+    """
+    R = rot.matrix_from_axis_angle(params[:3])
+    s = params[6]
+    RX = source @ R.T
+    v = s * RX + params[3:6] - target
+    n = source.shape[0]
+    J = np.zeros((n, 3, 7))
+    J[:, :, 0:3] = -s * rot.skew(RX)
+    J[:, :, 3:6] = np.eye(3)
+    J[:, :, 6] = RX
+    return v.ravel(), J.reshape(3 * n, 7)
+
+
 def helmert(
     source,
     target,
@@ -221,15 +239,7 @@ def helmert(
     init = umeyama(Xc, Y, w.mean(1), fix_scale=fix_scale)
 
     def fun(p):
-        R = rot.matrix_from_axis_angle(p[:3])
-        s = p[6]
-        RX = Xc @ R.T
-        v = s * RX + p[3:6] - Y
-        J = np.zeros((n, 3, 7))
-        J[:, :, 0:3] = -s * rot.skew(RX)  # d/dδ of s exp([δ]×) R X = −s [R X]×
-        J[:, :, 3:6] = np.eye(3)
-        J[:, :, 6] = RX
-        return v.ravel(), J.reshape(3 * n, 7)
+        return similarity_residuals(p, Xc, Y)
 
     def update(p, dp):
         R = rot.matrix_from_axis_angle(dp[:3]) @ rot.matrix_from_axis_angle(p[:3])

@@ -34,7 +34,7 @@ from ._camera import as_camera
 from .dlt import _COPLANAR_TOL, decompose_projection, dlt_linear
 from .pose import Pose
 
-__all__ = ["ResectionResult", "resection"]
+__all__ = ["ResectionResult", "resection", "collinearity_residuals"]
 
 _DEFAULT_INTERIOR = {
     "photogrammetric": ("c_mm", "x0_mm", "y0_mm"),
@@ -146,6 +146,52 @@ def _initial_pose(cam, X, x, method):
     return Pose.from_center(R, C), "sqpnp"
 
 
+def _camera_with(cam, iidx, values):
+    if len(iidx) == 0:
+        return cam
+    p = np.asarray(cam.params, float).copy()
+    p[iidx] = values
+    return cam.with_params(p)
+
+
+def collinearity_residuals(params, camera, points_world, xy_px, interior_idx=()):
+    """Collinearity misclosures and their analytic Jacobian for one image.
+
+    Parameters
+    ----------
+    params : ndarray (6 + k,)
+        ``[rvec (3), C (3), interior values (k)]``; ``rvec`` is the cam_from_world rotation as a
+        Rodrigues vector, ``C`` the projection centre (m), the interior values replace
+        ``camera.params[interior_idx]``.
+    camera : Camera-like
+    points_world : ndarray (N, 3)
+    xy_px : ndarray (N, 2)
+    interior_idx : sequence of int
+
+    Returns
+    -------
+    v : ndarray (2N,)
+        projected − measured, pixels, ordered (x0, y0, x1, y1, ...).
+    J : ndarray (2N, 6 + k)
+        Derivatives w.r.t. the increment ``[δ (world-frame rotation, R ← R·exp([δ]×)), C, interior]``:
+        ``∂X_cam/∂δ = −R [X − C]×``, ``∂X_cam/∂C = −R``.
+    """
+    iidx = np.asarray(interior_idx, int)
+    R = rot.matrix_from_axis_angle(params[:3])
+    C = params[3:6]
+    c = _camera_with(camera, iidx, params[6:])
+    d = points_world - C
+    Xc = d @ R.T
+    uv, Jp, Jk = c.project_jacobian(Xc)
+    n = points_world.shape[0]
+    J = np.zeros((n, 2, 6 + iidx.size))
+    J[:, :, 0:3] = Jp @ (-np.einsum("ij,njk->nik", R, rot.skew(d)))
+    J[:, :, 3:6] = Jp @ (-R)
+    if iidx.size:
+        J[:, :, 6:] = Jk[:, :, iidx]
+    return (uv - xy_px).ravel(), J.reshape(2 * n, -1)
+
+
 def resection(
     camera,
     points_world,
@@ -231,34 +277,12 @@ def resection(
                                    np.full(x.shape, np.nan), np.nan, np.nan, init, None,
                                    Outcome(Termination.DEGENERATE, "SQPnP found no pose for these points"))
     p_int0 = np.asarray(cam.params, float)[iidx] if inames else np.zeros(0)
-    base_params = np.asarray(cam.params, float).copy()
-
-    def camera_of(pint):
-        if not inames:
-            return cam
-        p = base_params.copy()
-        p[iidx] = pint
-        return cam.with_params(p)
 
     # parameter vector: rvec (3, absolute, updated multiplicatively), C (3), interior (k)
     x0 = np.concatenate([rot.axis_angle_from_matrix(pose0.R), pose0.center, p_int0])
 
     def fun(p):
-        R = rot.matrix_from_axis_angle(p[:3])
-        C = p[3:6]
-        c = camera_of(p[6:])
-        d = X - C
-        Xc = d @ R.T
-        uv, Jp, Jk = c.project_jacobian(Xc)
-        n = X.shape[0]
-        J = np.zeros((n, 2, 6 + len(inames)))
-        # X_cam = R exp([δ]×)(X − C):  ∂/∂δ = −R [X − C]×,  ∂/∂C = −R
-        dXd = -np.einsum("ij,njk->nik", R, rot.skew(d))
-        J[:, :, 0:3] = Jp @ dXd
-        J[:, :, 3:6] = Jp @ (-R)
-        if inames:
-            J[:, :, 6:] = Jk[:, :, iidx]
-        return (uv - x).ravel(), J.reshape(2 * n, -1)
+        return collinearity_residuals(p, cam, X, x, iidx)
 
     def update(p, dp):
         R = rot.matrix_from_axis_angle(p[:3]) @ rot.matrix_from_axis_angle(dp[:3])
@@ -270,7 +294,7 @@ def resection(
     R = rot.matrix_from_axis_angle(adj.x[:3])
     C = adj.x[3:6]
     pose = Pose.from_center(R, C)
-    cam_out = camera_of(adj.x[6:])
+    cam_out = _camera_with(cam, iidx, adj.x[6:])
     o, f, k = (float(a) for a in rot.opk_from_matrix(rot.PHOTO_FROM_CAM @ R))
     A = rot.opk_to_increment_jacobian(o, f, k)
     T = np.eye(6)

@@ -33,7 +33,7 @@ from ..results import Outcome, Termination
 from ._camera import as_camera
 from .pose import Pose
 
-__all__ = ["TriangulationResult", "triangulate", "triangulate_linear"]
+__all__ = ["TriangulationResult", "triangulate", "triangulate_linear", "reprojection_residuals"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,6 +175,40 @@ def _linear(cams, poses, xy, m):
     return pts, w
 
 
+def reprojection_residuals(points_world, cameras, poses, xy_px, mask):
+    """Reprojection misclosures of N points in V views and the analytic Jacobian w.r.t. the points.
+
+    Parameters
+    ----------
+    points_world : ndarray (N, 3)
+    cameras : sequence of V Camera-like
+    poses : sequence of V Pose
+    xy_px : ndarray (V, N, 2)
+    mask : ndarray (V, N) bool
+
+    Returns
+    -------
+    v : ndarray (N, 2V)
+        projected − measured (px), per point ordered (view0 x, view0 y, view1 x, ...); 0 where masked.
+    J : ndarray (N, 2V, 3)
+        ``∂v/∂X = J_cam(X_cam) · R``; 0 where masked.
+    """
+    N = points_world.shape[0]
+    V = len(poses)
+    Vr = np.zeros((N, V, 2))
+    J = np.zeros((N, V, 2, 3))
+    for v in range(V):
+        ok = mask[v]
+        if not np.any(ok):
+            continue
+        R, t = poses[v].R, poses[v].t
+        Xc = points_world[ok] @ R.T + t
+        uv, Jp, _ = cameras[v].project_jacobian(Xc)
+        Vr[ok, v] = uv - xy_px[v, ok]
+        J[ok, v] = Jp @ R
+    return Vr.reshape(N, 2 * V), J.reshape(N, 2 * V, 3)
+
+
 def triangulate(
     cameras,
     poses: Sequence[Pose],
@@ -248,21 +282,7 @@ def triangulate(
 
     def fun(Xb, idx):
         with np.errstate(all="ignore"):  # trial steps may put a point on a camera's principal plane
-            return _fun(Xb, idx)
-
-    def _fun(Xb, idx):
-        b = Xb.shape[0]
-        Vr = np.zeros((b, V, 2))
-        J = np.zeros((b, V, 2, 3))
-        for v in range(V):
-            Xc = Xb @ Rs[v].T + ts[v]
-            ok = mT[idx, v]
-            if not np.any(ok):
-                continue
-            uv, Jp, _ = cams[v].project_jacobian(Xc[ok])
-            Vr[ok, v] = uv - xyT[idx[ok], v]
-            J[ok, v] = Jp @ Rs[v]
-        return Vr.reshape(b, 2 * V), J.reshape(b, 2 * V, 3)
+            return reprojection_residuals(Xb, cams, poses, xy[:, idx], m[:, idx])
 
     # problems with < 2 views or an intersection at infinity are not solved (kept out of the batch)
     solve_idx = np.flatnonzero(~few & ~at_infinity)
