@@ -99,7 +99,7 @@ class NetworkResult:
     points_world: np.ndarray  # (n_pass, 3)
     J_points: np.ndarray  # (3 n_pass, n_obs), world metres per px
     warnings: list[str] = field(default_factory=list)
-    known: tuple[str, ...] = ()  # images positioned with a known interior orientation
+    known: dict = field(default_factory=dict)  # image → camera with a known interior orientation
 
     # -- covariance helpers --------------------------------------------------------------------
     def cov(self, J: np.ndarray) -> np.ndarray:
@@ -162,19 +162,18 @@ def _undistort_with_jacobian(camera, xy) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _orient(image, camera, Xn, xy, frame, what, ids):
-    """DLT + refinement, or resection when the interior orientation is known. Returns (rc, D)."""
+    """DLT + refinement, or resection when the interior orientation is known (``xy`` already ideal)."""
     if camera is None:
         nw.check_dlt_geometry(Xn, what=what, ids=ids, image=image)
         L0 = nw.dlt_linear(Xn, xy)
-        return nw.refine_dlt(L0, Xn, xy), np.eye(2 * len(xy))
-    ideal, D = _undistort_with_jacobian(camera, xy)
+        return nw.refine_dlt(L0, Xn, xy)
     if len(Xn) < 4:
         raise TooFewPointsError(
             f"{len(Xn)} {what} on image {image!r} ({', '.join(ids)}): a resection with known interior "
             "orientation needs at least 4"
         )
-    rc, _ = nw.resect_known_interior(np.asarray(camera.K, float), Xn, ideal, frame)
-    return rc, D
+    rc, _ = nw.resect_known_interior(np.asarray(camera.K, float), Xn, xy, frame)
+    return rc
 
 
 def solve_network(
@@ -227,13 +226,26 @@ def solve_network(
             f"camera file(s) given for image(s) {unknown_names} that have no measurements; images measured: "
             f"{sorted(set(obs.images))}"
         )
+    # measurements of images with a known interior orientation are undistorted once ("ideal" px);
+    # D[k] = d ideal / d measured (2×2) chains every derivative back to the measurements
+    ideal = obs.xy.copy()
+    D = np.repeat(np.eye(2)[None], len(obs.ids), axis=0)
+    for im, cam_k in known.items():
+        rows = obs.on(im)
+        ideal[rows], Dk = _undistort_with_jacobian(cam_k, obs.xy[rows])
+        D[rows] = np.array([Dk[2 * i:2 * i + 2, 2 * i:2 * i + 2] for i in range(len(rows))])
+
+    def chain(Jc, rows):  # (m, 2n) w.r.t. ideal of rows → (m, 2n) w.r.t. measured
+        m = Jc.shape[0]
+        return np.einsum("mna,nab->mnb", Jc.reshape(m, len(rows), 2), D[rows]).reshape(m, -1)
+
     for im in optical:
         rows = [k for k in obs.on(im) if obs.ids[k] in control]
         ids = [obs.ids[k] for k in rows]
         Xn = frame.to_norm(np.array([control[i] for i in ids]).reshape(-1, 3))
-        rc, D = _orient(im, known.get(im), Xn, obs.xy[rows], frame, "control points", ids)
+        rc = _orient(im, known.get(im), Xn, ideal[rows], frame, "control points", ids)
         J = np.zeros((11, obs.n))
-        J[:, obs.cols(rows)] = rc.dL_dobs @ D
+        J[:, obs.cols(rows)] = chain(rc.dL_dobs, rows)
         cams[im] = OrientedCamera(im, "optical", rc.L, J, tuple(ids), rc.residuals, rc.sigma0_px, rc.outcome)
         if not rc.outcome.success:
             warnings.append(f"DLT of {im!r}: {rc.outcome.termination}: {rc.outcome.reason}")
@@ -253,12 +265,12 @@ def solve_network(
                 warnings.append(f"pass point {pid!r} is seen only on optical image {seen[0]!r}; not intersected")
             continue
         rows = [index[(im, pid)] for im in seen]
-        X, dXo, dXL, _, out = nw.triangulate_point([cams[im].L for im in seen], obs.xy[rows])
+        X, dXo, dXL, _, out = nw.triangulate_point([cams[im].L for im in seen], ideal[rows])
         if not out.success:
             warnings.append(f"pass point {pid!r}: {out.reason}")
             continue
         J = np.zeros((3, obs.n))
-        J[:, obs.cols(rows)] += dXo
+        J[:, obs.cols(rows)] += chain(dXo, rows)
         for im, d in zip(seen, dXL):
             J += d @ cams[im].J
         pass_ids.append(pid)
@@ -282,9 +294,9 @@ def solve_network(
     Xn_t = np.array([control[i] if i in control else frame.to_world(Xn_pass[pass_ids.index(i)])
                      for i in use_ids])
     Xn_t = frame.to_norm(Xn_t)
-    rc, D = _orient(thermal, known.get(thermal), Xn_t, obs.xy[use], frame, "pass points", use_ids)
+    rc = _orient(thermal, known.get(thermal), Xn_t, ideal[use], frame, "pass points", use_ids)
     Jt = np.zeros((11, obs.n))
-    Jt[:, obs.cols(use)] += rc.dL_dobs @ D
+    Jt[:, obs.cols(use)] += chain(rc.dL_dobs, use)
     JX = np.vstack([np.zeros((3, obs.n)) if i in control else J_pass_n[3 * pass_ids.index(i):3 * pass_ids.index(i) + 3]
                     for i in use_ids])
     Jt += rc.dL_dX @ JX
@@ -302,7 +314,7 @@ def solve_network(
         points_world=frame.to_world(Xn_pass) if len(Xn_pass) else Xn_pass,
         J_points=J_pass_n * frame.scale,
         warnings=warnings,
-        known=tuple(known),
+        known=known,
     )
 
 

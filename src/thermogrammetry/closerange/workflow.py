@@ -246,16 +246,25 @@ def correct_thermal_image(
         raise InvalidInputError(f"temperature_k: expected a 2D image, got shape {T0.shape}")
     h, w = T0.shape
     P, axis, C = thermal_geometry(net)
-    _, rays = corr.pixel_rays_from_projection(P, (w, h))
-    polys = [nw.dlt_project(net.cameras[net.thermal].L, net.frame.to_norm(np.array([net.point(i) for i in p.ids])))
-             for p in planes]
+    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    grid = np.column_stack([u.ravel(), v.ravel()])
+    known_cam = net.known.get(net.thermal)
+    if known_cam is not None:  # known interior orientation: rays through the undistorted pixel positions
+        grid_ideal = np.asarray(known_cam.undistort(grid), float)
+    else:
+        grid_ideal = grid
+    pix_all = np.column_stack([grid_ideal, np.ones(len(grid))])
+    rays = _rays_from_L(net.cameras[net.thermal].L, net.frame, (w, h), pix_all).reshape(h, w, 3)
+    polys = []
+    for p in planes:
+        xy = nw.dlt_project(net.cameras[net.thermal].L, net.frame.to_norm(np.array([net.point(i) for i in p.ids])))
+        polys.append(np.asarray(known_cam.distort(xy), float) if known_cam is not None else xy)
     pr = corr.plane_rasters(C, rays, axis, [(p.normal, p.d) for p in planes], polys, margin_px=cfg.edge_margin_px)
     on = pr.plane >= 0
     angle = pr.angle_rad if cfg.angle_mode == AngleMode.LOS else pr.axis_angle_rad
     # σ of the angle per pixel: gradient w.r.t. (normal, L_thermal), joint covariance of both
     sig_angle = np.full((h, w), np.nan)
     cam = net.cameras[net.thermal]
-    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     for j, p in enumerate(planes):
         sel = pr.plane == j
         if not sel.any():
@@ -263,7 +272,7 @@ def correct_thermal_image(
         if cfg.angle_mode == AngleMode.AXIS:
             sig_angle[sel] = p.sigma_angle_rad
             continue
-        pix = np.column_stack([u[sel], v[sel], np.ones(sel.sum())])
+        pix = pix_all[sel.ravel()]
         n0 = p.normal
 
         def theta(n, L):

@@ -88,6 +88,7 @@ class SceneCamera:
     pose: Pose
     image_size: tuple[int, int]
     kind: str  # "optical" | "thermal"
+    model: object | None = None  # a thermogrammetry.Camera with distortion; None: ideal pinhole K
 
     @property
     def P(self) -> np.ndarray:
@@ -97,13 +98,18 @@ class SceneCamera:
     def project(self, points_world) -> np.ndarray:
         """(N, 3) world points (m) → (N, 2) px (OpenCV origin)."""
         Xc = self.pose.transform(np.asarray(points_world, float))
+        if self.model is not None:
+            return np.asarray(self.model.project(Xc), float)
         uvw = Xc @ self.K.T
         return uvw[:, :2] / uvw[:, 2:3]
 
     def rays(self, xy_px) -> np.ndarray:
         """(N, 2) px → (N, 3) unit line-of-sight directions in the world frame."""
         xy = np.asarray(xy_px, float)
-        d = np.linalg.solve(self.K, np.column_stack([xy, np.ones(len(xy))]).T).T @ self.pose.R
+        if self.model is not None:
+            d = np.asarray(self.model.unproject(xy), float) @ self.pose.R
+        else:
+            d = np.linalg.solve(self.K, np.column_stack([xy, np.ones(len(xy))]).T).T @ self.pose.R
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
@@ -183,6 +189,7 @@ def make_closerange_scene(
     thermal_size: tuple[int, int] = (640, 480),
     thermal_focal_px: float = 1400.0,
     thermal_center: Sequence[float] | None = None,
+    thermal_distortion: Mapping[str, float] | None = None,
 ) -> CloseRangeScene:
     """Build the replica of seed 000: Table 1 points, optical cameras ~2 m away, one thermal camera.
 
@@ -202,6 +209,9 @@ def make_closerange_scene(
     thermal_center : (3,) m, optional
         Projection centre of the thermal camera; default an oblique station to the right so the
         faces are seen at 20°–60°.
+    thermal_distortion : mapping, optional
+        OpenCV forward-form distortion of the thermal camera (``k1``, ``k2``, ``p1``, ``p2``, ...);
+        the truth camera is then a ``thermogrammetry.Camera`` (model ``opencv``).
     """
     if not 2 <= n_optical <= 4:
         raise InvalidInputError(f"n_optical={n_optical}: expected 2 to 4 optical cameras")
@@ -227,8 +237,14 @@ def make_closerange_scene(
         Ct = np.asarray(thermal_center, float)
     Kt = np.array([[thermal_focal_px, 0, (thermal_size[0] - 1) / 2], [0, thermal_focal_px, (thermal_size[1] - 1) / 2],
                    [0, 0, 1]])
+    model = None
+    if thermal_distortion:
+        from ..camera import Camera
+
+        model = Camera("opencv", tuple(thermal_size), {"fx": Kt[0, 0], "fy": Kt[1, 1], "cx": Kt[0, 2],
+                                                        "cy": Kt[1, 2], **dict(thermal_distortion)})
     cams.append(SceneCamera("thermal", Kt, Pose.look_at(Ct, centre + np.array([0, -0.05, 0])), tuple(thermal_size),
-                            "thermal"))
+                            "thermal", model))
     temps = dict(face_temperatures_k or {})
     faces = []
     for j, (name, ids) in enumerate(planes.items()):
