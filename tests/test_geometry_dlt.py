@@ -172,3 +172,43 @@ def test_decompose_projection_signs(rng):
     for scale in (2.5, -0.01):  # negative scale must not flip the camera
         K, R2, C2 = decompose_projection(scale * P)
         assert np.allclose(K, K_MB, rtol=1e-12) and np.allclose(R2, R, atol=1e-12) and np.allclose(C2, C, atol=1e-12)
+
+
+def test_dlt_recovers_flir_a320_correction_form_exactly(rng):
+    """The DLT's additional parameters are the correction form of conventions.md: on projections of the
+    seed 001 Table 2 FLIR A320 camera (Camera 'photogrammetric') the DLT returns c, x0, y0, K1..K3,
+    P1, P2 in the published units, and to_camera() rebuilds a camera that reproduces the images."""
+    from thermogrammetry import Camera
+
+    a320 = dict(c_mm=17.2262, x0_mm=0.2883, y0_mm=-0.1995, K1=-30.6381e-4, K2=2599.4545e-7,
+                K3=-98791.5437e-10, P1=-22.6353e-5, P2=28.1114e-5)
+    cam = Camera("photogrammetric", (320, 240), a320, pixel_pitch_um=25.0)
+    pose = Pose.look_at([0.4, -3.0, 0.6], [0.0, 0.0, 0.0])
+    X = rng.uniform(-0.8, 0.8, (200, 3))
+    xy = cam.project(pose.transform(X))
+    inside = np.all((xy > 0) & (xy < [319, 239]), axis=1)
+    X, xy = X[inside][:40], xy[inside][:40]
+    r = dlt(X, xy, additional=("K1", "K2", "K3", "P1", "P2"), image_size=(320, 240), pixel_pitch_um=25.0)
+    assert r.termination is Termination.CONVERGED and r.rms_px < 1e-9
+    for k in ("c_mm", "x0_mm", "y0_mm"):
+        assert abs(r.values[k] - a320[k]) < 1e-9, k
+    for k in ("K1", "K2", "K3", "P1", "P2"):
+        assert abs(r.additional_mm[k] / a320[k] - 1) < 1e-7, (k, r.additional_mm[k], a320[k])
+    back = r.to_camera()
+    assert back.model.value == "photogrammetric"
+    assert np.abs(back.project(r.pose.transform(X)) - xy).max() < 1e-8
+    with pytest.raises(InvalidInputError, match="correction form"):
+        r.to_camera("opencv")
+
+
+def test_to_camera_opencv_with_skew(rng):
+    K = np.array([[800.0, 1.5, 330.0], [0.0, 790.0, 245.0], [0.0, 0.0, 1.0]])
+    pose = Pose.look_at([1.0, -6.0, 2.5], [0.2, 0.3, 0.4])
+    X = rng.uniform(-1, 1, (20, 3))
+    xy = project_points(K, pose, X)
+    r = dlt(X, xy, image_size=(640, 480))
+    cam = r.to_camera()
+    assert cam.model.value == "opencv"
+    assert np.abs(cam.project(r.pose.transform(X)) - xy).max() < 1e-8
+    r = dlt(X, xy, image_size=(640, 480), pixel_pitch_um=17.0)  # aspect ≠ 1 and skew carried by B1, B2
+    assert np.abs(r.to_camera().project(r.pose.transform(X)) - xy).max() < 1e-8

@@ -387,6 +387,65 @@ class DLTResult:
                 break
         return x
 
+    def to_camera(self, model: str = "auto", *, tol_px: float = 0.01, name: str = ""):
+        """The decomposed interior orientation as a :class:`thermogrammetry.Camera`.
+
+        Parameters
+        ----------
+        model : {"auto", "photogrammetric", "opencv"}
+            ``"photogrammetric"`` (correction form, needs ``pixel_pitch_um`` (square) and ``image_size``):
+            ``c_mm = fy·pitch``, ``x0_mm``, ``y0_mm``, the additional parameters in mm units, and the
+            DLT's affinity as ``B1 = fy/fx − 1``, ``B2 = skew/fx``. This is exact when aspect = 1
+            and skew = 0 or without additional parameters; otherwise it neglects
+            ``(fy/fx − 1)·Δx + (skew/fx)·Δy`` (checked over the image against ``tol_px``).
+            ``"opencv"``: ``fx fy cx cy skew``; only without additional parameters (they are in the
+            correction form; use ``thermogrammetry.camera.convert_camera`` to fit a forward model).
+            ``"auto"``: photogrammetric when a pixel pitch is known, else opencv.
+        tol_px : float
+            Largest acceptable neglected term (px) for the photogrammetric conversion.
+
+        Raises
+        ------
+        InvalidInputError
+            Missing image size / pitch, or a conversion that cannot represent the result.
+        """
+        from ..camera import Camera
+
+        if self.image_size is None:
+            raise InvalidInputError("to_camera: the DLT was run without image_size; pass image_size=(w, h) to dlt()")
+        if model == "auto":
+            model = "photogrammetric" if self.pixel_pitch_um is not None else "opencv"
+        K = self.K
+        fx, fy, s = K[0, 0], K[1, 1], K[0, 1]
+        if model == "opencv":
+            if self.additional:
+                raise InvalidInputError(
+                    f"to_camera('opencv'): the additional parameters {sorted(self.additional)} are in the correction "
+                    "form; use model='photogrammetric' (needs pixel_pitch_um) or fit a forward model with convert_camera"
+                )
+            return Camera("opencv", self.image_size, dict(fx=fx, fy=fy, cx=K[0, 2], cy=K[1, 2], skew=s), name=name)
+        if model != "photogrammetric":
+            raise InvalidInputError(f"to_camera: model {model!r}; expected 'auto', 'photogrammetric' or 'opencv'")
+        pitch = self.pixel_pitch_um
+        if pitch is None or abs(pitch[0] - pitch[1]) > 1e-9 * pitch[0]:
+            raise InvalidInputError(f"to_camera('photogrammetric'): needs a square pixel pitch, got pixel_pitch_um={pitch}")
+        a = pitch[0] / 1000.0
+        w, h = self.image_size
+        params = dict(c_mm=fy * a, x0_mm=(K[0, 2] - (w - 1) / 2.0) * a, y0_mm=-(K[1, 2] - (h - 1) / 2.0) * a,
+                      B1=fy / fx - 1.0, B2=s / fx)
+        params.update(self.additional_mm or {})
+        if self.additional:
+            gx, gy = np.meshgrid(np.linspace(0, w - 1, 33), np.linspace(0, h - 1, 25))
+            xb, yb = gx.ravel() - K[0, 2], gy.ravel() - K[1, 2]
+            dx, dy, *_ = _distortion(xb, yb, self.additional, ())
+            neglected = np.abs((fy / fx - 1.0) * dx + (s / fx) * dy).max()
+            if neglected > tol_px:
+                raise InvalidInputError(
+                    f"to_camera('photogrammetric'): aspect {fy / fx:.6f} and skew {s:.3g} px with the distortion give a "
+                    f"model difference of {neglected:.3g} px > tol_px={tol_px}"
+                )
+        return Camera("photogrammetric", self.image_size, params, pixel_pitch_um=pitch[0], name=name)
+
     def project_ideal(self, points_world) -> np.ndarray:
         """Project with the 3×4 matrix only (no additional parameters), pixels."""
         X = as_points(points_world, "points_world", 3)
