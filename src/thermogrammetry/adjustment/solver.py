@@ -1,0 +1,895 @@
+"""How a :class:`~thermogrammetry.adjustment.problem.BundleProblem` is solved, and what comes out.
+
+Levenberg-Marquardt (Ceres-style trust region, see :mod:`thermogrammetry.adjustment.bal`) on the
+whitened residuals ``r_i / sigma_i``; the normal equations are reduced to the non-point parameters
+by the Schur complement on the 3x3 point blocks, built with sparse products and solved by dense
+Cholesky (the reduced system of calibration and close-range networks is small).
+
+Precision and reliability (Foerstner & Wrobel 2016, ch. 4; Baarda 1968):
+
+- ``sigma0^2 = v^T P v / r`` with redundancy ``r = m - n (+ d for a free network)`` and the
+  two-sided chi^2 test of ``r sigma0^2 / sigma0_prior^2`` at ``alpha``;
+- cofactor matrix ``Q = S^-1`` of the non-point parameters (intrinsics, poses, rigs); a
+  posteriori covariance ``sigma0^2 Q``; standard deviations and correlations; point
+  covariances ``V^-1 + V^-1 W^T Q W V^-1`` on request; for a free network the inner-constraint
+  cofactor ``P N^- P^T`` with ``P = I - G (E^T G)^-1 E^T`` (S-transformation onto minimum trace
+  of the points; Baarda 1973);
+- redundancy numbers ``r_i = 1 - (J Q J^T)_ii`` of every whitened observation row;
+- Baarda's data snooping: ``w_i = v_i / (sigma_i sqrt(r_i))`` with the a priori sigma (w-test,
+  normal critical value for ``snooping_alpha``), iterative rejection of image points; warnings
+  for ``|rho| > correlation_warning`` and for additional parameters whose t-value
+  ``|x| / sigma_x`` is below the Student-t critical value (insignificant).
+
+Robust losses (Huber, Cauchy) act on image points by iteratively re-weighted rows
+(``sqrt(rho'(s))``, Triggs et al. 2000, sec. 3.3).
+
+References
+----------
+Baarda, W. (1968). A testing procedure for use in geodetic networks. Netherlands Geodetic
+Commission, Publications on Geodesy 2(5).
+Baarda, W. (1973). S-transformations and criterion matrices. NGC, Publ. on Geodesy 5(1).
+Foerstner, W., Wrobel, B. P. (2016). Photogrammetric Computer Vision. Springer, ch. 4.
+Fraser, C. S. (1997). Digital camera self-calibration. ISPRS J. 52, 149-159.
+Triggs, B. et al. (2000). Bundle adjustment - a modern synthesis. LNCS 1883.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+import scipy.stats
+
+from ..enums import StrChoice
+from ..errors import ConfigError
+from ..results import Termination
+from ._so3 import rotation_matrices, skew
+from .problem import BundleProblem, Gauge
+
+__all__ = ["Loss", "SolverOptions", "AdjustmentResult", "solve"]
+
+# intrinsics that are "additional parameters" (tested for significance), per model
+_ADDITIONAL = {
+    "k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2", "skew",
+    "K1", "K2", "K3", "K4", "K5", "P1", "P2", "B1", "B2",
+}
+
+
+class Loss(StrChoice):
+    TRIVIAL = "trivial"
+    HUBER = "huber"
+    CAUCHY = "cauchy"
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """How the adjustment is solved (the problem says what is estimated).
+
+    Attributes
+    ----------
+    max_iterations : int
+        LM steps (accepted + rejected) per solve.
+    function_tolerance, gradient_tolerance, parameter_tolerance : float
+        Ceres-style stopping rules (see :mod:`thermogrammetry.adjustment.bal`).
+    initial_trust_region_radius : float
+    loss : Loss
+        Robust loss on image points (``trivial``, ``huber``, ``cauchy``).
+    loss_scale : float
+        Scale of the loss in units of the whitened residual norm (i.e. in sigmas).
+    sigma0_prior : float
+        A priori standard deviation of unit weight (1 when the stated sigmas are right).
+    compute_covariance : bool
+    compute_point_covariance : bool
+    compute_redundancy : bool
+        Redundancy numbers and w-tests (needs the covariance).
+    data_snooping : bool
+        Iteratively reject image points whose w-test fails.
+    snooping_alpha : float
+        Two-sided significance level of a single w-test (0.001 -> 3.29).
+    max_snooping_rounds : int
+    correlation_warning : float
+        Warn for |rho| above this between camera-side parameters.
+    significance_alpha : float
+        Two-sided level of the t-test of additional parameters.
+    rank_tolerance : float
+        Smallest eigenvalue / largest of the Jacobi-scaled reduced normal matrix below which the
+        problem is rank deficient.
+    max_dense_inner : int
+        Largest parameter count for which the free-network (inner constraint) covariance is
+        computed (dense).
+    """
+
+    max_iterations: int = 100
+    function_tolerance: float = 1e-12
+    gradient_tolerance: float = 1e-12
+    parameter_tolerance: float = 1e-12
+    initial_trust_region_radius: float = 1e4
+    loss: Loss = Loss.TRIVIAL
+    loss_scale: float = 3.0
+    sigma0_prior: float = 1.0
+    compute_covariance: bool = True
+    compute_point_covariance: bool = False
+    compute_redundancy: bool = True
+    data_snooping: bool = False
+    snooping_alpha: float = 0.001
+    max_snooping_rounds: int = 50
+    correlation_warning: float = 0.9
+    significance_alpha: float = 0.05
+    rank_tolerance: float = 1e-12
+    max_dense_inner: int = 4000
+
+    def __post_init__(self):
+        object.__setattr__(self, "loss", Loss(self.loss))
+        if self.max_iterations < 0:
+            raise ConfigError(f"max_iterations={self.max_iterations!r}; expected an integer >= 0")
+        for name in ("loss_scale", "sigma0_prior", "snooping_alpha", "significance_alpha"):
+            v = getattr(self, name)
+            if not (v > 0):
+                raise ConfigError(f"{name}={v!r}; expected a number > 0")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SolverOptions":
+        known = {f.name for f in fields(cls)}
+        bad = set(d) - known
+        if bad:
+            raise ConfigError(f"unknown solver option(s) {sorted(bad)}; expected some of {sorted(known)}")
+        return cls(**d)
+
+
+@dataclass
+class AdjustmentResult:
+    """Outcome of :func:`solve`.
+
+    Attributes
+    ----------
+    termination, reason : Termination, str
+    iterations : int
+    initial_cost, final_cost : float
+        ``1/2 sum rho(r_i^2)`` of the whitened residuals (``1/2 v^T P v`` without a robust loss).
+    problem : BundleProblem
+        Copy of the problem at the estimate (cameras carry ``param_std``); usable as the start
+        of a further stage.
+    sigma0 : float
+        A posteriori standard deviation of unit weight.
+    redundancy : int
+    chi2 : dict
+        ``statistic``, ``dof``, ``lower``, ``upper``, ``passed`` of the two-sided chi^2 test.
+    param_names : list of str
+        Camera-side parameters in covariance order: ``"<camera>.<param>"``,
+        ``"<pose>.wx|wy|wz|tx|ty|tz"`` (rotation increments in rad, translation in m),
+        ``"rig<i>.wx..tz"``.
+    covariance, correlation : (n, n) arrays (a posteriori) or None
+    std : (n,) array or None
+    camera_std : list of (P,) arrays (NaN where fixed)
+    pose_std : (n_poses, 6) array: rotation (rad, small angles about the world axes... see below)
+        and projection-centre standard deviations (m). The rotation part is the left increment
+        ``R <- exp([dw]x) R`` (camera-frame axes); NaN for fixed poses.
+    point_covariance : (N, 3, 3) or None
+        A posteriori, free points only (NaN elsewhere), when requested.
+    image_residuals : (K, 2) px, ``measured - computed`` corrections v (0 for rejected)
+    image_redundancy : (K, 2)
+    image_w : (K, 2) w-test values (NaN for rejected)
+    rejected : (K,) bool
+    control_residuals : (Kc, 3) m
+    gnss_residuals : (Kg, 3) m
+    warnings : list of str
+    """
+
+    termination: Termination
+    reason: str
+    iterations: int
+    initial_cost: float
+    final_cost: float
+    problem: BundleProblem
+    sigma0: float = float("nan")
+    redundancy: int = 0
+    chi2: dict = field(default_factory=dict)
+    param_names: list = field(default_factory=list)
+    covariance: np.ndarray | None = None
+    correlation: np.ndarray | None = None
+    std: np.ndarray | None = None
+    camera_std: list = field(default_factory=list)
+    pose_std: np.ndarray | None = None
+    point_covariance: np.ndarray | None = None
+    image_residuals: np.ndarray | None = None
+    image_redundancy: np.ndarray | None = None
+    image_w: np.ndarray | None = None
+    rejected: np.ndarray | None = None
+    control_residuals: np.ndarray | None = None
+    gnss_residuals: np.ndarray | None = None
+    warnings: list = field(default_factory=list)
+    time_s: float = 0.0
+
+    @property
+    def success(self) -> bool:
+        return self.termination.success
+
+    @property
+    def points(self) -> np.ndarray:
+        return self.problem.points
+
+    @property
+    def cameras(self) -> list:
+        return self.problem.cameras
+
+    @property
+    def poses(self) -> list:
+        return self.problem.poses()
+
+
+# ------------------------------------------------------------------------------------------------
+# internal: parameter layout, evaluation, linear algebra
+# ------------------------------------------------------------------------------------------------
+class _Layout:
+    def __init__(self, pb: BundleProblem):
+        col = 0
+        self.cam_cols = []
+        names = []
+        for i, (cam, fx) in enumerate(zip(pb.cameras, pb.camera_fixed)):
+            cc = np.full(len(fx), -1, dtype=np.int64)
+            for k in range(len(fx)):
+                if not fx[k]:
+                    cc[k] = col
+                    col += 1
+                    names.append(f"{pb.camera_names[i]}.{cam.param_names[k]}")
+            self.cam_cols.append(cc)
+        self.pose_col = np.full(len(pb.pose_R), -1, dtype=np.int64)
+        for p in range(len(pb.pose_R)):
+            if not pb.pose_fixed[p]:
+                self.pose_col[p] = col
+                col += 6
+                names += [f"{pb.pose_names[p]}.{a}" for a in ("wx", "wy", "wz", "tx", "ty", "tz")]
+        self.rig_col = np.full(len(pb.rig_R), -1, dtype=np.int64)
+        for r in range(len(pb.rig_R)):
+            if not pb.rig_fixed[r]:
+                self.rig_col[r] = col
+                col += 6
+                names += [f"rig{r}.{a}" for a in ("wx", "wy", "wz", "tx", "ty", "tz")]
+        self.nc = col
+        self.names = names
+        free = ~pb.point_fixed
+        self.free_points = np.nonzero(free)[0]
+        self.point_slot = np.full(len(pb.points), -1, dtype=np.int64)
+        self.point_slot[self.free_points] = np.arange(len(self.free_points))
+        self.npf = len(self.free_points)
+
+
+class _State:
+    def __init__(self, pb: BundleProblem):
+        self.cam_params = [c.params.copy() for c in pb.cameras]
+        self.R = np.array(pb.pose_R).reshape(-1, 3, 3)
+        self.t = np.array(pb.pose_t).reshape(-1, 3)
+        self.rR = np.array(pb.rig_R).reshape(-1, 3, 3)
+        self.rt = np.array(pb.rig_t).reshape(-1, 3)
+        self.X = pb.points.copy()
+
+    def plus(self, lay: _Layout, dc: np.ndarray, dp: np.ndarray) -> "_State":
+        s = object.__new__(_State)
+        s.cam_params = []
+        for p, cc in zip(self.cam_params, lay.cam_cols):
+            q = p.copy()
+            m = cc >= 0
+            q[m] += dc[cc[m]]
+            s.cam_params.append(q)
+        s.R, s.t = self.R.copy(), self.t.copy()
+        fp = np.nonzero(lay.pose_col >= 0)[0]
+        if len(fp):
+            d = dc[lay.pose_col[fp][:, None] + np.arange(6)]
+            s.R[fp] = rotation_matrices(d[:, :3]) @ self.R[fp]
+            s.t[fp] = self.t[fp] + d[:, 3:]
+        s.rR, s.rt = self.rR.copy(), self.rt.copy()
+        fr = np.nonzero(lay.rig_col >= 0)[0]
+        if len(fr):
+            d = dc[lay.rig_col[fr][:, None] + np.arange(6)]
+            s.rR[fr] = rotation_matrices(d[:, :3]) @ self.rR[fr]
+            s.rt[fr] = self.rt[fr] + d[:, 3:]
+        s.X = self.X.copy()
+        if lay.npf:
+            s.X[lay.free_points] += dp.reshape(-1, 3)
+        return s
+
+    def write_to(self, pb: BundleProblem) -> None:
+        pb.cameras = [c if np.array_equal(c.params, p) else c.with_params(p) for c, p in zip(pb.cameras, self.cam_params)]
+        pb.pose_R = [r.copy() for r in self.R]
+        pb.pose_t = [t.copy() for t in self.t]
+        pb.rig_R = [r.copy() for r in self.rR]
+        pb.rig_t = [t.copy() for t in self.rt]
+        pb.points = self.X.copy()
+
+
+class _Data:
+    """Observations (with the active mask for image points) in flat arrays."""
+
+    def __init__(self, pb: BundleProblem, active: np.ndarray):
+        img = pb.image_observations()
+        self.all_img = img
+        a = np.nonzero(active)[0]
+        self.img_idx = a
+        self.cam = img.camera[a]
+        self.view = img.view[a]
+        self.pt = img.point[a]
+        self.xy = img.xy[a]
+        self.sig = img.sigma[a]
+        self.vpose = np.asarray(pb.view_pose, dtype=np.int64)[self.view] if len(a) else np.zeros(0, np.int64)
+        self.vrig = np.asarray(pb.view_rig, dtype=np.int64)[self.view] if len(a) else np.zeros(0, np.int64)
+        self.c_pt, self.c_xyz, self.c_sig = pb.control_observations()
+        self.g_pose, self.g_xyz, self.g_sig, self.g_lever = pb.gnss_observations()
+        self.K = len(a)
+        self.m = 2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose)
+
+
+def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
+    """Whitened residuals r (m,), and (if wanted) camera-side Jacobian triplets and point
+    Jacobian rows. Residual = (computed - observed) / sigma."""
+    K = data.K
+    m = data.m
+    r = np.empty(m)
+    rows, cols, vals = [], [], []
+    jp = np.zeros((m, 3))
+    pslot = np.full(m, -1, dtype=np.int64)
+
+    def trip(row0, ncomp, J, start, valid):
+        # J (n, ncomp, w) for rows row0 + ncomp*k + a, columns start[k] + j
+        n, _, w = J.shape
+        if n == 0 or not np.any(valid):
+            return
+        k = np.nonzero(valid)[0]
+        rr = (row0[k, None, None] + np.arange(ncomp)[None, :, None]) + np.zeros((1, 1, w), dtype=np.int64)
+        cc = (start[k, None, None] + np.arange(w)[None, None, :]) + np.zeros((1, ncomp, 1), dtype=np.int64)
+        rows.append(rr.ravel())
+        cols.append(cc.ravel())
+        vals.append(J[k].ravel())
+
+    if K:
+        Rm = st.R[data.vpose]
+        tm = st.t[data.vpose]
+        X = st.X[data.pt]
+        Xm = np.einsum("kij,kj->ki", Rm, X) + tm
+        isrig = data.vrig >= 0
+        Rr = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
+        tr = np.zeros((K, 3))
+        if np.any(isrig):
+            Rr[isrig] = st.rR[data.vrig[isrig]]
+            tr[isrig] = st.rt[data.vrig[isrig]]
+        Xc = np.einsum("kij,kj->ki", Rr, Xm) + tr
+        xy = np.empty((K, 2))
+        Jx = np.empty((K, 2, 3)) if want_jac else None
+        rowbase = 2 * np.arange(K)
+        for c, cam in enumerate(pb.cameras):
+            sel = np.nonzero(data.cam == c)[0]
+            if not len(sel):
+                continue
+            camc = cam.with_params(st.cam_params[c]) if not np.array_equal(st.cam_params[c], cam.params) else cam
+            if want_jac:
+                xyc, jpt, jint = camc.project_jacobian(Xc[sel])
+                xy[sel] = xyc
+                Jx[sel] = jpt
+                cc = lay.cam_cols[c]
+                free = np.nonzero(cc >= 0)[0]
+                if len(free):
+                    Jw = jint[:, :, free] / data.sig[sel][:, :, None]
+                    n = len(sel)
+                    rr = (rowbase[sel][:, None, None] + np.arange(2)[None, :, None]) + np.zeros((1, 1, len(free)), np.int64)
+                    ccol = np.broadcast_to(cc[free][None, None, :], (n, 2, len(free)))
+                    rows.append(rr.ravel())
+                    cols.append(ccol.ravel())
+                    vals.append(Jw.ravel())
+            else:
+                xy[sel] = camc.project(Xc[sel])
+        res = (xy - data.xy) / data.sig
+        r[: 2 * K] = res.ravel()
+        if want_jac:
+            Jxw = Jx / data.sig[:, :, None]
+            JxR = Jxw @ Rr  # d/dXm
+            # master pose: dXm/dw = -[Rm X]x, dXm/dt = I
+            Jw_m = -JxR @ skew(np.einsum("kij,kj->ki", Rm, X))
+            pc = lay.pose_col[data.vpose]
+            trip(rowbase, 2, np.concatenate([Jw_m, JxR], axis=2), pc, pc >= 0)
+            # rig: dXc/dw_r = -[Rr Xm]x, dXc/dt_r = I
+            if np.any(isrig):
+                rc = np.where(isrig, lay.rig_col[np.maximum(data.vrig, 0)], -1)
+                Jw_r = -Jxw @ skew(np.einsum("kij,kj->ki", Rr, Xm))
+                trip(rowbase, 2, np.concatenate([Jw_r, Jxw], axis=2), rc, rc >= 0)
+            Jpt = JxR @ Rm
+            slot = lay.point_slot[data.pt]
+            jp[: 2 * K] = Jpt.reshape(-1, 3)
+            pslot[: 2 * K] = np.repeat(slot, 2)
+    row = 2 * K
+    nc_ = len(data.c_pt)
+    if nc_:
+        X = st.X[data.c_pt]
+        r[row : row + 3 * nc_] = ((X - data.c_xyz) / data.c_sig).ravel()
+        if want_jac:
+            slot = lay.point_slot[data.c_pt]
+            eye = np.eye(3)[None] / data.c_sig[:, :, None]
+            jp[row : row + 3 * nc_] = eye.reshape(-1, 3)
+            pslot[row : row + 3 * nc_] = np.repeat(slot, 3)
+        row += 3 * nc_
+    ng = len(data.g_pose)
+    if ng:
+        R = st.R[data.g_pose]
+        t = st.t[data.g_pose]
+        lt = data.g_lever - t
+        A = np.einsum("kji,kj->ki", R, lt)  # R^T (l - t)
+        r[row : row + 3 * ng] = ((A - data.g_xyz) / data.g_sig).ravel()
+        if want_jac:
+            RT = np.swapaxes(R, 1, 2)
+            J = np.concatenate([RT @ skew(lt), -RT], axis=2) / data.g_sig[:, :, None]
+            pc = lay.pose_col[data.g_pose]
+            trip(row + 3 * np.arange(ng), 3, J, pc, pc >= 0)
+    if not want_jac:
+        return r
+    if rows:
+        rows_a, cols_a, vals_a = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+    else:
+        rows_a = cols_a = np.zeros(0, np.int64)
+        vals_a = np.zeros(0)
+    Jc = sp.csr_matrix((vals_a, (rows_a, cols_a)), shape=(m, lay.nc))
+    return r, Jc, jp, pslot
+
+
+def _robust(r, K, opt: SolverOptions):
+    """Per-row sqrt weights and the robust cost 1/2 sum rho."""
+    w = np.ones_like(r)
+    if opt.loss is Loss.TRIVIAL or K == 0:
+        return w, 0.5 * float(r @ r)
+    s = r[: 2 * K].reshape(K, 2)
+    s = np.sum(s * s, axis=1)
+    c2 = opt.loss_scale**2
+    if opt.loss is Loss.HUBER:
+        big = s > c2
+        rho = np.where(big, 2.0 * np.sqrt(c2 * s) - c2, s)
+        d1 = np.where(big, np.sqrt(c2 / np.maximum(s, 1e-300)), 1.0)
+    else:
+        rho = c2 * np.log1p(s / c2)
+        d1 = 1.0 / (1.0 + s / c2)
+    w[: 2 * K] = np.repeat(np.sqrt(d1), 2)
+    rest = r[2 * K :]
+    return w, 0.5 * (float(np.sum(rho)) + float(rest @ rest))
+
+
+class _Normal:
+    """Normal-equation pieces at one linearisation (whitened, robust-weighted)."""
+
+    def __init__(self, r, Jc, jp, pslot, lay: _Layout, w):
+        self.lay = lay
+        m = len(r)
+        rw = r * w
+        Jcw = sp.diags(w) @ Jc if lay.nc else Jc
+        jpw = jp * w[:, None]
+        has = pslot >= 0
+        self.has = has
+        prow = np.nonzero(has)[0]
+        npf = lay.npf
+        self.Jc = Jcw
+        self.U = (Jcw.T @ Jcw).toarray() if lay.nc else np.zeros((0, 0))
+        self.gc = Jcw.T @ rw if lay.nc else np.zeros(0)
+        # point side
+        ps = pslot[prow]
+        jpp = jpw[prow]
+        outer = (jpp[:, :, None] * jpp[:, None, :]).reshape(-1, 9)
+        V = np.zeros((npf, 9))
+        gp = np.zeros((npf, 3))
+        for k in range(9):
+            V[:, k] = np.bincount(ps, weights=outer[:, k], minlength=npf)
+        for k in range(3):
+            gp[:, k] = np.bincount(ps, weights=jpp[:, k] * rw[prow], minlength=npf)
+        self.V = V.reshape(npf, 3, 3)
+        self.gp = gp
+        colsp = (3 * ps[:, None] + np.arange(3)).ravel()
+        rowsp = np.repeat(prow, 3)
+        self.Jp = sp.csr_matrix((jpp.ravel(), (rowsp, colsp)), shape=(m, 3 * npf))
+        self.B = (Jcw.T @ self.Jp).tocsr() if lay.nc else sp.csr_matrix((0, 3 * npf))
+        self.dU = np.clip(np.diag(self.U), 1e-6, 1e32) if lay.nc else np.zeros(0)
+        self.dV = np.clip(np.diagonal(self.V, axis1=1, axis2=2), 1e-6, 1e32)
+        self.grad_max = max(float(np.max(np.abs(self.gc))) if lay.nc else 0.0, float(np.max(np.abs(gp))) if npf else 0.0)
+
+    def schur(self, lam):
+        """Reduced matrix, its rhs and V^-1 blocks for damping lam (0 = undamped)."""
+        npf = self.lay.npf
+        Vd = self.V.copy()
+        if lam:
+            Vd[:, [0, 1, 2], [0, 1, 2]] += lam * self.dV
+        if npf:
+            try:
+                Vinv = np.linalg.inv(Vd)
+                ok = np.all(np.isfinite(Vinv))
+            except np.linalg.LinAlgError:
+                Vinv, ok = None, False
+        else:
+            Vinv, ok = np.zeros((0, 3, 3)), True
+        if not ok:
+            return None
+        Vsp = sp.bsr_matrix((Vinv, np.arange(npf), np.arange(npf + 1)), shape=(3 * npf, 3 * npf)).tocsr()
+        S = self.U.copy()
+        if lam and self.lay.nc:
+            S[np.diag_indices_from(S)] += lam * self.dU
+        H = (self.B @ Vsp).tocsr() if self.lay.nc else None
+        rhs = -self.gc.copy()
+        if self.lay.nc and npf:
+            S -= (H @ self.B.T).toarray()
+            rhs += H @ self.gp.ravel()
+        return S, rhs, Vinv, H
+
+    def back(self, dc, Vinv):
+        npf = self.lay.npf
+        if not npf:
+            return np.zeros(0)
+        rp = -self.gp
+        if self.lay.nc:
+            rp = rp - (self.B.T @ dc).reshape(npf, 3)
+        return np.einsum("nij,nj->ni", Vinv, rp).ravel()
+
+
+def _cho_solve(S, rhs):
+    if S.shape[0] == 0:
+        return np.zeros(0), True
+    try:
+        cf = scipy.linalg.cho_factor(S, check_finite=False)
+        x = scipy.linalg.cho_solve(cf, rhs, check_finite=False)
+        return x, bool(np.all(np.isfinite(x)))
+    except (np.linalg.LinAlgError, ValueError):
+        return None, False
+
+
+def _lm(pb, lay, st, data, opt: SolverOptions):
+    """Returns (state, cost0, cost, iterations, termination, reason, last linearisation)."""
+    r = _evaluate(pb, lay, st, data, False)
+    w, cost = _robust(r, data.K, opt)
+    cost0 = cost
+    if not np.isfinite(cost):
+        return st, cost0, cost, 0, Termination.NUMERICAL_FAILURE, "initial residuals are not finite"
+    radius = opt.initial_trust_region_radius
+    decrease = 2.0
+    it = 0
+    need = True
+    while True:
+        if need:
+            r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
+            w, cost = _robust(r, data.K, opt)
+            ne = _Normal(r, Jc, jp, pslot, lay, w)
+            need = False
+            if ne.grad_max <= opt.gradient_tolerance:
+                return st, cost0, cost, it, Termination.CONVERGED, f"gradient tolerance reached (max|g| = {ne.grad_max:.3g})"
+        if it >= opt.max_iterations:
+            return st, cost0, cost, it, Termination.MAX_ITERATIONS, f"stopped after {it} iterations"
+        it += 1
+        lam = 1.0 / radius
+        sch = ne.schur(lam)
+        ok = sch is not None
+        if ok:
+            S, rhs, Vinv, _ = sch
+            dc, ok = _cho_solve(S, rhs)
+        if ok:
+            dp = ne.back(dc, Vinv)
+            g = np.concatenate([ne.gc, ne.gp.ravel()])
+            d = np.concatenate([dc, dp])
+            D = np.concatenate([ne.dU, ne.dV.ravel()])
+            model = 0.5 * (-(g @ d) + lam * float(D @ (d * d)))
+            xn = np.sqrt(sum(float(p @ p) for p in st.cam_params) + float(np.sum(st.t**2)) + float(np.sum(st.X**2)))
+            dn = float(np.sqrt(d @ d))
+            if dn <= opt.parameter_tolerance * (xn + opt.parameter_tolerance):
+                return st, cost0, cost, it, Termination.CONVERGED, f"parameter tolerance reached (|dx| = {dn:.3g})"
+            st_new = st.plus(lay, dc, dp)
+            r_new = _evaluate(pb, lay, st_new, data, False)
+            _, cost_new = _robust(r_new, data.K, opt)
+            rho = (cost - cost_new) / model if model > 0 else -1.0
+            ok = bool(np.isfinite(cost_new)) and rho > 1e-3
+        if ok:
+            change = cost - cost_new
+            st, cost = st_new, cost_new
+            radius = min(1e16, radius / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
+            decrease = 2.0
+            need = True
+            if abs(change) <= opt.function_tolerance * (cost + change):
+                return st, cost0, cost, it, Termination.CONVERGED, "function tolerance reached"
+        else:
+            radius /= decrease
+            decrease *= 2.0
+            if radius < 1e-32:
+                return st, cost0, cost, it, Termination.CONVERGED, "trust region collapsed: no further decrease possible"
+
+
+def _gauge_basis(pb, lay, st):
+    """Null-space basis G (n, 7) of a free network (3 translations, 3 rotations, scale) and the
+    selector E (rows of the free points)."""
+    n = lay.nc + 3 * lay.npf
+    G = np.zeros((n, 7))
+    for p in range(len(st.R)):
+        c = lay.pose_col[p]
+        if c < 0:
+            continue
+        R, t = st.R[p], st.t[p]
+        G[c + 3 : c + 6, 0:3] = -R  # world translation dX: dt = -R dX
+        G[c : c + 3, 3:6] = -R  # world rotation dth: dw = -R dth
+        G[c + 3 : c + 6, 6] = t  # scale: dt = s t
+    for r in range(len(st.rR)):
+        c = lay.rig_col[r]
+        if c >= 0:
+            G[c + 3 : c + 6, 6] = st.rt[r]
+    base = lay.nc
+    Xf = st.X[lay.free_points]
+    for k in range(lay.npf):
+        rows = slice(base + 3 * k, base + 3 * k + 3)
+        G[rows, 0:3] = np.eye(3)
+        G[rows, 3:6] = -skew(Xf[k])
+        G[rows, 6] = Xf[k]
+    E = G.copy()
+    E[: lay.nc] = 0.0
+    return G, E
+
+
+def solve(problem: BundleProblem, options: SolverOptions | None = None) -> AdjustmentResult:
+    """Adjust a :class:`BundleProblem`; see the module docstring for what is reported.
+
+    Never raises for numerical trouble: too few observations, an undefined datum (rank
+    deficiency), non-finite residuals or non-convergence come back as a result whose
+    ``termination`` and ``reason`` say so.
+    """
+    from threadpoolctl import threadpool_limits
+
+    opt = options or SolverOptions()
+    if not isinstance(problem, BundleProblem):
+        from ..errors import InvalidInputError
+
+        raise InvalidInputError(f"problem: expected a BundleProblem, got {type(problem).__name__}")
+    with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):
+        return _solve(problem, opt)
+
+
+def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
+    t0 = time.perf_counter()
+    pb = problem.copy()
+    lay = _Layout(pb)
+    K_all = len(pb.image_observations().point)
+    active = np.ones(K_all, dtype=bool)
+    st = _State(pb)
+    n = lay.nc + 3 * lay.npf
+    defect = 7 if pb.gauge is Gauge.INNER else 0
+    warnings: list[str] = []
+
+    def result(term, reason, it, c0, c1, **kw):
+        st.write_to(pb)
+        return AdjustmentResult(term, reason, it, c0, c1, pb, warnings=warnings, time_s=time.perf_counter() - t0, **kw)
+
+    data = _Data(pb, active)
+    red = data.m - n + defect
+    if n == 0:
+        return result(Termination.TOO_FEW_OBSERVATIONS, "no free parameters", 0, np.nan, np.nan)
+    if red < 0:
+        return result(
+            Termination.TOO_FEW_OBSERVATIONS,
+            f"{data.m} observation equations for {n} unknowns (datum defect {defect}): redundancy {red} < 0",
+            0,
+            np.nan,
+            np.nan,
+        )
+    # free points observed too rarely cannot be determined
+    nobs_pt = np.bincount(data.pt, minlength=len(pb.points)) + np.bincount(data.c_pt, minlength=len(pb.points))
+    weak = lay.free_points[nobs_pt[lay.free_points] < 2]
+    weak = weak[np.bincount(data.c_pt, minlength=len(pb.points))[weak] == 0]
+    if len(weak):
+        return result(
+            Termination.RANK_DEFICIENT,
+            f"{len(weak)} free point(s) seen in fewer than 2 images and without control, e.g. point {int(weak[0])}",
+            0,
+            np.nan,
+            np.nan,
+        )
+    total_it = 0
+    rounds = 0
+    cost0 = None
+    while True:
+        data = _Data(pb, active)
+        st, c0, cost, it, term, reason = _lm(pb, lay, st, data, opt)
+        total_it += it
+        if cost0 is None:
+            cost0 = c0
+        if not term.success:
+            return result(term, reason, total_it, cost0, cost)
+        out = _precision(pb, lay, st, data, opt, active, warnings)
+        if isinstance(out, tuple):  # failure
+            return result(out[0], out[1], total_it, cost0, cost)
+        if not (opt.data_snooping and opt.compute_redundancy) or rounds >= opt.max_snooping_rounds:
+            break
+        w = out["image_w"]
+        k = scipy.stats.norm.ppf(1 - opt.snooping_alpha / 2)
+        wmax = np.nanmax(np.abs(w), axis=1) if len(w) else np.zeros(0)
+        cand = np.nonzero(wmax > k)[0]
+        if not len(cand):
+            break
+        cand = cand[np.argsort(-wmax[cand])]
+        img = pb.image_observations()
+        used_pt, used_view = set(), set()
+        reject = []
+        for i in cand:
+            p, v = int(img.point[i]), int(img.view[i])
+            if p in used_pt or v in used_view:
+                continue
+            used_pt.add(p)
+            used_view.add(v)
+            reject.append(i)
+        active[reject] = False
+        rounds += 1
+        # a rejection must not leave a free point undetermined
+        data_chk = _Data(pb, active)
+        cnt = np.bincount(data_chk.pt, minlength=len(pb.points)) + np.bincount(data_chk.c_pt, minlength=len(pb.points))
+        lost = lay.free_points[cnt[lay.free_points] < 2]
+        if len(lost):
+            warnings.append(f"data snooping stopped: rejecting further points would leave point {int(lost[0])} undetermined")
+            active[reject] = True
+            break
+    if rounds:
+        warnings.append(f"data snooping rejected {int(np.sum(~active))} image point(s) in {rounds} round(s)")
+    return result(term, reason, total_it, cost0, cost, **out)
+
+
+def _precision(pb, lay, st, data, opt, active, warnings):
+    r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
+    w, cost = _robust(r, data.K, opt)
+    ne = _Normal(r, Jc, jp, pslot, lay, w)
+    n = lay.nc + 3 * lay.npf
+    defect = 7 if pb.gauge is Gauge.INNER else 0
+    red = data.m - n + defect
+    vtpv = float(np.sum((r * w) ** 2))
+    sigma0 = float(np.sqrt(vtpv / red)) if red > 0 else float("nan")
+    out: dict = {"sigma0": sigma0, "redundancy": int(red)}
+    K_all = len(active)
+    img_res = np.zeros((K_all, 2))
+    img_res[data.img_idx] = -r[: 2 * data.K].reshape(-1, 2) * data.sig  # v = observed - computed
+    out["image_residuals"] = img_res
+    out["rejected"] = ~active
+    nc_ = len(data.c_pt)
+    out["control_residuals"] = -r[2 * data.K : 2 * data.K + 3 * nc_].reshape(-1, 3) * data.c_sig
+    ng = len(data.g_pose)
+    out["gnss_residuals"] = -r[2 * data.K + 3 * nc_ :].reshape(-1, 3) * data.g_sig if ng else np.zeros((0, 3))
+    if red > 0:
+        stat = red * sigma0**2 / opt.sigma0_prior**2
+        lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], red)
+        out["chi2"] = dict(statistic=stat, dof=int(red), lower=float(lo), upper=float(hi), passed=bool(lo <= stat <= hi))
+    if not opt.compute_covariance:
+        return out
+    sch = ne.schur(0.0)
+    if sch is None:
+        return (Termination.RANK_DEFICIENT, "a free point's normal block is singular (too few or parallel rays)")
+    S, _, Vinv, H = sch
+    nc = lay.nc
+    if pb.gauge is Gauge.INNER:
+        if n > opt.max_dense_inner:
+            warnings.append(f"free network with {n} unknowns > max_dense_inner={opt.max_dense_inner}: no covariance")
+            return out
+        J = sp.hstack([ne.Jc, ne.Jp]).tocsr()
+        N = (J.T @ J).toarray()
+        G, E = _gauge_basis(pb, lay, st)
+        try:
+            N0 = np.linalg.inv(N + E @ E.T)
+            P = np.eye(n) - G @ np.linalg.solve(E.T @ G, E.T)
+        except np.linalg.LinAlgError:
+            return (Termination.RANK_DEFICIENT, "free network: normal matrix singular beyond the 7 datum parameters")
+        Qfull = P @ N0 @ P.T
+        # check: N Q N = N within rounding; otherwise the defect is larger than 7
+        if np.max(np.abs(N @ Qfull @ N - N)) > 1e-6 * np.max(np.abs(N)):
+            return (Termination.RANK_DEFICIENT, "free network: rank defect larger than the 7 datum parameters")
+        Q = Qfull[:nc, :nc]
+        Qpp_full = Qfull[nc:, nc:]
+    else:
+        if nc:
+            d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+            ev, evec = np.linalg.eigh(S / d[:, None] / d[None, :])
+            if ev[0] <= opt.rank_tolerance * ev[-1]:
+                k = np.argsort(-np.abs(evec[:, 0]))[:4]
+                involved = ", ".join(lay.names[i] for i in k)
+                return (
+                    Termination.RANK_DEFICIENT,
+                    f"datum or parameters undetermined (condition {ev[-1] / max(ev[0], 1e-300):.3g}); "
+                    f"null direction involves {involved}",
+                )
+            Q = np.linalg.inv(S)
+            Q = 0.5 * (Q + Q.T)
+        else:
+            Q = np.zeros((0, 0))
+        Qfull = None
+    s2 = sigma0**2 if np.isfinite(sigma0) else float("nan")
+    cov = s2 * Q
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / std[:, None] / std[None, :]
+    out.update(param_names=list(lay.names), covariance=cov, std=std, correlation=corr)
+    # per-camera and per-pose std
+    cam_std = []
+    for c, cc in enumerate(lay.cam_cols):
+        sd = np.full(len(cc), np.nan)
+        m = cc >= 0
+        sd[m] = std[cc[m]]
+        cam_std.append(sd)
+    out["camera_std"] = cam_std
+    pose_std = np.full((len(st.R), 6), np.nan)
+    for p in range(len(st.R)):
+        c = lay.pose_col[p]
+        if c < 0:
+            continue
+        Cq = cov[c : c + 6, c : c + 6]
+        # projection centre C = -R^T t: dC = -R^T dt - R^T [t]x dw
+        R, t = st.R[p], st.t[p]
+        A = np.concatenate([-R.T @ skew(t), -R.T], axis=1)
+        pose_std[p, :3] = np.sqrt(np.maximum(np.diag(Cq[:3, :3]), 0))
+        pose_std[p, 3:] = np.sqrt(np.maximum(np.diag(A @ Cq @ A.T), 0))
+    out["pose_std"] = pose_std
+    # warnings: correlations and insignificant additional parameters
+    if nc > 1:
+        iu = np.triu_indices(nc, 1)
+        big = np.abs(corr[iu]) > opt.correlation_warning
+        for a, b in zip(iu[0][big], iu[1][big]):
+            na, nb = lay.names[a], lay.names[b]
+            if na.split(".")[0] == nb.split(".")[0] and (na.endswith(("wx", "wy", "wz", "tx", "ty", "tz"))):
+                continue  # within-pose rotation/translation correlations are geometry, not a finding
+            warnings.append(f"high correlation {corr[a, b]:+.3f} between {na} and {nb}")
+    if red > 0:
+        tcrit = scipy.stats.t.ppf(1 - opt.significance_alpha / 2, red)
+        for c, cc in enumerate(lay.cam_cols):
+            for k, col in enumerate(cc):
+                name = pb.cameras[c].param_names[k]
+                if col >= 0 and name in _ADDITIONAL and std[col] > 0:
+                    tval = abs(st.cam_params[c][k]) / std[col]
+                    if tval < tcrit:
+                        warnings.append(
+                            f"additional parameter {lay.names[col]} insignificant: t = {tval:.2f} < {tcrit:.2f}"
+                        )
+    # write std into the cameras
+    for c, sd in enumerate(cam_std):
+        cam = pb.cameras[c].with_params(st.cam_params[c])
+        try:
+            pb.cameras[c] = cam.with_params(st.cam_params[c], param_std=np.where(np.isfinite(sd), sd, 0.0))
+        except Exception:  # pragma: no cover - camera classes without std support
+            pb.cameras[c] = cam
+    st.cam_params = [c.params.copy() for c in pb.cameras]
+    npf = lay.npf
+    if npf and (opt.compute_point_covariance or opt.compute_redundancy):
+        if Qfull is not None:
+            Qpp = np.stack([Qpp_full[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] for k in range(npf)])
+        else:
+            Qpp = Vinv.copy()
+            if nc:
+                Hd = H.toarray().reshape(nc, npf, 3)
+                QH = np.einsum("ij,jpk->ipk", Q, Hd)
+                Qpp += np.einsum("ipa,ipb->pab", Hd, QH)
+        if opt.compute_point_covariance:
+            pc = np.full((len(pb.points), 3, 3), np.nan)
+            pc[lay.free_points] = s2 * Qpp
+            out["point_covariance"] = pc
+    if opt.compute_redundancy:
+        # h_i = J_i Q J_i^T for every whitened row
+        m = data.m
+        if Qfull is not None:
+            J = sp.hstack([ne.Jc, ne.Jp]).tocsr()
+            Jd = J.toarray()
+            h = np.einsum("ij,ij->i", Jd @ Qfull, Jd)
+        else:
+            h = np.zeros(m)
+            has = ne.has
+            if nc:
+                u = ne.Jc
+                if npf:
+                    u = (u - ne.Jp @ H.T).tocsr()
+                for s in range(0, m, 20000):
+                    blk = u[s : s + 20000].toarray()
+                    h[s : s + 20000] = np.einsum("ij,ij->i", blk @ Q, blk)
+            if npf:
+                jpw = jp * w[:, None]
+                rows = np.nonzero(has)[0]
+                slot = pslot[rows]
+                h[rows] += np.einsum("ri,rij,rj->r", jpw[rows], Vinv[slot], jpw[rows])
+        rnum = np.clip(1.0 - h, 0.0, 1.0)
+        K = data.K
+        img_r = np.full((len(active), 2), np.nan)
+        img_r[data.img_idx] = rnum[: 2 * K].reshape(-1, 2)
+        out["image_redundancy"] = img_r
+        wt = np.full((len(active), 2), np.nan)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            wv = (r[: 2 * K] * w[: 2 * K]) / (opt.sigma0_prior * np.sqrt(rnum[: 2 * K]))
+        wt[data.img_idx] = np.where(rnum[: 2 * K] > 1e-10, wv, np.nan).reshape(-1, 2)
+        out["image_w"] = -wt  # sign of v = observed - computed
+    return out

@@ -1,0 +1,133 @@
+"""General adjustment engine: problem description, LM/Schur solver, precision, blunders (issue 3)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from thermogrammetry import Camera
+from thermogrammetry.adjustment import BundleProblem, SolverOptions, solve
+from thermogrammetry.errors import ConfigError, InvalidInputError, ShapeError
+from thermogrammetry.geometry import Pose
+from thermogrammetry.results import Termination
+
+FIXED_DIST = ["skew", "p1", "p2", "k3", "k4", "k5", "k6"]
+
+
+def _truth(nview=6, radius=1.2, height=3.0):
+    """A 3D test field (7 x 6 targets on a wavy surface, +-0.3 m relief) and a ring of
+    convergent views; camera 640 x 480, f = 600 px with radial distortion."""
+    cam = Camera("opencv", (640, 480), dict(fx=600, fy=600, cx=319.5, cy=239.5, k1=-0.2, k2=0.05))
+    g = np.stack(np.meshgrid(np.linspace(-1, 1, 7), np.linspace(-0.8, 0.8, 6)), -1).reshape(-1, 2)
+    X = np.c_[g, 0.3 * np.sin(3 * g[:, 0]) * np.cos(2 * g[:, 1])]
+    poses = []
+    for k in range(nview):
+        a = 2 * np.pi * k / nview
+        C = np.array([radius * np.cos(a), radius * np.sin(a), height])
+        poses.append(Pose.look_at(C, [0, 0, 0], up=(0, 1, 0)))
+    xy = [cam.project(p.transform(X)) for p in poses]
+    return cam, poses, X, xy
+
+
+def _calib_problem(rng, sigma=0.5, cam_start=None, fixed_points=True, noise=None):
+    cam, poses, X, xy = _truth()
+    pb = BundleProblem()
+    start = cam_start or cam.replace(fx=585, fy=590, cx=325, cy=236, k1=0.0, k2=0.0)
+    ic = pb.add_camera(start, fixed=FIXED_DIST)
+    pts = pb.add_points(X, fixed=fixed_points)
+    for k, (p, x) in enumerate(zip(poses, xy)):
+        v = pb.add_pose(Pose.from_center(p.R, p.center + 0.03))
+        e = rng.normal(0, sigma, x.shape) if noise is None else noise[k]
+        pb.add_image_points(ic, v, pts, x + e, sigma_px=sigma)
+    return pb, cam, poses, X
+
+
+def test_self_calibration_recovers_truth_and_reports_consistent_precision(rng):
+    pb, cam, poses, X = _calib_problem(rng)
+    res = solve(pb)
+    assert res.termination is Termination.CONVERGED, res.reason
+    assert res.initial_cost > 20 * res.final_cost
+    est = res.cameras[0]
+    sd = res.camera_std[0]
+    for name in ("fx", "fy", "cx", "cy", "k1", "k2"):
+        k = est.param_names.index(name)
+        # an unbiased estimate lies within 4.5 reported sigmas of the truth (p > 0.99999 each)
+        assert abs(est.params[k] - cam.params[k]) < 4.5 * sd[k], name
+    # redundancy: 6 views x 42 points x 2 - (6 intrinsics + 36 pose parameters)
+    assert res.redundancy == 6 * 42 * 2 - 42
+    # redundancy numbers sum to the redundancy (trace identity)
+    assert np.nansum(res.image_redundancy) == pytest.approx(res.redundancy, rel=1e-6)
+    # sigma0 of one run: chi^2 with 462 dof -> 1 +- 0.033 (1 sd); 4 sd band
+    assert 0.87 < res.sigma0 < 1.13
+    assert res.chi2["dof"] == res.redundancy
+    # fixed parameters carry no std
+    assert np.isnan(sd[est.param_names.index("k3")])
+    assert res.cameras[0].param_std is not None
+
+
+def test_bad_input_raises():
+    pb = BundleProblem()
+    cam = Camera("pinhole", (100, 100), dict(fx=100, fy=100, cx=50, cy=50))
+    with pytest.raises(ConfigError, match="unknown parameter 'K9'"):
+        pb.add_camera(cam, fixed=["K9"])
+    ic = pb.add_camera(cam)
+    with pytest.raises(InvalidInputError, match="rotation"):
+        pb.add_pose((np.ones((3, 3)), np.zeros(3)))
+    v = pb.add_pose(Pose.identity())
+    pts = pb.add_points(np.zeros((3, 3)) + [0, 0, 5])
+    with pytest.raises(ShapeError, match="xy_px"):
+        pb.add_image_points(ic, v, pts, np.zeros((2, 2)))
+    with pytest.raises(InvalidInputError, match="out of range"):
+        pb.add_image_points(ic, 7, pts, np.zeros((3, 2)))
+    with pytest.raises(InvalidInputError, match="sigma_px"):
+        pb.add_image_points(ic, v, pts, np.zeros((3, 2)), sigma_px=-1.0)
+    with pytest.raises(ConfigError, match="unknown solver option"):
+        SolverOptions.from_dict({"max_iter": 3})
+    with pytest.raises(ConfigError, match="'l2'"):
+        SolverOptions(loss="l2")
+
+
+def test_failure_cases_return_results(rng):
+    cam, poses, X, xy = _truth(nview=2)
+    # too few observations: one view, 3 free points, free camera
+    pb = BundleProblem()
+    ic = pb.add_camera(cam)
+    v = pb.add_pose(poses[0])
+    pts = pb.add_points(X[:3])
+    pb.add_image_points(ic, v, pts, xy[0][:3])
+    res = solve(pb)
+    assert res.termination is Termination.TOO_FEW_OBSERVATIONS and not res.success
+    assert "redundancy" in res.reason
+    # rank-deficient gauge: two free views, free points, no control, gauge "control"
+    pb = BundleProblem()
+    ic = pb.add_camera(cam, fixed=True)
+    pts = pb.add_points(X + rng.normal(0, 0.01, X.shape))
+    for p, x in zip(poses, xy):
+        pb.add_image_points(ic, pb.add_pose(p), pts, x + rng.normal(0, 0.3, x.shape), sigma_px=0.3)
+    res = solve(pb)
+    assert res.termination is Termination.RANK_DEFICIENT
+    assert "undetermined" in res.reason
+    # a free point seen only once
+    pb = BundleProblem()
+    ic = pb.add_camera(cam, fixed=True)
+    v0 = pb.add_pose(poses[0], fixed=True)
+    v1 = pb.add_pose(poses[1], fixed=True)
+    pts = pb.add_points(X)
+    pb.add_image_points(ic, v0, pts, xy[0])
+    pb.add_image_points(ic, v1, pts[:-1], xy[1][:-1])
+    res = solve(pb)
+    assert res.termination is Termination.RANK_DEFICIENT and "fewer than 2" in res.reason
+    # non-finite residuals: a point exactly at the projection centre of the identity pose
+    pb = BundleProblem()
+    ic = pb.add_camera(cam, fixed=True)
+    v0 = pb.add_pose(Pose.identity(), fixed=True)
+    v1 = pb.add_pose(Pose.from_center(np.eye(3), [1.0, 0, 0]), fixed=True)
+    pts = pb.add_points(np.array([[0.0, 0, 0], [0, 0, 5], [1, 1, 5], [-1, 1, 6]]))
+    pb.add_image_points(ic, v0, pts, np.full((4, 2), 300.0))
+    pb.add_image_points(ic, v1, pts, np.full((4, 2), 300.0))
+    res = solve(pb)
+    assert res.termination is Termination.NUMERICAL_FAILURE
+    # iteration limit
+    pb, *_ = _calib_problem(rng)
+    res = solve(pb, SolverOptions(max_iterations=1))
+    assert res.termination is Termination.MAX_ITERATIONS and res.iterations == 1
