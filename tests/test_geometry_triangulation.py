@@ -98,3 +98,17 @@ def test_bad_input():
         triangulate([CAM, CAM], POSES, xy)
     with pytest.raises(ShapeError, match="mask"):
         triangulate(CAM, POSES, xy, mask=np.ones((3, 3), bool))
+
+
+def test_linear_only_and_nested_list_K(rng):
+    K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]  # one shared K as nested lists
+    X = rng.uniform(-1, 1, (10, 3))
+    xy = _obs(X, POSES, np.array(K))
+    noisy = xy + rng.normal(0, 0.5, xy.shape)
+    lin = triangulate(K, POSES, noisy, refine=False, sigma_px=0.5)
+    ref = triangulate(K, POSES, noisy, sigma_px=0.5)
+    assert np.abs(lin.points - X).max() < 0.05 and np.all(np.isfinite(lin.std))
+    # the least-squares refinement lowers the image residuals (it minimises them)
+    assert np.nansum(ref.residuals_px**2) < np.nansum(lin.residuals_px**2)
+    # linearised precision at the two estimates agrees to first order
+    assert np.allclose(lin.std, ref.std, rtol=0.01)

@@ -100,6 +100,8 @@ def _inputs(cameras, poses, xy_px, mask):
     for i, p in enumerate(poses):
         if not isinstance(p, Pose):
             raise ShapeError(f"poses[{i}]: expected a Pose, got {type(p).__name__}")
+    if isinstance(cameras, (list, tuple)) and np.shape(np.asarray(cameras, dtype=object)) == (3, 3):
+        cameras = np.asarray(cameras, dtype=float)  # a single K written as nested lists
     if isinstance(cameras, (list, tuple)):
         if len(cameras) != V:
             raise ShapeError(f"cameras: {len(cameras)} cameras for {V} poses; expected one per pose (or one shared)")
