@@ -5,7 +5,7 @@ One output TIFF per image or sequence frame (``<stem>.tif``, ``<stem>_f00003.tif
 K or °C or 16-bit with GDAL scale/offset, with EXIF/GPS/XMP kept (:func:`~.tiff.write_temperature_tiff`).
 A file that cannot be converted (unknown format, truncated, raw counts only) is recorded as a failure with
 its reason and the batch goes on; each output is written atomically, so a failure never leaves a partial
-file behind.
+file behind (a sequence that breaks part-way keeps its complete frames and is still reported as failed).
 """
 
 from __future__ import annotations
@@ -93,6 +93,7 @@ def convert_files(
         t0 = time.perf_counter()
         res = FileResult(str(p), ok=False)
         written: list[Path] = []
+        lo, hi = np.inf, -np.inf
         try:
             stem = p.stem
             k = 2
@@ -100,30 +101,39 @@ def convert_files(
                 stem = f"{p.stem}_{k}"
                 k += 1
             used.add(stem)
-            frames = list(iter_thermal(p, dji_sdk=opts.dji_sdk, **opts.overrides))
-            multi = len(frames) > 1
-            lo, hi = np.inf, -np.inf
-            for i, img in enumerate(frames):
+            frames = iter_thermal(p, dji_sdk=opts.dji_sdk, **opts.overrides)
+            first = next(frames)
+            second = next(frames, None)
+            multi = second is not None
+            pending = [first] + ([second] if multi else [])
+
+            def all_frames():
+                yield from pending
+                if multi:
+                    yield from frames
+
+            for i, img in enumerate(all_frames()):
                 t = img.require_temperature()
-                name = f"{stem}_f{img.metadata.frame_index if img.metadata.frame_index is not None else i:05d}.tif" if multi else f"{stem}.tif"
-                target = out / name
+                idx = img.metadata.frame_index if img.metadata.frame_index is not None else i
+                target = out / (f"{stem}_f{idx:05d}.tif" if multi else f"{stem}.tif")
                 write_temperature_tiff(target, t, unit=opts.unit, encoding=opts.encoding, metadata=img.metadata)
                 written.append(target)
                 if np.any(np.isfinite(t)):
                     lo, hi = min(lo, float(np.nanmin(t))), max(hi, float(np.nanmax(t)))
                 res.reader, res.shape = img.metadata.reader or "", img.shape
             res.ok = True
-            res.outputs = [str(w) for w in written]
-            res.t_min_k, res.t_max_k = (lo, hi) if np.isfinite(lo) else (None, None)
             res.message = f"{len(written)} frame(s)"
-        except (ThermogrammetryError, OSError, ValueError, ConfigError) as exc:
-            # keep the batch going; remove this file's partial outputs (frames already written)
-            for w in written:
-                try:
-                    w.unlink()
-                except OSError:
-                    pass
-            res.message = str(exc) or type(exc).__name__
+        except (ThermogrammetryError, OSError, ValueError, ConfigError, StopIteration) as exc:
+            # keep the batch going.  Frames already written are complete files (atomic writes); a sequence
+            # that breaks part-way keeps them and says so.
+            msg = str(exc) or type(exc).__name__
+            if isinstance(exc, StopIteration):
+                msg = f"{p}: no frame"
+            if written:
+                msg = f"{msg} (the {len(written)} frame(s) before it were converted)"
+            res.message = msg
+        res.outputs = [str(w) for w in written]
+        res.t_min_k, res.t_max_k = (lo, hi) if np.isfinite(lo) else (None, None)
         res.seconds = time.perf_counter() - t0
         report.results.append(res)
         if on_file_done is not None:

@@ -186,6 +186,20 @@ def _parse_gps(rec: bytes) -> dict:
             "altitude_m": float(alt) if np.isfinite(alt) and abs(alt) < 1e5 else None}
 
 
+def _jpegls_near(stream: bytes) -> int | None:
+    """NEAR parameter of a JPEG-LS stream's first scan: 0 = lossless, k = every sample within +-k counts."""
+    i = 2
+    while i + 4 <= len(stream) and stream[i] == 0xFF:
+        marker = stream[i + 1]
+        length = struct.unpack(">H", stream[i + 2 : i + 4])[0]
+        if marker == 0xDA:
+            ns = stream[i + 4]
+            k = i + 5 + 2 * ns
+            return int(stream[k]) if k < len(stream) else None
+        i += 2 + length
+    return None
+
+
 def _decode_raw(rec: bytes, where: str) -> tuple[np.ndarray, str]:
     e = _record_endian(rec)
     if len(rec) < 0x20:
@@ -215,11 +229,15 @@ def _decode_raw(rec: bytes, where: str) -> tuple[np.ndarray, str]:
     elif img[:2] == b"\xff\xd8":
         import imagecodecs
 
+        if not img.rstrip(b"\x00").endswith(b"\xff\xd9"):
+            # checked before decoding: CharLS needs seconds to reject a cut stream
+            raise CorruptFileError(f"{where}: embedded JPEG-LS raw frame has no end-of-image marker: truncated file")
+
         try:
             a = imagecodecs.jpegls_decode(img)
         except Exception as exc:
             raise CorruptFileError(f"{where}: embedded JPEG-LS raw frame cannot be decoded ({exc})") from None
-        fmt = "jpeg-ls"
+        fmt = f"jpeg-ls, NEAR={_jpegls_near(img)}"
     else:
         need = 2 * w * h
         if len(img) < need:

@@ -9,6 +9,7 @@ is taken as a header and skipped; empty cells / ``nan`` are no-data.
 from __future__ import annotations
 
 import io
+import re
 from pathlib import Path
 from typing import Iterator
 
@@ -66,8 +67,16 @@ def read_matrix(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalI
     yield ThermalImage(None, to_kelvin(arr, unit), md)
 
 
+_NUMERIC_LINE = re.compile(rb"^\s*[-+0-9.eEnaN]+(\s*[,;\t ]\s*[-+0-9.eEnaN]*)+\s*$")
+
+
 def _sniff(head: bytes, path: Path) -> bool:
-    return head.startswith(b"\x93NUMPY") or path.suffix.lower() in (".csv", ".txt", ".tsv")
+    if head.startswith(b"\x93NUMPY"):
+        return True
+    if path.suffix.lower() not in (".csv", ".txt", ".tsv"):
+        return False
+    lines = [ln for ln in head[:4096].splitlines()[:3] if ln.strip() and not ln.lstrip().startswith(b"#")]
+    return any(_NUMERIC_LINE.match(ln) for ln in lines[:2])  # a number row within the first two lines
 
 
 register_reader("matrix", _sniff, read_matrix, priority=0, description="CSV/NPY temperature matrix with explicit unit")
