@@ -87,3 +87,13 @@ def test_bad_input(rng):
         resection(CAM, X, xy, method="epnp")
     with pytest.raises(ShapeError, match="camera"):
         resection(np.eye(4), X, xy)
+
+
+def test_per_point_sigma_scales_precision(rng):
+    X = rng.uniform(-1, 1, (10, 3))
+    xy = CAM.project(POSE.transform(X))
+    a = resection(CAM, X, xy, sigma_px=0.5)
+    b = resection(CAM, X, xy, sigma_px=np.full((10, 2), 0.25))
+    assert np.allclose(b.center_std_prior, 0.5 * a.center_std_prior, rtol=1e-9)
+    with pytest.raises(InvalidInputError, match="sigma_px"):
+        resection(CAM, X, xy, sigma_px=-1.0)

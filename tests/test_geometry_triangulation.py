@@ -112,3 +112,16 @@ def test_linear_only_and_nested_list_K(rng):
     assert np.nansum(ref.residuals_px**2) < np.nansum(lin.residuals_px**2)
     # linearised precision at the two estimates agrees to first order
     assert np.allclose(lin.std, ref.std, rtol=0.01)
+
+
+def test_per_observation_sigma(rng):
+    # σ per view: the view with 10× larger σ has 100× less weight; precision follows the weights
+    X = rng.uniform(-1, 1, (4, 3))
+    xy = _obs(X)
+    sig = np.ones((3, 4))
+    sig[2] = 10.0
+    r = triangulate(CAM, POSES, xy, sigma_px=sig)
+    r2 = triangulate(CAM, POSES[:2], xy[:2])
+    assert np.all(r.std < r2.std) and np.all(r.std > 0.95 * r2.std)  # third view adds only a little
+    with pytest.raises(ShapeError, match="sigma_px"):
+        triangulate(CAM, POSES, xy, sigma_px=np.ones(4))

@@ -62,6 +62,7 @@ from ..adjustment.dense import DenseOptions, DenseResult, solve_dense
 from ..errors import DegenerateInputError, InvalidInputError, ShapeError, TooFewPointsError
 from ..results import Outcome, Termination
 from . import rotations as rot
+from ._common import sigma_per_coordinate
 from .pose import Pose
 
 __all__ = [
@@ -509,7 +510,7 @@ def dlt(
         Measured image coordinates, pixels (OpenCV origin: (0, 0) centre of the top-left pixel).
     additional : sequence of {"K1", "K2", "K3", "P1", "P2"}
         Additional parameters estimated in the refinement (seed 000 eq. 2: Δx, Δy).
-    sigma_px : float
+    sigma_px : float or array_like (N,) or (N, 2)
         A-priori standard deviation of an image coordinate (pixels); sets the weights and
         ``std_prior``.
     image_size : (w, h), optional
@@ -550,8 +551,7 @@ def dlt(
         raise TooFewPointsError(
             f"{X.shape[0]} points give {2 * X.shape[0]} equations for {11 + len(names)} unknowns (11 DLT + {list(names)})"
         )
-    if not (np.isfinite(sigma_px) and sigma_px > 0):
-        raise InvalidInputError(f"sigma_px: {sigma_px!r}; expected a positive number of pixels")
+    sig = sigma_per_coordinate(sigma_px, (X.shape[0],))
     if image_size is not None:
         iw, ih = (int(v) for v in image_size)
         image_size = (iw, ih)
@@ -573,7 +573,7 @@ def dlt(
     adj = None
     params = np.concatenate([Ln, np.zeros(len(names))])
     if refine:
-        sig_n = sigma_px * s_T
+        sig_n = sig.ravel() * s_T
         adj = solve_dense(
             lambda p: _dlt_residuals(p, Xn, xn, names),
             params,

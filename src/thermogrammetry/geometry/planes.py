@@ -30,7 +30,7 @@ import numpy as np
 
 from .._validate import as_array, as_points
 from ..adjustment.dense import DenseOptions, solve_dense
-from ..errors import DegenerateInputError, InvalidInputError, ShapeError, TooFewPointsError
+from ..errors import DegenerateInputError, InvalidInputError, TooFewPointsError
 from ..results import Outcome, Termination
 from . import rotations as rot
 from ._camera import as_camera

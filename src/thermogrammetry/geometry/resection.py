@@ -32,6 +32,7 @@ from ..results import Outcome, Termination
 from . import rotations as rot
 from ._camera import as_camera
 from .dlt import _COPLANAR_TOL, decompose_projection, dlt_linear
+from ._common import sigma_per_coordinate
 from .pose import Pose
 
 __all__ = ["ResectionResult", "resection", "collinearity_residuals"]
@@ -213,7 +214,7 @@ def resection(
         Control points, metres. N ≥ 3 (≥ 4 for a unique solution; ≥ 6 non-coplanar for the DLT start).
     xy_px : array_like (N, 2)
         Measured image coordinates, pixels (OpenCV origin).
-    sigma_px : float
+    sigma_px : float or array_like (N,) or (N, 2)
         A-priori σ of an image coordinate (px).
     method : {"auto", "dlt", "sqpnp"}
         Initialisation; ``"auto"``: DLT for ≥ 6 non-coplanar points, else SQPnP. Ignored when
@@ -240,8 +241,7 @@ def resection(
         raise ShapeError(f"points_world has {X.shape[0]} rows but xy_px has {x.shape[0]}; expected one image point per control point")
     if method not in ("auto", "dlt", "sqpnp"):
         raise InvalidInputError(f"method: {method!r}; expected 'auto', 'dlt' or 'sqpnp'")
-    if not (np.isfinite(sigma_px) and sigma_px > 0):
-        raise InvalidInputError(f"sigma_px: {sigma_px!r}; expected a positive number of pixels")
+    sig = sigma_per_coordinate(sigma_px, (X.shape[0],))
     if free_interior is True:
         model = str(getattr(cam, "model", "pinhole"))
         model = getattr(getattr(cam, "model", None), "value", model)
@@ -289,7 +289,7 @@ def resection(
         return np.concatenate([rot.axis_angle_from_matrix(R), p[3:6] + dp[3:6], p[6:] + dp[6:]])
 
     names = ["dx_rot", "dy_rot", "dz_rot", "X0", "Y0", "Z0", *inames]
-    adj = solve_dense(fun, x0, weights=np.full(2 * X.shape[0], 1.0 / sigma_px**2), update=update,
+    adj = solve_dense(fun, x0, weights=1.0 / sig.ravel() ** 2, update=update,
                       param_names=names, options=options)
     R = rot.matrix_from_axis_angle(adj.x[:3])
     C = adj.x[3:6]

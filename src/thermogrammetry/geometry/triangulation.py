@@ -28,9 +28,10 @@ import numpy as np
 
 from .._validate import as_array, check_finite
 from ..adjustment.dense import DenseOptions, solve_dense_batch
-from ..errors import InvalidInputError, ShapeError
+from ..errors import ShapeError
 from ..results import Outcome, Termination
 from ._camera import as_camera
+from ._common import sigma_per_coordinate
 from .pose import Pose
 
 __all__ = ["TriangulationResult", "triangulate", "triangulate_linear", "reprojection_residuals"]
@@ -234,8 +235,9 @@ def triangulate(
         Measured image coordinates, pixels (OpenCV origin).
     mask : array_like (V, N) bool, optional
         True where view v observes point n; default all. Masked-out entries may be NaN.
-    sigma_px : float
-        A-priori standard deviation of an image coordinate (px) for ``covariance_prior``.
+    sigma_px : float or array_like (V, N) or (V, N, 2)
+        A-priori standard deviation of an image coordinate (px) for the weights and
+        ``covariance_prior``; entries where ``mask`` is False are ignored.
     refine : bool
         Least-squares refinement in the image (default). Without it the linear solution is returned
         with the covariance of the linearised model evaluated at it.
@@ -252,10 +254,14 @@ def triangulate(
     ShapeError, NonFiniteError
         Wrong shapes; NaN/inf in an observed entry of ``xy_px``.
     """
-    if not (np.isfinite(sigma_px) and sigma_px > 0):
-        raise InvalidInputError(f"sigma_px: {sigma_px!r}; expected a positive number of pixels")
     cams, poses, xy, m = _inputs(cameras, poses, xy_px, mask)
     V, N = m.shape
+    sig = np.asarray(sigma_px, float)
+    if sig.shape == (V, N):  # entries of unobserved points are ignored (may be NaN)
+        sig = np.where(m, sig, 1.0)
+    elif sig.shape == (V, N, 2):
+        sig = np.where(m[..., None], sig, 1.0)
+    sig = sigma_per_coordinate(sig, (V, N))
     X0, w = _linear(cams, poses, xy, m)
     nviews = m.sum(0)
     few = nviews < 2
@@ -276,7 +282,8 @@ def triangulate(
     at_infinity = ~np.isfinite(X0).all(1) | (np.abs(w) < 1e-12)
     parallel = ((angle < min_angle_deg) | at_infinity) & ~few
     X0 = np.where(np.isfinite(X0), X0, 0.0)
-    weights = np.repeat(m.T.astype(float), 2, axis=1) / sigma_px**2  # (N, 2V)
+    # (N, 2V) in the residual order (view0 x, view0 y, view1 x, ...); 0 where not observed
+    weights = np.where(m[..., None], 1.0 / sig**2, 0.0).transpose(1, 0, 2).reshape(N, 2 * V)
     Rs = np.stack([p.R for p in poses])
     ts = np.stack([p.t for p in poses])
     xyT = np.transpose(xy, (1, 0, 2))  # (N, V, 2)
