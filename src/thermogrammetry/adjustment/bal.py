@@ -348,10 +348,10 @@ def _sym3_inv(V):
 
 
 def solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
-    from threadpoolctl import threadpool_limits
+    from ._threads import blas_single_thread
 
     # BLAS calls inside are small; OpenBLAS's own threads only spin against ours on few cores.
-    with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):
+    with blas_single_thread(), np.errstate(all="ignore"):
         return _solve_bal(problem, options)
 
 

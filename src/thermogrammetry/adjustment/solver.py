@@ -458,7 +458,7 @@ class _Normal:
         self.lay = lay
         m = len(r)
         rw = r * w
-        Jcw = sp.diags(w) @ Jc if lay.nc else Jc
+        Jcw = sp.diags(w) @ Jc if (lay.nc and np.any(w != 1.0)) else Jc
         jpw = jp * w[:, None]
         has = pslot >= 0
         self.has = has
@@ -629,14 +629,14 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None) -> Adjus
     deficiency), non-finite residuals or non-convergence come back as a result whose
     ``termination`` and ``reason`` say so.
     """
-    from threadpoolctl import threadpool_limits
+    from ._threads import blas_single_thread
 
     opt = options or SolverOptions()
     if not isinstance(problem, BundleProblem):
         from ..errors import InvalidInputError
 
         raise InvalidInputError(f"problem: expected a BundleProblem, got {type(problem).__name__}")
-    with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):
+    with blas_single_thread(), np.errstate(all="ignore"):
         return _solve(problem, opt)
 
 
@@ -697,7 +697,7 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
             break
         w = out["image_w"]
         k = scipy.stats.norm.ppf(1 - opt.snooping_alpha / 2)
-        wmax = np.nanmax(np.abs(w), axis=1) if len(w) else np.zeros(0)
+        wmax = np.max(np.nan_to_num(np.abs(w), nan=0.0), axis=1) if len(w) else np.zeros(0)
         cand = np.nonzero(wmax > k)[0]
         if not len(cand):
             break
