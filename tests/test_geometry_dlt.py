@@ -212,3 +212,25 @@ def test_to_camera_opencv_with_skew(rng):
     assert np.abs(cam.project(r.pose.transform(X)) - xy).max() < 1e-8
     r = dlt(X, xy, image_size=(640, 480), pixel_pitch_um=17.0)  # aspect ≠ 1 and skew carried by B1, B2
     assert np.abs(r.to_camera().project(r.pose.transform(X)) - xy).max() < 1e-8
+
+
+def test_L_coefficients_and_their_precision(rng):
+    # std of L1..L11 from the refinement equals the textbook linearised precision of the
+    # 11-parameter model in the original (unnormalised) frame: Q_L = (AᵀA)⁻¹ σ²
+    K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
+    pose = Pose.look_at([0.5, -4.0, 1.0], [0.0, 0.0, 0.0])
+    X = rng.uniform(-1, 1, (12, 3))
+    xy = project_points(K, pose, X)
+    r = dlt(X, xy, sigma_px=0.5)
+    L = np.array([r.values[f"L{i}"] for i in range(1, 12)])
+    assert np.allclose(L, r.L, rtol=1e-12)
+    den = X @ L[8:11] + 1
+    A = np.zeros((24, 11))
+    Xh = np.hstack([X, np.ones((12, 1))]) / den[:, None]
+    A[0::2, 0:4] = Xh
+    A[1::2, 4:8] = Xh
+    A[0::2, 8:11] = -(xy[:, :1] * Xh[:, :3])
+    A[1::2, 8:11] = -(xy[:, 1:] * Xh[:, :3])
+    std_ref = 0.5 * np.sqrt(np.diag(np.linalg.inv(A.T @ A)))
+    std = np.array([r.std_prior[f"L{i}"] for i in range(1, 12)])
+    assert np.allclose(std, std_ref, rtol=1e-5), std / std_ref

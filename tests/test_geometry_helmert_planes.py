@@ -133,3 +133,17 @@ def test_plane_from_points_precision_and_angle_std():
         plane_from_points(np.outer(np.arange(5.0), [1, 1, 0]), name="roof")
     with pytest.raises(TooFewPointsError, match="got 2"):
         plane_from_points(np.zeros((2, 3)))
+
+
+def test_non_finite_and_shapes_are_named():
+    from thermogrammetry.errors import NonFiniteError
+
+    X = np.eye(3) * 2.0
+    with pytest.raises(NonFiniteError, match="target"):
+        helmert(X, X + [[np.nan, 0, 0], [0, 0, 0], [0, 0, 0]])
+    with pytest.raises(ShapeError, match=r"source: expected shape \(N, 3\)"):
+        helmert(X[:, :2], X)
+    with pytest.raises(NonFiniteError, match="p2"):
+        plane_from_3_points([0, 0, 0], [1, np.inf, 0], [0, 1, 0])
+    with pytest.raises(NonFiniteError, match="points"):
+        plane_from_points([[0, 0, 0], [1, 0, 0], [0, 1, 0], [np.nan, 1, 1]])

@@ -311,8 +311,8 @@ class DLTResult:
         Same in the published units (mm, y up; needs a square pixel pitch): ``P2_mm = −P2_px / pitch``.
     values, std, std_prior : dict
         Every derived quantity (fx, fy, skew, cx, cy, c_px, aspect, X0, Y0, Z0, omega, phi, kappa,
-        c_mm, x0_mm, y0_mm when available, and the additional parameters) with its a-posteriori and
-        a-priori (``sigma_px``) standard deviation.
+        c_mm, x0_mm, y0_mm when available, L1..L11, and the additional parameters ``K1_px``…,
+        ``K1_mm``…) with its a-posteriori and a-priori (``sigma_px``) standard deviation.
     derived_names : tuple, derived_covariance : ndarray
         A-posteriori covariance of ``values`` in that order.
     residuals_px : ndarray (N, 2)
@@ -479,6 +479,9 @@ def _derived(P, add_px, image_size, pitch):
             w, h = image_size
             out["x0_mm"] = (K[0, 2] - (w - 1) / 2.0) * px_mm
             out["y0_mm"] = -(K[1, 2] - (h - 1) / 2.0) * py_mm
+    if abs(P[2, 3] - 1.0) < 1e-12:
+        for i, val in enumerate(P.ravel()[:11]):
+            out[f"L{i + 1}"] = val
     for nme, val in add_px.items():
         out[nme + "_px"] = val
     if pitch is not None and add_px and abs(pitch[0] - pitch[1]) <= 1e-9 * pitch[0]:
