@@ -277,7 +277,7 @@ def residuals(problem: BundleProblem) -> tuple[np.ndarray, np.ndarray]:
     return res, ok
 
 
-def solve_bundle(problem: BundleProblem, *, max_iterations: int = 50, tolerance: float = 1e-10) -> BundleSolution:
+def solve_bundle(problem: BundleProblem, *, max_iterations: int = 200, tolerance: float = 1e-10) -> BundleSolution:
     """Levenberg–Marquardt on the dense normal equations; returns the estimate with precision.
 
     Failure to converge or a singular normal matrix is reported through ``solution.outcome``
@@ -364,9 +364,15 @@ def _solve_bundle(problem: BundleProblem, max_iterations: int, tolerance: float)
         cost = cost2
         lam = max(lam / 10, 1e-12)
         e, ok, J, res = full_system(cams, R, t, rigR, rigt, pts)
-        if rel < tolerance or np.max(np.abs(step_s)) < 1e-10:
+        # stop when the cost no longer decreases, or when the step is below 1e-6 of every
+        # parameter's conditional standard deviation (step_s is the step in units of 1/sqrt(N_ii))
+        if rel < tolerance:
             term = Termination.CONVERGED
             reason = f"relative cost decrease {rel:.1e} < {tolerance:.0e}"
+            break
+        if np.max(np.abs(step_s)) < 1e-6:
+            term = Termination.CONVERGED
+            reason = "step below 1e-6 standard deviations"
             break
     # precision at the solution
     Nm = J.T @ J

@@ -139,7 +139,7 @@ def calibrate(
 
     from ..errors import ThermogrammetryError
 
-    err = Console(stderr=True)
+    err = Console(stderr=True, soft_wrap=True)
     try:
         run = _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, control, measurements, image_size,
                    pixel_pitch_um, focal_mm, output, k45, affinity, name)
@@ -165,7 +165,7 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
     from ..calibration.workflow import calibrate_detections, calibrate_testfield
     from ..pipeline import FolderProject, MemoryProject
 
-    console = Console()
+    console = Console(soft_wrap=True)
     csv_route = control is not None or measurements is not None
     if csv_route:
         if images:
@@ -247,7 +247,7 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
                                    focal_mm=focal_mm, options=opt, camera_name=name)
     res = run.result
     if not res.outcome.success:
-        Console(stderr=True).print(f"[bold red]calibration failed:[/] {res.outcome.termination.value}: {res.outcome.reason}; "
+        Console(stderr=True, soft_wrap=True).print(f"[bold red]calibration failed:[/] {res.outcome.termination.value}: {res.outcome.reason}; "
                                    f"nothing was written to {output}", highlight=False)
         return None
     mem = MemoryProject()

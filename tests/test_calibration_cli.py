@@ -1,0 +1,263 @@
+"""Test-field CSV readers, calibration outputs and the ``thermogrammetry calibrate`` verb (bad input too)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from thermogrammetry.calibration.testfield_csv import (
+    check_measurement_ids,
+    parse_control_csv,
+    parse_measurements_csv,
+    read_control_csv,
+)
+from thermogrammetry.cli.main import main
+from thermogrammetry.errors import CorruptFileError, DataFileError, UnsupportedFormatError
+from thermogrammetry.synthetic.testfield import make_testfield
+
+NOISE_PX = 0.4
+
+
+@pytest.fixture(scope="module")
+def field():
+    return make_testfield(np.random.default_rng(11), noise_px=NOISE_PX)
+
+
+@pytest.fixture(scope="module")
+def csv_files(field, tmp_path_factory):
+    d = tmp_path_factory.mktemp("tf")
+    (d / "control.csv").write_text(field.control_csv())
+    (d / "measurements.csv").write_text(field.measurements_csv())
+    return d
+
+
+# ------------------------------------------------------------------------------------------- CSV
+def test_control_csv_roundtrip_and_optional_std(field):
+    c = parse_control_csv(field.control_csv())
+    assert len(c.ids) == 77 and c.std is None
+    assert np.allclose(c.xyz, field.truth.points, atol=1e-6)  # written with 6 decimals
+    text = "# comment\nID;X;Y;Z;sX;sY;sZ\nA;1;2;3;0.001;0.001;0.002\n\nB;4;5;6;0.001;0.001;0.002\n"
+    c2 = parse_control_csv(text, "c.csv")
+    assert c2.ids == ("A", "B") and c2.std.shape == (2, 3) and c2.std[0, 2] == pytest.approx(0.002)
+    # no header: positional
+    c3 = parse_control_csv("P1,0,0,0\nP2,1,0,0\n")
+    assert c3.ids == ("P1", "P2")
+
+
+def test_measurements_csv(field):
+    m = parse_measurements_csv(field.measurements_csv())
+    assert len(m.id) == field.xy_px.shape[0]
+    assert np.allclose(m.xy, field.xy_px, atol=1e-5)
+    assert m.images() == list(field.truth.image_names)
+    assert m.lines[0] == 2  # header is row 1
+
+
+@pytest.mark.parametrize(
+    "text, pattern",
+    [
+        ("id,X,Y\nA,1,2\n", r"ctl\.csv, row 1: missing column\(s\) Z"),
+        ("id,X,Y,Z\nA,1,2,abc\n", r"ctl\.csv, row 2: Z = 'abc' is not a number"),
+        ("id,X,Y,Z\nA,1,2,3\nA,1,2,3\n", r"ctl\.csv, row 3: duplicate point id 'A'"),
+        ("id,X,Y,Z,sX,sY,sZ\nA,1,2,3,0.1,0,0.1\n", r"ctl\.csv, row 2: sY = '0' must be positive"),
+        ("id,X,Y,Z,sX\nA,1,2,3,0.1\n", r"ctl\.csv, row 1: standard deviation columns must come together"),
+        ("", r"ctl\.csv: empty file"),
+        ("id,X,Y,Z\nA,1,2\n", r"ctl\.csv, row 2: column Z is missing"),
+    ],
+)
+def test_control_csv_errors_name_file_and_row(text, pattern):
+    with pytest.raises((CorruptFileError, UnsupportedFormatError), match=pattern):
+        parse_control_csv(text, "ctl.csv")
+
+
+def test_measurement_csv_errors_and_unknown_ids():
+    with pytest.raises(UnsupportedFormatError, match=r"m\.csv, row 1: missing column\(s\) x"):
+        parse_measurements_csv("image,id,y\na,P1,3\n", "m.csv")
+    with pytest.raises(CorruptFileError, match=r"m\.csv, row 3: point 'P1' measured twice in image 'a'"):
+        parse_measurements_csv("image,id,x,y\na,P1,1,2\na,P1,1,2\n", "m.csv")
+    c = parse_control_csv("id,X,Y,Z\nP1,0,0,0\nP2,1,0,0\n", "c.csv")
+    m = parse_measurements_csv("image,id,x,y\na,P1,1,2\na,P9,3,4\n", "m.csv")
+    with pytest.raises(CorruptFileError, match=r"m\.csv, row 3: point id 'P9' \(image 'a'\) is not in the control file c\.csv"):
+        check_measurement_ids(m, c)
+
+
+def test_read_missing_file(tmp_path):
+    with pytest.raises(DataFileError, match="no such file"):
+        read_control_csv(tmp_path / "nope.csv")
+
+
+# ------------------------------------------------------------------------------------------- CLI, CSV route
+def test_cli_testfield_route_writes_all_outputs(csv_files, tmp_path, capsys, field):
+    from thermogrammetry.camera import Camera
+
+    out = tmp_path / "OUT"
+    rc = main(["calibrate", "--control", str(csv_files / "control.csv"), "--measurements", str(csv_files / "measurements.csv"),
+               "--image-size", "320x240", "--pixel-pitch-um", "25", "--focal-mm", "18", "-o", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "16/16 images used" in text and "σx" in text
+    for key in ("camera.json", "calibration.json", "report.html", "exports/opencv.yaml", "exports/opencv.json",
+                "exports/colmap_cameras.txt", "exports/metashape.xml"):
+        assert (out / key).is_file(), key
+    cam = Camera.load(out / "camera.json")
+    assert cam.model.value == "photogrammetric" and cam.image_size == (320, 240)
+    assert cam.param_std is not None
+    cal = json.loads((out / "calibration.json").read_text())
+    truth = field.truth.param_dict
+    for name in ("c_mm", "x0_mm", "y0_mm", "K1", "K2", "K3", "P1", "P2"):
+        p = cal["parameters"][name]
+        assert abs(p["value"] - truth[name]) < 3.0 * p["std"], name  # 3 reported σ (see test_calibration_selfcal)
+        assert cam[name] == pytest.approx(p["value"], rel=1e-12)
+    assert cal["parameters"]["K1"]["unit"] == "mm^-2"
+    assert cal["parameters_px"]["fx"]["unit"] == "px"
+    # fx = c / pitch
+    assert cal["parameters_px"]["fx"]["value"] == pytest.approx(cal["parameters"]["c_mm"]["value"] / 0.025)
+    assert 0.9 * NOISE_PX < cal["sigma_x_px"] < 1.1 * NOISE_PX
+    assert cal["sigma_x_um"] == pytest.approx(cal["sigma_x_px"] * 25.0)
+    assert len(cal["images_used"]) == 16 and cal["images_rejected"] == {}
+    assert cal["rms_px"] > 0 and cal["sigma0"] > 0
+    # OpenCV export: loadable by OpenCV and close to our camera where distortion is mild (image centre)
+    fs = cv2.FileStorage(str(out / "exports/opencv.yaml"), cv2.FILE_STORAGE_READ)
+    K = fs.getNode("camera_matrix").mat()
+    assert K[0, 0] == pytest.approx(cal["parameters_px"]["fx"]["value"], rel=0.02)
+    assert cal["exports"]["camera"]["opencv"]["max_residual_px"] is not None
+    html = (out / "report.html").read_text()
+    for fig in ("residuals", "distortion", "correlation", "coverage", "per_image"):
+        assert f"alt='{fig}' src='data:image/png;base64," in html
+    assert "Table 2" in html and "Table 4" in html
+    line = (out / "exports/colmap_cameras.txt").read_text().splitlines()[-1]
+    assert line.startswith("1 ") and " 320 240 " in line
+
+
+def _run_bad(args, capsys):
+    rc = main(args)
+    err = capsys.readouterr().err
+    return rc, err
+
+
+def test_cli_unknown_id_names_file_and_row(csv_files, tmp_path, capsys):
+    bad = tmp_path / "meas_bad.csv"
+    lines = (csv_files / "measurements.csv").read_text().splitlines()
+    lines[5] = lines[5].replace(lines[5].split(",")[1], "T999")
+    bad.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "OUT"
+    rc, err = _run_bad(["calibrate", "--control", str(csv_files / "control.csv"), "--measurements", str(bad),
+                        "--image-size", "320x240", "--pixel-pitch-um", "25", "--focal-mm", "18", "-o", str(out)], capsys)
+    assert rc == 2
+    assert "meas_bad.csv, row 6" in err and "T999" in err
+    assert not out.exists()  # nothing half-written
+
+
+def test_cli_missing_column(csv_files, tmp_path, capsys):
+    bad = tmp_path / "ctl_bad.csv"
+    bad.write_text("id,X,Z\nT01,0,0\n")
+    out = tmp_path / "OUT"
+    rc, err = _run_bad(["calibrate", "--control", str(bad), "--measurements", str(csv_files / "measurements.csv"),
+                        "--image-size", "320x240", "--pixel-pitch-um", "25", "--focal-mm", "18", "-o", str(out)], capsys)
+    assert rc == 2 and "ctl_bad.csv, row 1: missing column(s) Y" in err
+    assert not out.exists()
+
+
+def test_cli_existing_output_untouched_on_failure(csv_files, tmp_path, capsys):
+    out = tmp_path / "OUT"
+    out.mkdir()
+    (out / "camera.json").write_text("old")
+    bad = tmp_path / "m.csv"
+    bad.write_text("image,id,x,y\nimg1,T01,1,nan\n")
+    rc, err = _run_bad(["calibrate", "--control", str(csv_files / "control.csv"), "--measurements", str(bad),
+                        "--image-size", "320x240", "--pixel-pitch-um", "25", "--focal-mm", "18", "-o", str(out)], capsys)
+    assert rc == 2 and "m.csv, row 2: y = 'nan' is not finite" in err
+    assert sorted(p.name for p in out.iterdir()) == ["camera.json"] and (out / "camera.json").read_text() == "old"
+
+
+def test_cli_argument_errors(csv_files, tmp_path, capsys):
+    out = tmp_path / "OUT"
+    rc, err = _run_bad(["calibrate", "--control", str(csv_files / "control.csv"), "--measurements",
+                        str(csv_files / "measurements.csv"), "--image-size", "320by240", "--pixel-pitch-um", "25",
+                        "--focal-mm", "18", "-o", str(out)], capsys)
+    assert rc == 2 and "--image-size '320by240'" in err
+    rc, err = _run_bad(["calibrate", "--control", str(csv_files / "control.csv"), "--measurements",
+                        str(csv_files / "measurements.csv"), "-o", str(out)], capsys)
+    assert rc == 2 and "--image-size" in err and "--focal-mm" in err
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------------------------------- CLI, image route
+def test_cli_no_target_visible(tmp_path, capsys):
+    rng = np.random.default_rng(3)
+    d = tmp_path / "imgs"
+    d.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(d / f"n{k}.png"), rng.integers(0, 255, (60, 80), dtype=np.uint8))
+    out = tmp_path / "OUT"
+    rc, err = _run_bad(["calibrate", str(d), "--target", "chessboard", "--corners", "6x5", "--spacing-mm", "100",
+                        "-o", str(out)], capsys)
+    assert rc == 2
+    assert "was not found in any of the 3 images" in err and "n0.png" in err
+    assert not out.exists()
+
+
+def test_cli_mixed_image_sizes(tmp_path, capsys):
+    d = tmp_path / "imgs"
+    d.mkdir()
+    cv2.imwrite(str(d / "a.png"), np.full((48, 64), 128, np.uint8) + np.eye(48, 64, dtype=np.uint8))
+    cv2.imwrite(str(d / "b.png"), np.full((60, 80), 128, np.uint8) + np.eye(60, 80, dtype=np.uint8))
+    out = tmp_path / "OUT"
+    rc, err = _run_bad(["calibrate", str(d), "--target", "circles", "--grid", "7x4", "--spacing-mm", "50", "-o", str(out)], capsys)
+    assert rc == 2
+    assert "mixed image sizes" in err and "b.png is 80x60" in err and "64x48" in err
+    assert not out.exists()
+
+
+def test_cli_chessboard_route_on_synthetic_views(tmp_path, capsys):
+    """Rendered views of a 6x5 chessboard (8-bit PNG and 16-bit TIFF) through the CLI."""
+    rng = np.random.default_rng(21)
+    w, h = 320, 240
+    f = 330.0
+    K = np.array([[f, 0, (w - 1) / 2 + 3.0], [0, f, (h - 1) / 2 - 2.0], [0, 0, 1]])
+    sq = 0.1
+    d = tmp_path / "views"
+    d.mkdir()
+    board = np.zeros((7 * 40, 8 * 40), np.uint8)  # 8x7 squares -> 7x6 inner? use 7x6 squares -> 6x5 inner corners
+    board = np.zeros((6 * 40, 7 * 40), np.uint8)
+    for r in range(6):
+        for c in range(7):
+            if (r + c) % 2 == 0:
+                board[r * 40:(r + 1) * 40, c * 40:(c + 1) * 40] = 255
+    pad = 40
+    canvas = np.full((board.shape[0] + 2 * pad, board.shape[1] + 2 * pad), 255, np.uint8)
+    canvas[pad:-pad, pad:-pad] = board
+    # canvas pixel (u, v) -> board metres: ((u - pad) / 40 - 1) * sq, ... so that inner corner (0,0) is at origin
+    S = np.array([[sq / 40, 0, -(pad / 40 + 1) * sq], [0, sq / 40, -(pad / 40 + 1) * sq], [0, 0, 1]])
+    n = 0
+    for k in range(10):
+        rvec = rng.normal(0, 0.35, 3)
+        R, _ = cv2.Rodrigues(rvec)
+        center_board = np.array([0.25, 0.2, 0.0])
+        dist_m = rng.uniform(1.3, 1.8)
+        t = -R @ center_board + np.array([rng.normal(0, 0.05), rng.normal(0, 0.05), dist_m])
+        H = K @ np.column_stack([R[:, 0], R[:, 1], t]) @ S
+        img = cv2.warpPerspective(canvas, H, (w, h), flags=cv2.INTER_AREA, borderValue=90)
+        img = cv2.GaussianBlur(img, (0, 0), 0.8)
+        if k % 2:
+            cv2.imwrite(str(d / f"v{k:02d}.png"), img)
+        else:
+            import tifffile
+
+            tifffile.imwrite(str(d / f"v{k:02d}.tif"), (img.astype(np.uint16) * 200 + 1000))
+        n += 1
+    out = tmp_path / "OUT"
+    rc = main(["calibrate", str(d), "--target", "chessboard", "--corners", "6x5", "--spacing-mm", "100", "-o", str(out)])
+    text = capsys.readouterr()
+    assert rc == 0, text.err + text.out
+    cal = json.loads((out / "calibration.json").read_text())
+    assert len(cal["images_used"]) >= 8
+    # rendered without lens distortion: the focal length is recovered to a few pixels
+    # (rendering + blur bias on 10 views; σ(fx) reported ~1 px)
+    fx = cal["parameters_px"]["fx"]
+    assert abs(fx["value"] - f) < max(5 * fx["std"], 3.0)
+    assert cal["rms_px"] < 0.3
+    assert cal["run"]["pixel_pitch_assumed"] is True
