@@ -214,7 +214,7 @@ def encode_temperature_tiff(
     pix = np.ascontiguousarray(pix, dtype=pix.dtype.newbyteorder("<"))
     row_bytes = w * pix.itemsize
     rps = max(1, min(h, 65536 // row_bytes))
-    strips = [zlib.compress(pix[r : r + rps].tobytes(), 6) for r in range(0, h, rps)]
+    strips = [zlib.compress(pix[r : r + rps].tobytes(), 1) for r in range(0, h, rps)]  # level 1: 5x faster than 6, ~9 % larger
 
     md = metadata
     g = md.geotag if md is not None else Geotag()
