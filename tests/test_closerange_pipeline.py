@@ -115,3 +115,31 @@ def test_cli_bad_input_exit_code(case, tmp_path, capsys):
     assert rc == 2
     text = capsys.readouterr().out
     assert "1, 4, 5" in text and "at least 6" in text
+
+
+def test_cli_bundle_with_known_thermal_camera(case, tmp_path):
+    from thermogrammetry import Camera
+    from thermogrammetry.cli.main import main
+
+    s, rows, _ = case
+    (tmp_path / "control.csv").write_text(s.control_csv())
+    (tmp_path / "m.csv").write_text(measurements_csv(rows))
+    (tmp_path / "planes.csv").write_text(s.planes_csv())
+    K = s.camera("thermal").K
+    Camera("pinhole", (640, 480), {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}).save(tmp_path / "t.json")
+    out = tmp_path / "O"
+    rc = main(["closerange", "--control", str(tmp_path / "control.csv"), "--measurements", str(tmp_path / "m.csv"),
+               "--thermal", "thermal", "--planes", str(tmp_path / "planes.csv"), "--camera",
+               f"thermal={tmp_path / 't.json'}", "--bundle", "--additional", "k1", "-o", str(out)])
+    assert rc == 0
+    cams = json.loads((out / "cameras.json").read_text())["cameras"]
+    assert cams["thermal"]["method"].startswith("resection (known interior orientation)")
+    assert cams["thermal"]["method"].endswith("joint adjustment")
+    assert cams["thermal"]["interior"]["fx_px"] == pytest.approx(K[0, 0], rel=1e-9)
+    assert "k1" in cams["opt1"]["additional_parameters"]
+    # known interior orientation: the thermal centre is much better determined than by DLT (cm, not dm)
+    C = s.camera("thermal").pose.center
+    for k, ax in enumerate(("X0", "Y0", "Z0")):
+        assert cams["thermal"]["exterior_std"][ax] < 0.02
+        assert abs(cams["thermal"]["exterior"][ax] - C[k]) < 3 * cams["thermal"]["exterior_std"][ax]
+    assert not (out / "corrected.tif").exists()  # no thermal image given: correction skipped

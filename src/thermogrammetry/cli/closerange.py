@@ -43,6 +43,8 @@ def closerange(
     sigma_px: float = typer.Option(0.5, "--sigma-px", help="A-priori σ of the image measurements (px)."),
     thermal_unit: Optional[str] = typer.Option(None, "--thermal-unit", help="K or C, for a float image that does not declare its unit."),
     max_angle_deg: float = typer.Option(80.0, "--max-angle-deg", help="No correction beyond this viewing angle."),
+    bundle: bool = typer.Option(False, "--bundle/--no-bundle", help="Joint adjustment of all cameras and pass points after the sequential chain."),
+    additional: str = typer.Option("", "--additional", help="With --bundle: distortion terms of the optical cameras, e.g. k1,p1,p2."),
 ) -> None:
     """Orient optical cameras by DLT, intersect pass points, position the thermal camera from pass
     points only, fit planes and correct the thermal image per pixel (Sawicki, Stein, Więcek)."""
@@ -71,7 +73,8 @@ def closerange(
             img = read_thermal(thermal_image, unit=thermal_unit)
             thermal_k = img.require_temperature()
             unit = (thermal_unit or _unit_of(img)).upper().lstrip("°")
-        cfg = CloseRangeConfig(ambient_c=ambient_c, sigma_px=sigma_px, max_angle_deg=max_angle_deg)
+        cfg = CloseRangeConfig(ambient_c=ambient_c, sigma_px=sigma_px, max_angle_deg=max_angle_deg, bundle=bundle,
+                               additional_parameters=tuple(a for a in additional.split(",") if a.strip()))
         project = FolderProject(out)
         write_inputs(project, control_csv=read_text(control, "control file"),
                      measurements_csv=read_text(measurements, "measurements file"),

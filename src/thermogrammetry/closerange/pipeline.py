@@ -85,6 +85,10 @@ def _solve(project: ProjectStore) -> tuple[dict, NetworkResult]:
     inp = load_inputs(project)
     obs = Observations.from_rows(inp["rows"], inp["config"].sigma_px)
     net = solve_network(inp["control"], obs, inp["thermal"], known=inp["known"])
+    if inp["config"].bundle:
+        from .adjust import adjust_network
+
+        net = adjust_network(net, additional=inp["config"].additional_parameters)
     return inp, net
 
 
@@ -123,7 +127,8 @@ def camera_report(net: NetworkResult, name: str) -> dict[str, Any]:
     return {
         "name": name,
         "kind": cam.kind,
-        "method": "resection (known interior orientation)" if known else "DLT + least-squares refinement",
+        "method": ("resection (known interior orientation)" if known else "DLT + least-squares refinement")
+                  + (" + joint adjustment" if net.adjusted else ""),
         "points_used": list(cam.ids),
         "sigma0_px": cam.sigma0_px,
         "rms_residual_px": float(np.sqrt(np.mean(cam.residuals**2))),
@@ -139,6 +144,7 @@ def camera_report(net: NetworkResult, name: str) -> dict[str, Any]:
         "R_cam_from_world": R.tolist(),
         "center_m": C.tolist(),
         "dlt_L_world": P.ravel()[:11].tolist(),
+        **cam.extra,
         "conventions": "pixels: OpenCV origin; R is cam_from_world (x right, y down, z forward); "
                        "omega/phi/kappa: M = R_kappa R_phi R_omega = photo_from_world (docs/conventions.md)",
     }

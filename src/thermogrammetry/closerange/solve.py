@@ -24,7 +24,24 @@ from ..errors import InvalidInputError, TooFewPointsError
 from ..results import Outcome
 from . import network as nw
 
-__all__ = ["Observations", "OrientedCamera", "NetworkResult", "solve_network"]
+__all__ = ["Observations", "OrientedCamera", "NetworkResult", "solve_network", "single_threaded_blas"]
+
+
+def single_threaded_blas(fn):
+    """Run ``fn`` with one BLAS thread: the matrices here are tiny (≤ 100 × 100) and a threaded BLAS
+    only adds overhead — up to 10× on a loaded machine."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            from threadpoolctl import threadpool_limits
+        except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+            return fn(*args, **kwargs)
+        with threadpool_limits(limits=1, user_api="blas"):
+            return fn(*args, **kwargs)
+
+    return wrapper
 
 
 @dataclass(frozen=True)
@@ -82,6 +99,7 @@ class OrientedCamera:
     residuals: np.ndarray  # (N, 2) px
     sigma0_px: float
     outcome: Outcome
+    extra: dict = field(default_factory=dict)  # e.g. additional parameters of a joint adjustment
 
     def P_world(self, frame: nw.Frame) -> np.ndarray:
         """3×4 projection matrix in world coordinates (px, m)."""
@@ -100,6 +118,7 @@ class NetworkResult:
     J_points: np.ndarray  # (3 n_pass, n_obs), world metres per px
     warnings: list[str] = field(default_factory=list)
     known: dict = field(default_factory=dict)  # image → camera with a known interior orientation
+    adjusted: bool = False  # True after the joint adjustment (adjust.adjust_network)
 
     # -- covariance helpers --------------------------------------------------------------------
     def cov(self, J: np.ndarray) -> np.ndarray:
@@ -176,6 +195,7 @@ def _orient(image, camera, Xn, xy, frame, what, ids):
     return rc
 
 
+@single_threaded_blas
 def solve_network(
     control: Mapping[str, Sequence[float]],
     obs: Observations,

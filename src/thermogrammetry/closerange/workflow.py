@@ -59,6 +59,9 @@ class CloseRangeConfig:
     edge_margin_px : pixels closer than this to a plane polygon's edge are marked invalid (mixed
         pixels; the polygon's vertices are uncertain by the image precision)
     max_sigma_k : pixels whose propagated 1-σ exceeds this (K) are marked invalid; None: no limit
+    bundle : after the sequential chain, adjust all cameras and pass points jointly (:mod:`.adjust`)
+    additional_parameters : distortion terms of the optical DLT cameras in the joint adjustment
+        (names of :data:`.adjust.ADDITIONAL_PARAMETERS`, e.g. ``("k1", "p1", "p2")``)
     """
 
     sigma_px: float = 0.5
@@ -72,6 +75,8 @@ class CloseRangeConfig:
     max_angle_deg: float = 80.0
     edge_margin_px: float = 1.5
     max_sigma_k: float | None = None
+    bundle: bool = False
+    additional_parameters: tuple[str, ...] = ()
 
     def __post_init__(self):
         object.__setattr__(self, "angle_mode", AngleMode(self.angle_mode))
@@ -84,6 +89,15 @@ class CloseRangeConfig:
             raise ConfigError(f"relative_humidity={self.relative_humidity!r}: expected a fraction in [0, 1]")
         if not self.refractive_index > 1:
             raise ConfigError(f"refractive_index={self.refractive_index!r}: expected a number > 1")
+        from .adjust import ADDITIONAL_PARAMETERS
+
+        add = tuple(str(a).strip().lower() for a in self.additional_parameters)
+        bad = [a for a in add if a not in ADDITIONAL_PARAMETERS]
+        if bad:
+            raise ConfigError(f"additional_parameters {bad}: expected some of {list(ADDITIONAL_PARAMETERS)}")
+        if add and not self.bundle:
+            raise ConfigError("additional_parameters are estimated in the joint adjustment: set bundle=True (--bundle)")
+        object.__setattr__(self, "additional_parameters", add)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "CloseRangeConfig":
@@ -94,8 +108,11 @@ class CloseRangeConfig:
         return cls(**dict(d))
 
     def to_dict(self) -> dict[str, Any]:
-        return {f.name: (str(getattr(self, f.name)) if isinstance(getattr(self, f.name), StrChoice)
-                         else getattr(self, f.name)) for f in fields(self)}
+        out = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = str(v) if isinstance(v, StrChoice) else (list(v) if isinstance(v, tuple) else v)
+        return out
 
     @property
     def ambient_k(self) -> float:

@@ -190,6 +190,7 @@ def make_closerange_scene(
     thermal_focal_px: float = 1400.0,
     thermal_center: Sequence[float] | None = None,
     thermal_distortion: Mapping[str, float] | None = None,
+    optical_distortion: Mapping[str, float] | None = None,
 ) -> CloseRangeScene:
     """Build the replica of seed 000: Table 1 points, optical cameras ~2 m away, one thermal camera.
 
@@ -209,6 +210,8 @@ def make_closerange_scene(
     thermal_center : (3,) m, optional
         Projection centre of the thermal camera; default an oblique station to the right so the
         faces are seen at 20°–60°.
+    optical_distortion : mapping, optional
+        OpenCV forward-form distortion of every optical camera (``k1``, ``p1``, ...), as for the thermal.
     thermal_distortion : mapping, optional
         OpenCV forward-form distortion of the thermal camera (``k1``, ``k2``, ``p1``, ``p2``, ...);
         the truth camera is then a ``thermogrammetry.Camera`` (model ``opencv``).
@@ -230,7 +233,13 @@ def make_closerange_scene(
         pose = Pose.look_at(C, centre)
         K = np.array([[optical_focal_px, 0, (optical_size[0] - 1) / 2 + 3.0],
                       [0, optical_focal_px * 1.001, (optical_size[1] - 1) / 2 - 2.0], [0, 0, 1]])
-        cams.append(SceneCamera(f"opt{i + 1}", K, pose, tuple(optical_size), "optical"))
+        omodel = None
+        if optical_distortion:
+            from ..camera import Camera
+
+            omodel = Camera("opencv", tuple(optical_size), {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2],
+                                                             "cy": K[1, 2], **dict(optical_distortion)})
+        cams.append(SceneCamera(f"opt{i + 1}", K, pose, tuple(optical_size), "optical", omodel))
     if thermal_center is None:
         Ct = centre + np.array([0.95, -1.65, 0.75])
     else:
