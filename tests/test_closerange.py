@@ -205,3 +205,21 @@ def test_known_thermal_camera_with_distortion(scene):
     # excluded by the 1.5 px margin; the remaining ones are exact up to the camera's undistort precision
     assert np.abs(cr.corrected_k[v] - img["true_temperature_k"][v]).max() < 1e-4
     assert np.nanmax(np.abs(cr.angle_rad[v] - img["angle_rad"][v])) < 1e-6
+
+
+def test_optical_dlt_agrees_with_geometry_dlt(scene):
+    # an independent implementation (thermogrammetry.geometry.dlt) gives the same camera and the same
+    # a-priori standard deviations as our propagated Jacobians
+    from thermogrammetry.closerange.pipeline import camera_report
+    from thermogrammetry.geometry import dlt
+
+    rows = measure(scene, SIGMA, np.random.default_rng(8))
+    net = solve_network(scene.control, Observations.from_rows(rows, SIGMA), scene.thermal)
+    sel = [r for r in rows if r[0] == "opt1" and r[1] in scene.control]
+    g = dlt(np.array([scene.control[r[1]] for r in sel]), np.array([[r[2], r[3]] for r in sel]), sigma_px=SIGMA)
+    rep = camera_report(net, "opt1")
+    assert np.abs(np.asarray(rep["center_m"]) - g.center).max() < 1e-8
+    for k in ("X0", "Y0", "Z0"):
+        assert rep["exterior_std"][k] == pytest.approx(g.std_prior[k], rel=1e-4)
+    assert rep["interior"]["fx_px"] == pytest.approx(g.values["fx"], rel=1e-9)
+    assert rep["interior_std"]["fx_px"] == pytest.approx(g.std_prior["fx"], rel=1e-4)
