@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import SHARED_DATA, data_path
-from thermogrammetry.errors import ConfigError, CorruptFileError, DataFileError, UnsupportedFormatError
+from thermogrammetry.errors import ConfigError, DataFileError, InvalidInputError, ShapeError, UnsupportedFormatError
 from thermogrammetry.io import read_thermal
 from thermogrammetry.io.thermal import ThermalImage, iter_thermal, registered_readers
 from thermogrammetry.io.tiff import write_temperature_tiff
@@ -244,6 +244,10 @@ def test_recompute_with_per_pixel_maps_equals_scalar_runs():
     np.testing.assert_allclose(same.temperature_k, left.temperature_k, atol=1e-5)
     with pytest.raises(ConfigError, match="emisivity"):
         read_thermal(img.metadata.source_path, emisivity=0.9)
+    with pytest.raises(InvalidInputError, match="emissivity"):  # out of range: not reported as a corrupt file
+        read_thermal(img.metadata.source_path, emissivity=1.5)
+    with pytest.raises(ShapeError, match=r"distance_m: per-pixel map of shape \(10, 10\)"):
+        img.recompute(distance_m=np.ones((10, 10)))
 
 
 @pytest.mark.parametrize("name", ["IR_2412.jpg", "SampleSEQ.seq", "SampleCSQ.csq"])

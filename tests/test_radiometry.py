@@ -206,3 +206,20 @@ def test_params_override_refuses_unknown_and_bad_values():
         measurement_weights(p.override(emissivity=1.2))
     with pytest.raises(InvalidInputError, match="kelvin"):
         measurement_weights(p.override(reflected_temperature_k=-5.0))
+
+
+def test_eq8_is_the_measurement_equation_with_cosine_emissivity(rng):
+    # seed 000 eq. 8 == inverting S0 = eps S(T) + (1 - eps) S(Ta) with eps = cos(phi), S = sigma T^4, tau = 1
+    from thermogrammetry.radiometry import CosineEmissivity, StefanBoltzmann, corrected_temperature_from_apparent
+
+    t0 = rng.uniform(270, 400, size=500)
+    ta = rng.uniform(260, 310, size=500)
+    phi = np.deg2rad(rng.uniform(0, 75, size=500))
+    got = corrected_temperature_from_apparent(
+        t0, phi, CosineEmissivity(), signal_model=StefanBoltzmann(),
+        params=MeasurementParams(reflected_temperature_k=ta, atmospheric_temperature_k=ta, distance_m=0.0),
+    )
+    ok = np.isfinite(got)
+    assert ok.mean() > 0.95  # NaN only where no real solution exists (cold object, big angle)
+    assert np.max(np.abs(got[ok] - temperature_correction_eq8(t0, ta, phi)[ok])) < 1e-9
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(temperature_correction_eq8(t0, ta, phi)))

@@ -22,7 +22,7 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 
 from ..enums import StrChoice
-from ..errors import ConfigError, CorruptFileError, DataFileError, UnsupportedFormatError
+from ..errors import ConfigError, CorruptFileError, DataFileError, InvalidInputError, ShapeError, UnsupportedFormatError
 from ..radiometry.measurement import MeasurementParams, object_temperature_from_raw
 from ..radiometry.planck import PlanckConstants
 
@@ -280,6 +280,16 @@ class ThermalImage:
                 f"{md.describe()}: cannot recompute temperatures: "
                 + ("no raw counts" if self.raw_counts is None else "no Planck calibration in the file")
             )
+        for k, v in overrides.items():
+            a = np.asarray(v) if v is not None and not hasattr(v, "alpha1") else None
+            if a is not None and a.ndim > 0:
+                try:
+                    np.broadcast_shapes(a.shape, self.raw_counts.shape)
+                except ValueError:
+                    raise ShapeError(
+                        f"{k}: per-pixel map of shape {a.shape} does not fit the image {self.raw_counts.shape} "
+                        f"({md.describe()}); expected a scalar or an (H, W) array"
+                    ) from None
         params = (md.measurement or MeasurementParams()).override(**overrides)
         t = object_temperature_from_raw(self.raw_counts, md.planck, params).astype(np.float32)
         new_md = dataclasses.replace(md, measurement=params, notes=list(md.notes))
@@ -394,7 +404,7 @@ def iter_thermal(
             idx = img.metadata.frame_index if img.metadata.frame_index is not None else k
             if opts.frames is None or idx in opts.frames:
                 yield img
-    except (DataFileError, ConfigError):
+    except (DataFileError, InvalidInputError):  # our own errors (incl. ConfigError, ShapeError) pass unchanged
         raise
     except (ValueError, IndexError, KeyError, EOFError, OSError) as exc:  # decoding library errors on bad bytes
         raise CorruptFileError(f"{p}: {spec.name} reader failed: {type(exc).__name__}: {exc}") from None

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, ShapeError
 from .measurement import MeasurementParams, object_temperature_from_raw
-from .planck import PlanckConstants
+from .planck import PlanckConstants, SignalModel, signal_from_temperature
 
 __all__ = [
     "DEFAULT_MAX_ANGLE_DEG",
@@ -48,6 +48,8 @@ __all__ = [
     "fresnel_emissivity",
     "TabulatedEmissivity",
     "FresnelEmissivity",
+    "CosineEmissivity",
+    "corrected_temperature_from_apparent",
     "corrected_temperature",
     "raw_for_directional",
 ]
@@ -173,6 +175,20 @@ class FresnelEmissivity:
 
 
 @dataclass(frozen=True)
+class CosineEmissivity:
+    """``eps(theta) = normal_emissivity * cos(theta)`` -- the Lambertian law implicit in seed 000 eq. 8.
+
+    With this law, a reflected/ambient temperature ``Ta``, no atmosphere and the Stefan-Boltzmann signal,
+    the measurement equation ``S0 = eps S(T) + (1 - eps) S(Ta)`` inverts to exactly eq. 8; the tests check it.
+    """
+
+    normal_emissivity: float = 1.0
+
+    def __call__(self, angle_rad) -> np.ndarray:
+        return float(self.normal_emissivity) * np.cos(np.asarray(angle_rad, dtype=np.float64))
+
+
+@dataclass(frozen=True)
 class TabulatedEmissivity:
     """User table of directional emissivity: angles (degrees, increasing) and emissivities; linear
     interpolation; angles outside the table are refused (no extrapolation)."""
@@ -254,3 +270,40 @@ def raw_for_directional(temperature_k, planck, params, angle_rad, emissivity_mod
     p = params.override(emissivity=emissivity_model(a), distance_m=params.distance_m if distance_m is None else distance_m)
     return raw_from_object_temperature(temperature_k, planck, p)
 
+
+
+def corrected_temperature_from_apparent(
+    apparent_temperature_k,
+    angle_rad,
+    emissivity_model,
+    *,
+    signal_model: SignalModel,
+    params: MeasurementParams,
+    distance_m=None,
+    max_angle_deg: float = DEFAULT_MAX_ANGLE_DEG,
+) -> np.ndarray:
+    """Like :func:`corrected_temperature`, from *apparent* (blackbody-equivalent) temperatures.
+
+    Use this when only a temperature image is available (a camera set to emissivity 1 and no atmosphere,
+    a converted TIFF): the apparent temperature is mapped back to the signal with ``signal_model`` (the
+    camera's :class:`~.planck.PlanckConstants`, or :class:`~.planck.StefanBoltzmann` for total radiation)
+    and the measurement equation is inverted with ``emissivity_model(angle)`` and ``distance_m``.
+
+    Parameters
+    ----------
+    apparent_temperature_k : array_like (H, W)
+    angle_rad : array_like (H, W) or scalar
+        Viewing angle from the surface normal (NaN: no surface -> NaN).
+    emissivity_model : callable ``eps(angle_rad)``
+    signal_model : PlanckConstants or StefanBoltzmann
+    params : MeasurementParams
+        Reflected/atmospheric temperature, humidity, window; emissivity and distance are replaced.
+    distance_m : array_like, optional
+
+    Returns
+    -------
+    ndarray (H, W) float64 kelvin.
+    """
+    raw = signal_from_temperature(apparent_temperature_k, signal_model) - signal_model.o
+    return corrected_temperature(raw, signal_model, params, angle_rad, emissivity_model,
+                                 distance_m=distance_m, max_angle_deg=max_angle_deg)

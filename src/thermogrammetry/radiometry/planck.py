@@ -32,6 +32,8 @@ from ..errors import InvalidInputError
 
 __all__ = [
     "PlanckConstants",
+    "StefanBoltzmann",
+    "SignalModel",
     "signal_from_temperature",
     "temperature_from_signal",
     "raw_from_temperature",
@@ -77,6 +79,22 @@ class PlanckConstants:
         return {"r1": self.r1, "r2": self.r2, "b": self.b, "f": self.f, "o": self.o}
 
 
+@dataclass(frozen=True)
+class StefanBoltzmann:
+    """Broadband (total radiation) signal model ``S(T) = sigma T^4`` in W m^-2, ``O = 0``.
+
+    The model behind seed 000 eq. 8 (total exitance of a blackbody).  Usable wherever a
+    :class:`PlanckConstants` is accepted, for cameras without a band calibration or for synthetic work;
+    for a real long-wave camera the band-limited :class:`PlanckConstants` is the better model.
+    """
+
+    o: float = 0.0
+    sigma: float = 5.670374419e-8  # W m^-2 K^-4 (CODATA 2018, exact by SI definition)
+
+
+SignalModel = PlanckConstants | StefanBoltzmann
+
+
 def _check_temperature(t: np.ndarray, name: str = "temperature_k") -> None:
     with np.errstate(invalid="ignore"):
         bad = np.asarray(t) <= 0
@@ -92,15 +110,17 @@ def signal_from_temperature(temperature_k, planck: PlanckConstants) -> np.ndarra
     ----------
     temperature_k : array_like, any shape
         Blackbody temperature in kelvin (> 0).
-    planck : PlanckConstants
+    planck : PlanckConstants or StefanBoltzmann
 
     Returns
     -------
     ndarray, same shape, float64
-        Signal in count units (``raw + O``).
+        Signal in count units (``raw + O``), or W m^-2 for :class:`StefanBoltzmann`.
     """
     t = np.asarray(temperature_k, dtype=np.float64)
     _check_temperature(t)
+    if isinstance(planck, StefanBoltzmann):
+        return planck.sigma * t**4
     return planck.r1 / (planck.r2 * (np.exp(planck.b / t) - planck.f))
 
 
@@ -122,6 +142,9 @@ def temperature_from_signal(signal, planck: PlanckConstants) -> np.ndarray:
     ndarray, same shape, float64, kelvin (NaN where undefined).
     """
     s = np.asarray(signal, dtype=np.float64)
+    if isinstance(planck, StefanBoltzmann):
+        with np.errstate(invalid="ignore"):
+            return np.where(s > 0, np.abs(s / planck.sigma) ** 0.25, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         arg = planck.r1 / (planck.r2 * s) + planck.f
         t = planck.b / np.log(arg)
