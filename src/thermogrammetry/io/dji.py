@@ -19,7 +19,8 @@ DJI Thermal SDK, ``libdirp``).  Without it the image is loaded as **raw counts**
 user points to the SDK (``dji_sdk=`` / ``--dji-sdk`` or the environment variable
 ``THERMOGRAMMETRY_DJI_TSDK``), it is called through ``ctypes`` (``dirp_create_from_rjpeg``,
 ``dirp_set_measurement_params``, ``dirp_measure_ex``) and its °C output becomes ``temperature_k``; nothing
-of the SDK is vendored.  The SDK path is untested in CI (the library is not redistributable).
+of the SDK is vendored.  The binding follows the SDK's public header ``dirp_api.h`` (v1.x); CI tests it
+against a stand-in library with the same C interface, not against DJI's binary (not redistributable).
 
 References
 ----------
@@ -37,7 +38,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..errors import ConfigError, CorruptFileError, DataFileError, UnsupportedFormatError
+from ..errors import ConfigError, CorruptFileError, DataFileError, InvalidInputError, UnsupportedFormatError
 from ..radiometry.measurement import MeasurementParams
 from .exif import jpeg_segments, parse_xmp, read_exif
 from .thermal import Geotag, ReadOptions, ThermalImage, ThermalMetadata, register_reader
@@ -90,10 +91,17 @@ def _sdk_measure(lib_path: str, data: bytes, params: dict | None, overrides: dic
     except OSError as exc:
         raise ConfigError(f"DJI Thermal SDK library {lib_path!r} cannot be loaded: {exc}") from None
 
-    class Params(ctypes.Structure):  # dirp_measurement_params_t
+    class Params(ctypes.Structure):  # dirp_measurement_params_t (packed floats)
+        # v1 ABI: distance (m), humidity (%), emissivity, reflection (°C); later SDKs append ambient_temp (°C).
+        # The spare floats keep a newer library from writing past our struct; we read the library's values
+        # first, so whatever it appends is sent back unchanged.
+        _pack_ = 1
         _fields_ = [("distance", ctypes.c_float), ("humidity", ctypes.c_float),
-                    ("emissivity", ctypes.c_float), ("reflection", ctypes.c_float)]
+                    ("emissivity", ctypes.c_float), ("reflection", ctypes.c_float),
+                    ("spare", ctypes.c_float * 8)]
 
+    if hasattr(lib, "dirp_register_app"):  # required by SDK 1.0-1.2, a no-op later
+        lib.dirp_register_app(b"DJI_TSDK")
     handle = ctypes.c_void_p()
     buf = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
     rc = lib.dirp_create_from_rjpeg(buf, ctypes.c_int32(len(data)), ctypes.byref(handle))
@@ -101,7 +109,9 @@ def _sdk_measure(lib_path: str, data: bytes, params: dict | None, overrides: dic
         raise UnsupportedFormatError(f"DJI Thermal SDK refused the file (dirp_create_from_rjpeg returned {rc})")
     try:
         p = Params()
-        lib.dirp_get_measurement_params(handle, ctypes.byref(p))
+        rc = lib.dirp_get_measurement_params(handle, ctypes.byref(p))
+        if rc != 0:
+            raise UnsupportedFormatError(f"DJI Thermal SDK: dirp_get_measurement_params returned {rc}")
         if "distance_m" in overrides:
             p.distance = float(overrides["distance_m"])
         if "relative_humidity" in overrides:
@@ -110,7 +120,13 @@ def _sdk_measure(lib_path: str, data: bytes, params: dict | None, overrides: dic
             p.emissivity = float(overrides["emissivity"])
         if "reflected_temperature_k" in overrides:
             p.reflection = float(overrides["reflected_temperature_k"]) - 273.15
-        lib.dirp_set_measurement_params(handle, ctypes.byref(p))
+        rc = lib.dirp_set_measurement_params(handle, ctypes.byref(p))
+        if rc != 0:
+            raise InvalidInputError(
+                f"DJI Thermal SDK refused the measurement parameters (distance {p.distance:g} m, humidity {p.humidity:g} %, "
+                f"emissivity {p.emissivity:g}, reflection {p.reflection:g} °C; SDK ranges 1-25 m, 20-100 %, 0.1-1, -40-500 °C): "
+                f"dirp_set_measurement_params returned {rc}"
+            )
         out = np.zeros(shape, dtype=np.float32)
         rc = lib.dirp_measure_ex(handle, out.ctypes.data_as(ctypes.POINTER(ctypes.c_float)), ctypes.c_int32(out.nbytes))
         if rc != 0:
