@@ -219,6 +219,10 @@ def test_workswell_jpeg_raw_equals_its_tiff():
     tif = read_thermal(data_path("rgb_thermal_frescoes", "RadTIFF", "10-50-42-994-radiometric.tiff"))
     assert not jpg.is_temperature and not tif.is_temperature  # no documented mapping in either file
     np.testing.assert_array_equal(jpg.raw_counts, tif.raw_counts)
+    for md in (jpg.metadata, tif.metadata):  # SOURCE.md: 13 mm lens, 588.24 px/cm focal plane = 17 um pitch
+        assert md.make == "Workswell" and md.focal_length_mm == pytest.approx(13.0)
+        assert md.pixel_pitch_um[0] == pytest.approx(17.0, abs=0.01) and md.pixel_pitch_um[1] == pytest.approx(17.0, abs=0.02)
+    assert jpg.metadata.serial == "1017-WWP-190408" and jpg.metadata.reader == "workswell_rjpeg"
     assert (int(tif.raw_counts.min()), int(tif.raw_counts.max())) == (4534, 4889)  # screen_readouts_transcribed.csv
     # with a declared mapping the TIFF yields temperatures (here an illustrative one, ~0.022 K/count)
     t = read_thermal(tif.metadata.source_path, scale=0.022, offset=-85.3, unit="C")
