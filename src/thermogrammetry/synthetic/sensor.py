@@ -16,6 +16,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from functools import lru_cache
 
 import numpy as np
 
@@ -87,11 +88,18 @@ def vignetting_factor(image_size: tuple[int, int], vignetting: float) -> np.ndar
 
 def fixed_pattern(image_size: tuple[int, int], fpn_k: float, fpn_seed: int) -> np.ndarray:
     """(H, W) fixed-pattern offset in kelvin: column stripes + per-pixel offsets, total std ``fpn_k``."""
-    w, h = (int(v) for v in image_size)
+    return float(fpn_k) * _unit_pattern(tuple(int(v) for v in image_size), int(fpn_seed))
+
+
+@lru_cache(maxsize=8)
+def _unit_pattern(image_size: tuple[int, int], fpn_seed: int) -> np.ndarray:
+    w, h = image_size
     rng = np.random.default_rng([int(fpn_seed), w, h, 0xF9])
     cols = rng.standard_normal(w)
     pix = rng.standard_normal((h, w))
-    return float(fpn_k) * np.sqrt(0.5) * (cols[None, :] + pix)
+    out = np.sqrt(0.5) * (cols[None, :] + pix)
+    out.flags.writeable = False
+    return out
 
 
 def apply_sensor_effects(signal, curve, effects: SensorEffects, rng: np.random.Generator | None) -> np.ndarray:
