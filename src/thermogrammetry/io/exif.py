@@ -41,7 +41,7 @@ def jpeg_segments(data: bytes, path: str | Path = "<bytes>") -> list[JpegSegment
     CorruptFileError
         A segment runs past the end of the file (truncated header).
     """
-    if not data.startswith(_SOI):
+    if data[:2] != _SOI:
         raise UnsupportedFormatError(f"{path}: not a JPEG file (no FF D8 start-of-image marker)")
     out: list[JpegSegment] = []
     i = 2

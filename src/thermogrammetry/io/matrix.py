@@ -54,6 +54,7 @@ def _parse_csv(path: Path, text: str) -> np.ndarray:
 def read_matrix(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalImage]:
     """Reader for ``.npy`` / ``.csv`` / ``.txt`` temperature matrices (registered)."""
     unit = _need_unit(path, opts)
+    data = bytes(data)
     if data.startswith(b"\x93NUMPY"):
         try:
             arr = np.load(io.BytesIO(data), allow_pickle=False)

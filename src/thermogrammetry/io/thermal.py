@@ -14,6 +14,7 @@ if/elif chain: adding a format is one :func:`register_reader` call in its own mo
 from __future__ import annotations
 
 import dataclasses
+import mmap
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -394,20 +395,33 @@ def iter_thermal(
     """Every frame of a thermal file (one for images, many for SEQ/CSQ), see :func:`read_thermal`."""
     p = Path(path)
     opts = _options(frames, unit, scale, offset, dji_sdk, overrides)
+    # memory-mapped, so a multi-gigabyte SEQ/CSQ recording is paged in frame by frame, not loaded whole
     try:
-        data = p.read_bytes()
+        fh = open(p, "rb")
     except OSError as exc:
         raise DataFileError(f"{p}: cannot read file ({exc.strerror or exc})") from None
-    spec = sniff_reader(p, data[:_SNIFF_BYTES])
-    try:
-        for k, img in enumerate(spec.read(p, data, opts)):
-            idx = img.metadata.frame_index if img.metadata.frame_index is not None else k
-            if opts.frames is None or idx in opts.frames:
-                yield img
-    except (DataFileError, InvalidInputError):  # our own errors (incl. ConfigError, ShapeError) pass unchanged
-        raise
-    except (ValueError, IndexError, KeyError, EOFError, OSError) as exc:  # decoding library errors on bad bytes
-        raise CorruptFileError(f"{p}: {spec.name} reader failed: {type(exc).__name__}: {exc}") from None
+    with fh:
+        try:
+            data = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+        except (ValueError, OSError):  # empty file (cannot be mapped) or a stream
+            data = fh.read()
+        try:
+            spec = sniff_reader(p, data[:_SNIFF_BYTES])
+            try:
+                for k, img in enumerate(spec.read(p, data, opts)):
+                    idx = img.metadata.frame_index if img.metadata.frame_index is not None else k
+                    if opts.frames is None or idx in opts.frames:
+                        yield img
+            except (DataFileError, InvalidInputError):  # our own errors (incl. ConfigError, ShapeError) pass unchanged
+                raise
+            except (ValueError, IndexError, KeyError, EOFError, OSError) as exc:  # decoding library errors on bad bytes
+                raise CorruptFileError(f"{p}: {spec.name} reader failed: {type(exc).__name__}: {exc}") from None
+        finally:
+            if isinstance(data, mmap.mmap):
+                try:
+                    data.close()
+                except BufferError:  # a reader kept a view; the map is released with it
+                    pass
 
 
 def read_thermal(
