@@ -333,3 +333,19 @@ def test_matrix_readers_need_explicit_unit(tmp_path, rng):
 def test_registry_lists_all_formats():
     names = {r.name for r in registered_readers()}
     assert {"flir_rjpeg", "flir_fff", "workswell_rjpeg", "dji_rjpeg", "tiff", "matrix"} <= names
+
+
+def test_directional_correction_on_a_real_image():
+    from thermogrammetry.radiometry import FresnelEmissivity
+
+    img = read_thermal(data_path(*THERMIMAGE, "IR_2412.jpg"))
+    h, w = img.shape
+    angle = np.deg2rad(np.broadcast_to(np.linspace(0, 70, w)[None, :], (h, w)))
+    model = FresnelEmissivity(1.5, normal_emissivity=0.95)
+    corr = img.correct_directional(angle, model, distance_m=np.full((h, w), 1.0))
+    # at normal view the Fresnel model scaled to 0.95 equals the file's emissivity 0.95: no change
+    np.testing.assert_allclose(corr.temperature_k[:, 0], img.temperature_k[:, 0], atol=1e-4)
+    # at 70° emissivity drops to ~0.83: warm surfaces (scene 23-35 C above reflected 20 C) come out warmer
+    assert np.all(corr.temperature_k[:, -1] > img.temperature_k[:, -1])
+    with pytest.raises(InvalidInputError, match="grazing"):
+        img.correct_directional(np.full((h, w), np.deg2rad(80.0)), model)

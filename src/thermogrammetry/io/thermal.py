@@ -298,6 +298,40 @@ class ThermalImage:
             new_md.notes.append("measurement parameters overridden: " + ", ".join(sorted(k for k, v in overrides.items() if v is not None)))
         return ThermalImage(self.raw_counts, t, new_md)
 
+    def correct_directional(self, angle_rad, emissivity_model, *, distance_m=None, max_angle_deg: float | None = None,
+                            **overrides) -> "ThermalImage":
+        """Per-pixel viewing-angle correction: temperatures with ``emissivity = emissivity_model(angle)``.
+
+        Parameters
+        ----------
+        angle_rad : (H, W) array or scalar
+            Angle between surface normal and viewing ray (radians); NaN where no surface is known.
+        emissivity_model : callable
+            e.g. :class:`~thermogrammetry.radiometry.FresnelEmissivity`,
+            :class:`~thermogrammetry.radiometry.TabulatedEmissivity`, :class:`~thermogrammetry.radiometry.CosineEmissivity`.
+        distance_m : (H, W) array or scalar, optional
+            Camera-to-surface distance per pixel (atmospheric transmission over the real path).
+        max_angle_deg : float, optional
+            Refuse angles beyond this (default :data:`~thermogrammetry.radiometry.DEFAULT_MAX_ANGLE_DEG`).
+        **overrides
+            Other measurement parameters (reflected/atmospheric temperature, humidity, ...).
+        """
+        from ..radiometry.directional import DEFAULT_MAX_ANGLE_DEG, corrected_temperature
+
+        md = self.metadata
+        if self.raw_counts is None or md.planck is None:
+            raise UnsupportedFormatError(
+                f"{md.describe()}: directional correction needs raw counts and a Planck calibration; for a temperature "
+                "image use radiometry.corrected_temperature_from_apparent with a signal model"
+            )
+        params = (md.measurement or MeasurementParams()).override(**overrides)
+        t = corrected_temperature(self.raw_counts, md.planck, params, angle_rad, emissivity_model, distance_m=distance_m,
+                                  max_angle_deg=DEFAULT_MAX_ANGLE_DEG if max_angle_deg is None else max_angle_deg)
+        new_md = dataclasses.replace(md, measurement=params, notes=list(md.notes) + [
+            f"directional correction: emissivity from {type(emissivity_model).__name__} per pixel"
+            + (", per-pixel distance" if distance_m is not None else "")])
+        return ThermalImage(self.raw_counts, t.astype(np.float32), new_md)
+
     @classmethod
     def from_raw(cls, raw_counts: np.ndarray, metadata: ThermalMetadata, opts: ReadOptions | None = None) -> "ThermalImage":
         """Build an image from raw counts; temperatures computed when the metadata has a calibration."""
