@@ -143,3 +143,36 @@ def test_cli_bundle_with_known_thermal_camera(case, tmp_path):
         assert cams["thermal"]["exterior_std"][ax] < 0.02
         assert abs(cams["thermal"]["exterior"][ax] - C[k]) < 3 * cams["thermal"]["exterior_std"][ax]
     assert not (out / "corrected.tif").exists()  # no thermal image given: correction skipped
+
+
+def test_cli_correct_with_dsm_and_pose(tmp_path):
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from thermogrammetry import Camera
+    from thermogrammetry.cli.main import main
+    from thermogrammetry.geometry import Pose
+    from thermogrammetry.io import read_thermal
+    from thermogrammetry.io.tiff import write_temperature_tiff
+
+    # flat ground DSM at z = 1 m, camera 10 m above looking obliquely; °C input → °C output
+    H, W = 30, 40
+    with rasterio.open(tmp_path / "dsm.tif", "w", driver="GTiff", height=H, width=W, count=1, dtype="float32",
+                       transform=from_origin(-20.0, 15.0, 1.0, 1.0)) as dst:
+        dst.write(np.ones((1, H, W), np.float32))
+    pose = Pose.look_at([0.0, -6.0, 11.0], [0.0, 0.0, 1.0], up=(0, 1, 0))
+    (tmp_path / "pose.json").write_text(json.dumps({"R": pose.R.tolist(), "t": pose.t.tolist()}))
+    Camera("pinhole", (80, 60), {"fx": 100.0, "fy": 100.0, "cx": 39.5, "cy": 29.5}).save(tmp_path / "cam.json")
+    write_temperature_tiff(tmp_path / "t.tif", np.full((60, 80), 303.15), unit="C")
+    rc = main(["correct", "--thermal-image", str(tmp_path / "t.tif"), "--camera", str(tmp_path / "cam.json"),
+               "--pose", str(tmp_path / "pose.json"), "--dsm", str(tmp_path / "dsm.tif"), "--ambient-c", "20",
+               "-o", str(tmp_path / "O")])
+    assert rc == 0
+    import tifffile
+
+    ang = tifffile.imread(tmp_path / "O" / "angle_deg.tif")
+    # the centre pixel looks at (0, 0, 1): angle to the vertical normal = atan(6 / 10)
+    assert ang[30, 40] == pytest.approx(np.degrees(np.arctan2(6.0, 10.0)), abs=0.5)
+    out = read_thermal(tmp_path / "O" / "corrected.tif")
+    assert "in C" in " ".join(out.metadata.notes)
+    assert np.all(out.temperature_k[30, 35:45] > 303.15)

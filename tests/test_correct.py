@@ -103,3 +103,64 @@ def test_whole_image_plane_without_polygon():
                                 CloseRangeConfig(ambient_c=22.0))
     assert cr.valid.mean() > 0.99  # the front plane fills the view
     assert np.all(cr.corrected_k[cr.valid] > 305.0)
+
+
+def _on_plane(P, n, d):
+    P = np.asarray(P, float)
+    return P - (P @ n + d)[:, None] * n
+
+
+def test_mesh_surface_matches_planes(scene_img):
+    # the faces as a triangle mesh (corners projected onto the true planes) give the same per-pixel
+    # angle and eq. 8 correction as the planes, away from the edges
+    from thermogrammetry.closerange.correction import convex_inset
+
+    s, img = scene_img
+    cam = s.camera("thermal")
+    V, F = [], []
+    for f in s.faces:
+        q = _on_plane([s.points[i] for i in f.ids], f.normal, f.d)
+        k = len(V)
+        V += list(q)
+        F += [(k, k + 1, k + 2), (k, k + 2, k + 3)]
+    cfg = CloseRangeConfig(ambient_c=s.ambient_k - 273.15)
+    cr = correct_oriented_image(img["temperature_k"], cam.K, cam.pose.R, cam.pose.t, None, cfg,
+                                mesh=(np.array(V), np.array(F)))
+    inner = np.zeros(img["inside"].shape, bool)
+    near = np.zeros(img["inside"].shape, int)  # faces whose outline is within 3 px (overlaps are ambiguous)
+    for f in s.faces:
+        ins = convex_inset(cam.project(np.array([s.points[i] for i in f.ids])), cam.image_size)
+        inner |= ins > 3.0
+        near += ins > -3.0
+    v = cr.valid & inner & (near == 1) & img["inside"]
+    assert v.sum() > 0.8 * img["inside"].sum()
+    assert np.abs(cr.angle_rad[v] - img["angle_rad"][v]).max() < 1e-6  # Embree hits in float32; normals exact
+    assert np.abs(cr.distance_m[v] - img["distance_m"][v]).max() < 1e-9
+    e8 = eq8_correction(img["temperature_k"], img["angle_rad"], s.ambient_k)
+    assert np.abs(cr.corrected_k[v] - e8[v]).max() < 1e-4
+
+
+def test_dsm_surface_matches_analytic_plane():
+    from thermogrammetry.closerange.surfaces import dsm_to_mesh
+    from thermogrammetry.geometry import Pose
+
+    # tilted planar DSM z = 0.1 x + 0.2 y + 1 on a 1 m grid (corner-addressed transform), camera 10 m above
+    H, W = 40, 50
+    transform = (1.0, 0.0, -25.0, 0.0, -1.0, 20.0)
+    col, row = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+    x, y = -25.0 + col, 20.0 - row
+    z = 0.1 * x + 0.2 * y + 1.0
+    V, F = dsm_to_mesh(z, transform)
+    assert len(F) == 2 * (H - 1) * (W - 1)
+    pose = Pose.look_at([2.0, -3.0, 12.0], [0.0, 0.0, 1.0], up=(0, 1, 0))
+    K = np.array([[300.0, 0, 79.5], [0, 300.0, 59.5], [0, 0, 1]])
+    T0 = np.full((120, 160), 300.0)
+    n = np.array([-0.1, -0.2, 1.0])
+    cfg = CloseRangeConfig(ambient_c=20.0)
+    a = correct_oriented_image(T0, K, pose.R, pose.t, None, cfg, mesh=(V, F))
+    b = correct_oriented_image(T0, K, pose.R, pose.t, [(n, -1.0)], cfg)
+    v = a.valid & b.valid
+    assert v.mean() > 0.9
+    assert np.abs(a.angle_rad[v] - b.angle_rad[v]).max() < 1e-6
+    assert np.abs(a.distance_m[v] - b.distance_m[v]).max() < 1e-9
+    assert np.abs(a.corrected_k[v] - b.corrected_k[v]).max() < 1e-4

@@ -1,7 +1,9 @@
 """``thermogrammetry correct``: per-pixel angle, distance and corrected temperature of an oriented thermal image.
 
-Surfaces supported: planes (``--plane A,B,C,D`` or a ``planes.csv`` with ``normal_x,normal_y,normal_z,d_m``
-as written by ``closerange``). Meshes and DSMs are not supported yet.
+Surfaces: planes (``--plane A,B,C,D`` or a ``planes.csv`` with ``normal_x,normal_y,normal_z,d_m`` as
+written by ``closerange``), a triangle mesh (``--mesh`` OBJ/PLY/STL, read by trimesh) or a DSM GeoTIFF
+(``--dsm``, read by rasterio; triangulated between pixel centres). The mesh/DSM must be in the same
+object frame as the camera pose.
 """
 
 from __future__ import annotations
@@ -57,6 +59,8 @@ def correct(
     pose: Optional[Path] = typer.Option(None, "--pose", help="pose.json: R,t (cam_from_world) or omega/phi/kappa_deg + X0,Y0,Z0."),
     planes: Optional[Path] = typer.Option(None, "--planes", help="planes.csv with normal_x,normal_y,normal_z,d_m."),
     plane: List[str] = typer.Option([], "--plane", help="A,B,C,D of a plane A X + B Y + C Z + D = 0 (m); repeatable."),
+    mesh: Optional[Path] = typer.Option(None, "--mesh", help="Triangle mesh (OBJ/PLY/STL) in the object frame."),
+    dsm: Optional[Path] = typer.Option(None, "--dsm", help="DSM GeoTIFF (heights in m) in the object frame."),
     ambient_c: float = typer.Option(22.0, "--ambient-c", help="Reflected ambient temperature (°C)."),
     emissivity: str = typer.Option("cosine", "--emissivity", help="cosine (seed 000 eq. 8) or fresnel."),
     refractive_index: float = typer.Option(1.5, "--refractive-index", help="For --emissivity fresnel."),
@@ -104,8 +108,28 @@ def correct(
             except ValueError:
                 raise ConfigError(f"--plane {spec!r}: expected A,B,C,D") from None
             pl.append(([a, b, cc], dd))
-        if not pl:
-            raise ConfigError("no surface: give --planes planes.csv or --plane A,B,C,D (meshes/DSMs are not supported yet)")
+        surf = None
+        if mesh is not None:
+            import trimesh
+
+            try:
+                m = trimesh.load(mesh, force="mesh", process=False)
+            except Exception as exc:  # trimesh raises many kinds
+                from ..errors import DataFileError
+
+                raise DataFileError(f"mesh {mesh}: cannot be read ({type(exc).__name__}: {exc})") from None
+            surf = (np.asarray(m.vertices, float), np.asarray(m.faces, int))
+        if dsm is not None:
+            import rasterio
+
+            from ..closerange.surfaces import dsm_to_mesh
+
+            with rasterio.open(dsm) as src:
+                z = src.read(1, masked=True).astype(float).filled(np.nan)
+                tr = src.transform
+            surf = dsm_to_mesh(z, (tr.a, tr.b, tr.c, tr.d, tr.e, tr.f))
+        if sum(x is not None for x in (mesh, dsm)) + bool(pl) != 1:
+            raise ConfigError("give exactly one kind of surface: --planes/--plane, --mesh or --dsm")
         img = read_thermal(thermal_image, unit=thermal_unit)
         T0 = img.require_temperature()
         unit = (thermal_unit or _unit_of(img)).upper().lstrip("°")
@@ -115,7 +139,7 @@ def correct(
         image_size = (T0.shape[1], T0.shape[0])
         if hasattr(cam, "image_size") and tuple(cam.image_size) != image_size:
             raise ConfigError(f"camera image size {cam.image_size} differs from the thermal image's {image_size}")
-        cr = correct_oriented_image(T0, cam, R, t, pl, cfg)
+        cr = correct_oriented_image(T0, cam, R, t, pl or None, cfg, mesh=surf)
         from ..io.tiff import encode_temperature_tiff
 
         project = FolderProject(out)

@@ -384,20 +384,23 @@ def correct_oriented_image(
     camera,
     R,
     t,
-    planes: Sequence[tuple[Sequence[float], float]],
+    planes: Sequence[tuple[Sequence[float], float]] | None,
     config: CloseRangeConfig | None = None,
     *,
     polygons_world: Sequence[np.ndarray] | None = None,
+    mesh: tuple[np.ndarray, np.ndarray] | None = None,
     sigma_angle_rad=None,
 ) -> CorrectionResult:
-    """General case: correct a thermal image of an oriented camera over given planes.
+    """General case: correct a thermal image of an oriented camera over planes or a triangle mesh.
 
     Parameters
     ----------
     temperature_k : (h, w) apparent temperatures, K
     camera, R, t : see :func:`camera_rays`
-    planes : sequence of (normal (3,), d) with ``normal · X + d = 0`` (m)
+    planes : sequence of (normal (3,), d) with ``normal · X + d = 0`` (m), or None with ``mesh``
     polygons_world : optional (N_i ≥ 3, 3) outlines of each plane (m); default: the whole image
+    mesh : optional (vertices (V, 3) m, faces (F, 3)) instead of planes (a DSM: :func:`.surfaces.dsm_to_mesh`);
+        ``plane`` in the result then holds the face index
     sigma_angle_rad : optional per-pixel or scalar angle σ for the uncertainty map
     """
     cfg = config or CloseRangeConfig()
@@ -406,7 +409,14 @@ def correct_oriented_image(
         raise InvalidInputError(f"temperature_k: expected a 2D image, got shape {T0.shape}")
     h, w = T0.shape
     C, axis, rays = camera_rays(camera, R, t, (w, h))
-    if polygons_world is None:
+    if (planes is None) == (mesh is None):
+        raise InvalidInputError("give either planes or a mesh as the surface")
+    if mesh is not None:
+        from .surfaces import mesh_rasters
+
+        pr = mesh_rasters(C, rays, axis, *mesh)
+        polygons_world = None
+    elif polygons_world is None:
         big = np.array([[-1e6, -1e6], [1e6 + w, -1e6], [1e6 + w, 1e6 + h], [-1e6, 1e6 + h]])
         polys = [big] * len(planes)
     else:
@@ -420,8 +430,9 @@ def correct_oriented_image(
             else:
                 uvw = Xc @ np.asarray(camera, float).T
                 polys.append(uvw[:, :2] / uvw[:, 2:3])
-    planes = [(np.asarray(n, float) / np.linalg.norm(n), float(d) / np.linalg.norm(n)) for n, d in planes]
-    pr = corr.plane_rasters(C, rays, axis, planes, polys, margin_px=cfg.edge_margin_px)
+    if mesh is None:
+        planes = [(np.asarray(n, float) / np.linalg.norm(n), float(d) / np.linalg.norm(n)) for n, d in planes]
+        pr = corr.plane_rasters(C, rays, axis, planes, polys, margin_px=cfg.edge_margin_px)
     on = pr.plane >= 0
     angle = pr.angle_rad if cfg.angle_mode == AngleMode.LOS else pr.axis_angle_rad
     emis_f = cfg.emissivity_function()
