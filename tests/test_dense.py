@@ -138,3 +138,20 @@ def test_bad_options_and_shapes():
         solve_dense(_line(np.arange(3.0), np.arange(3.0)), [0, 0], weights=[1, 1])
     with pytest.raises(ShapeError, match="Jacobian"):
         solve_dense(lambda x: (np.zeros(3), np.zeros((3, 3))), [0, 0])
+
+
+def test_start_at_minimum_stops_without_trials(rng):
+    t = np.linspace(0, 10, 25)
+    y = 2.0 + 0.5 * t + rng.normal(0, 0.1, t.size)
+    A = np.stack([np.ones_like(t), t], 1)
+    x = np.linalg.lstsq(A, y, rcond=None)[0]
+    calls = []
+
+    def fun(p):
+        calls.append(1)
+        return A @ p - y, A
+
+    res = solve_dense(fun, x)
+    assert res.termination is Termination.CONVERGED and res.iterations == 0 and "decrease" in res.reason
+    assert len(calls) == 1  # no damped trial steps were evaluated
+    assert np.all(np.isfinite(res.covariance))

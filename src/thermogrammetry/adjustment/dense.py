@@ -67,6 +67,10 @@ class DenseOptions:
         Converged when ``‖dx‖ ≤ step_tol · (‖x‖ + step_tol)``.
     cost_tol : float
         Converged when an accepted step lowers the cost by less than ``cost_tol`` relative.
+    decrease_tol : float
+        Converged when the undamped Gauss–Newton step would lower the cost by less than
+        ``decrease_tol`` relative (``gᵀN⁻¹g ≤ decrease_tol · cost``): the estimate is at the
+        minimum to within rounding; avoids futile damped trials there.
     rank_tol : float
         Rank deficient when the smallest eigenvalue of the Jacobi-scaled reduced normal matrix
         is below ``rank_tol`` times the largest.
@@ -77,6 +81,7 @@ class DenseOptions:
     initial_lambda: float = 1e-4
     step_tol: float = 1e-12
     cost_tol: float = 1e-15
+    decrease_tol: float = 1e-15
     rank_tol: float = 1e-13
 
     def __post_init__(self):
@@ -84,7 +89,7 @@ class DenseOptions:
             raise ConfigError(f"damping: {self.damping!r} is not valid; expected 'lm' or 'gauss_newton'")
         if int(self.max_iterations) < 1:
             raise ConfigError(f"max_iterations: {self.max_iterations!r}; expected an integer ≥ 1")
-        for name in ("initial_lambda", "step_tol", "cost_tol", "rank_tol"):
+        for name in ("initial_lambda", "step_tol", "cost_tol", "decrease_tol", "rank_tol"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name}: {v!r}; expected a finite number ≥ 0")
@@ -346,6 +351,17 @@ def solve_dense(
         Hs = H[:, free] * Ds[None, :]
         Z, Hpinv = _null_space(Hs, free.size)
         yp = -Hpinv @ h if k_cons else np.zeros(free.size)
+        if k_cons == 0 or float(h @ h) <= 1e-24:
+            A0 = Z.T @ Ns @ Z
+            b0 = -Z.T @ gs
+            try:
+                pred = float(b0 @ np.linalg.solve(A0, b0))
+            except np.linalg.LinAlgError:
+                pred = np.inf
+            if np.isfinite(pred) and pred <= opt.decrease_tol * cost:
+                term, reason = Termination.CONVERGED, "predicted decrease below decrease_tol (at the minimum)"
+                it -= 1
+                break
         accepted = False
         for _ in range(30):
             A = Z.T @ (Ns + lam * np.eye(free.size)) @ Z
@@ -562,6 +578,20 @@ def solve_dense_batch(
         Ds = 1.0 / np.sqrt(d)
         Ns = N * Ds[:, :, None] * Ds[:, None, :]
         gs = g * Ds
+        # at the minimum already (the Gauss–Newton step would not lower the cost measurably)?
+        try:
+            ygn = np.linalg.solve(Ns + 1e-14 * eye, -gs[..., None])[..., 0]
+            pred = -np.einsum("bi,bi->b", gs, ygn)
+        except np.linalg.LinAlgError:
+            pred = np.full(idx.size, np.inf)
+        at_min = np.isfinite(pred) & (pred <= opt.decrease_tol * cost[idx])
+        if np.any(at_min):
+            conv[idx[at_min]] = True
+            done[idx[at_min]] = True
+            keep = ~at_min
+            idx, Ns, gs, Ds = idx[keep], Ns[keep], gs[keep], Ds[keep]
+            if idx.size == 0:
+                break
         pending = np.ones(idx.size, bool)
         X_new = X[idx].copy()
         V_new = V[idx].copy()
