@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import data_path
+from conftest import data_path
 from thermogrammetry.cli.main import main
 from thermogrammetry.io import read_thermal
 from thermogrammetry.io.convert import ConvertOptions, convert_files

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import SHARED_DATA, data_path
+from conftest import SHARED_DATA, data_path
 from thermogrammetry.errors import ConfigError, DataFileError, InvalidInputError, ShapeError, UnsupportedFormatError
 from thermogrammetry.io import read_thermal
 from thermogrammetry.io.thermal import ThermalImage, iter_thermal, registered_readers

@@ -13,7 +13,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from tests.conftest import data_path
+from conftest import data_path
 from thermogrammetry.io import read_thermal
 
 STAND_IN = r"""
