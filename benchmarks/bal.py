@@ -283,29 +283,34 @@ def main(argv=None) -> int:
         if not path.exists():
             print(f"skip {prob}: {path} is absent")
             continue
-        res = {}
-        for solver in a.solvers:
-            reps = a.scipy_repeats if solver == "scipy" else a.repeats
-            runs = []
-            for _ in range(reps):
+        runs = {s: [] for s in a.solvers}
+        failed = set()
+        # interleave the solvers (ours, ceres, scipy, ours, ceres, ...) so that load from other
+        # processes on a shared machine hits all of them alike
+        for rep in range(a.repeats):
+            for solver in a.solvers:
+                if solver in failed or (solver == "scipy" and rep >= a.scipy_repeats):
+                    continue
                 with tempfile.TemporaryDirectory() as td:
                     out = os.path.join(td, "r.json")
                     cmd = [sys.executable, __file__, "--worker", solver, str(path), out,
                            "--scipy-max-nfev", str(a.scipy_max_nfev)]
-                    env = dict(os.environ, OMP_NUM_THREADS=str(THREADS), OPENBLAS_NUM_THREADS=str(THREADS))
-                    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
+                    p = subprocess.run(cmd, capture_output=True, text=True)
                     if p.returncode != 0 or not os.path.exists(out):
                         print(f"{prob} {solver}: worker failed\n{p.stderr[-2000:]}")
-                        break
+                        failed.add(solver)
+                        continue
                     with open(out) as f:
-                        runs.append(json.load(f))
-            if runs:
-                med = dict(runs[0])
-                for k in ("wall_s", "peak_rss_mb", "solve_mem_mb"):
-                    med[k] = statistics.median(r[k] for r in runs)
-                med["final_cost"] = statistics.median(r["final_cost"] for r in runs)
-                med["walls"] = [r["wall_s"] for r in runs]
-                res[solver] = med
+                        runs[solver].append(json.load(f))
+        res = {}
+        for solver, rr in runs.items():
+            if not rr:
+                continue
+            med = dict(rr[0])
+            for k in ("wall_s", "peak_rss_mb", "solve_mem_mb", "final_cost"):
+                med[k] = statistics.median(r[k] for r in rr)
+            med["walls"] = [r["wall_s"] for r in rr]
+            res[solver] = med
         rows.append((prob, res))
         _print_rows([(prob, res)])
     print()
@@ -330,7 +335,15 @@ def _print_rows(rows):
         if "ours" in res and "scipy" in res:
             print(f"{'':<10} scipy/ours wall-time ratio: {res['scipy']['wall_s'] / res['ours']['wall_s']:.1f}x")
         if "ours" in res and "ceres" in res:
-            print(f"{'':<10} ours wall times {['%.3f' % w for w in res['ours']['walls']]}, ceres {['%.3f' % w for w in res['ceres']['walls']]}")
+            ratios = [o / c for o, c in zip(res["ours"]["walls"], res["ceres"]["walls"])]
+            print(
+                f"{'':<10} wall times ours {['%.2f' % w for w in res['ours']['walls']]}, ceres "
+                f"{['%.2f' % w for w in res['ceres']['walls']]}; per-pair ratio median {statistics.median(ratios):.2f}"
+            )
+            print(
+                f"{'':<10} peak memory ours/ceres: solve delta {res['ours']['solve_mem_mb'] / max(res['ceres']['solve_mem_mb'], 1e-9):.2f}, "
+                f"process peak {res['ours']['peak_rss_mb'] / res['ceres']['peak_rss_mb']:.2f}"
+            )
 
 
 if __name__ == "__main__":

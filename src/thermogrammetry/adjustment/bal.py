@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse as sp
 
 from ..results import Termination
 from ._so3 import axis_angles, rotation_matrices
@@ -214,7 +215,7 @@ class BALSolverOptions:
     min_lm_diagonal: float = 1e-6
     max_lm_diagonal: float = 1e32
     num_threads: int = 2
-    max_pairs_per_chunk: int = 40000
+    max_pairs_per_chunk: int = 12000
 
     def __post_init__(self):
         from ..errors import ConfigError
@@ -269,42 +270,46 @@ class BALResult:
 # the solver
 # ----------------------------------------------------------------------------------------------
 class _Structure:
-    """Index structures that depend only on which camera sees which point."""
+    """Index structures that depend only on which camera sees which point.
+
+    Observations are stored camera-major (sorted by camera, then point): camera blocks are
+    contiguous slices. Sums over the observations of a point use a sparse 0/1 matrix
+    ``P`` (points x observations), i.e. one compiled sparse product instead of a scatter.
+    """
 
     def __init__(self, ci, pi, ncam, npt, max_pairs):
-        order = np.lexsort((ci, pi))  # by point, then camera
+        order = np.lexsort((pi, ci))  # by camera, then point
         self.order = order
         ci = ci[order]
         pi = pi[order]
         self.ci, self.pi = ci, pi
         M = len(ci)
         counts = np.bincount(pi, minlength=npt)
-        self.counts = counts
         self.seen = counts > 0
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        self.pstarts = starts[self.seen]  # reduceat boundaries over points that have observations
-        # camera-sorted permutation
-        self.cperm = np.argsort(ci, kind="stable")
+        slot = np.full(npt, -1, dtype=np.int64)
+        slot[self.seen] = np.arange(int(self.seen.sum()))
+        self.slot = slot[pi]  # point slot of each observation
+        nseen = int(self.seen.sum())
+        self.P = sp.csr_matrix((np.ones(M), (self.slot, np.arange(M))), shape=(nseen, M))
         ccounts = np.bincount(ci, minlength=ncam)
-        self.cbounds = np.concatenate([[0], np.cumsum(ccounts)])
-        inv = np.empty(M, dtype=np.int64)
-        inv[self.cperm] = np.arange(M)
-        # pairs (i < j) of observations of the same point, as positions in camera-major order
-        # (the diagonal pairs i == j are summed per camera without any gather)
-        pstart_obs = np.repeat(starts, counts)
-        rank = np.arange(M) - pstart_obs  # position of obs inside its point's segment
-        npart = counts[pi] - rank - 1  # partners j = i+1 .. end of segment
+        self.cbounds = [int(v) for v in np.concatenate([[0], np.cumsum(ccounts)])]
+        # pairs (i < j) of observations of the same point (the diagonal pairs i == j are summed
+        # per camera without any gather); built in point-major order, stored camera-major
+        pperm = np.argsort(pi, kind="stable")  # point-major position -> camera-major position
+        cnt = counts[self.seen]
+        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+        rank = np.arange(M) - np.repeat(starts, cnt)
+        npart = np.repeat(cnt, cnt) - rank - 1
         I = np.repeat(np.arange(M), npart)
-        off = np.arange(I.size) - np.repeat(np.cumsum(npart) - npart, npart) + 1
-        J = I + off
+        J = I + (np.arange(I.size) - np.repeat(np.cumsum(npart) - npart, npart) + 1)
+        I = pperm[I]
+        J = pperm[J]
         key = ci[I] * ncam + ci[J]
-        I = inv[I]
-        J = inv[J]
         korder = np.lexsort((I, key))
         self.I = I[korder]
         self.J = J[korder]
         key = key[korder]
-        del I, J, off, korder
+        del I, J, korder
         ukeys, kstart = np.unique(key, return_index=True)
         kstart = np.append(kstart, key.size)
         kc1 = ukeys // ncam
@@ -365,46 +370,41 @@ def _tick(name, t):
 
 
 def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
-    """Minimise the BAL reprojection cost by Levenberg-Marquardt with the Schur complement.
-
-    Parameters
-    ----------
-    problem : thermogrammetry.io.bal.BALProblem
-        Initial state; it is not modified.
-    options : BALSolverOptions, optional
-
-    Returns
-    -------
-    BALResult
-        Never raises for numerical trouble: a non-finite initial cost gives
-        ``Termination.NUMERICAL_FAILURE``, running out of iterations ``MAX_ITERATIONS``.
-    """
     opt = options or BALSolverOptions()
     t0 = time.perf_counter()
     ncam, npt = problem.num_cameras, problem.num_points
     st = _Structure(problem.camera_index, problem.point_index, ncam, npt, opt.max_pairs_per_chunk)
     obs = problem.observations[st.order]
-    ci, pi = st.ci, st.pi
+    ci, pi, slot, Pm = st.ci, st.pi, st.slot, st.P
+    cb = st.cbounds
     M = len(ci)
     cam = problem.cameras
     R = rotation_matrices(cam[:, :3])
     t = cam[:, 3:6].copy()
     intr = cam[:, 6:9].copy()
     X = problem.points.copy()
-    seen = st.seen
-    pts_seen = np.nonzero(seen)[0]
+    pts_seen = np.nonzero(st.seen)[0]
     nseen = len(pts_seen)
-    counts_seen = st.counts[seen]
+    counts_c = np.diff(cb)
+    cams_used = [c for c in range(ncam) if counts_c[c] > 0]
     pool = ThreadPoolExecutor(opt.num_threads) if opt.num_threads > 1 else None
 
+    def rotate(R, X):
+        Xg = np.take(X, pi, axis=0)
+        Q = np.empty_like(Xg)
+        for c in cams_used:
+            s_, e_ = cb[c], cb[c + 1]
+            np.matmul(Xg[s_:e_], R[c].T, out=Q[s_:e_])
+        return Q
+
     def residuals(R, t, intr, X, want_jac):
-        Q = np.einsum("mij,mj->mi", R[ci], X[pi])
-        ic = intr[ci]
-        return Q, _proj_jac(Q, t[ci], ic[:, 0], ic[:, 1], ic[:, 2], obs, want_jac)
+        Q = rotate(R, X)
+        tt_ = np.repeat(t, counts_c, axis=0)
+        ic = np.repeat(intr, counts_c, axis=0)
+        return Q, _proj_jac(Q, tt_, ic[:, 0], ic[:, 1], ic[:, 2], obs, want_jac)
 
     def cost_of(r):
-        c = 0.5 * float(np.einsum("ij,ij->", r, r))
-        return c
+        return 0.5 * float(np.einsum("ij,ij->", r, r))
 
     Q, r = residuals(R, t, intr, X, False)
     cost = cost_of(r)
@@ -416,14 +416,12 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
         out = problem.copy()
         out.cameras = np.concatenate([axis_angles(R), t, intr], axis=1)
         out.points = X
-        return BALResult(
-            out, initial_cost, cost, it, nsucc, term, reason, time.perf_counter() - t0, hist
-        )
+        return BALResult(out, initial_cost, cost, it, nsucc, term, reason, time.perf_counter() - t0, hist)
 
-    if not np.isfinite(cost):
-        return finish(Termination.NUMERICAL_FAILURE, "initial cost is not finite", 0, 0, [])
     if M == 0:
         return finish(Termination.TOO_FEW_OBSERVATIONS, "the problem has no observations", 0, 0, [cost])
+    if not np.isfinite(cost):
+        return finish(Termination.NUMERICAL_FAILURE, "initial cost is not finite", 0, 0, [])
 
     radius = opt.initial_trust_region_radius
     decrease = 2.0
@@ -432,7 +430,7 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
     hist = [cost]
     need_jac = True
     nc9 = 9 * ncam
-    cperm, cb = st.cperm, st.cbounds
+    diag3 = ([0, 1, 2], [0, 1, 2])
 
     while True:
         tt = time.perf_counter()
@@ -441,40 +439,44 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
             tt = _tick("jac_eval", tt)
             # camera Jacobian (M, 2, 9): [d/dw (left perturbation), d/dt, d/d(f,k1,k2)]
             Jc = np.empty((M, 2, 9))
-            # -A [Q]x : row a -> cross(Q, A_a)
             q0, q1, q2 = Q[:, 0:1], Q[:, 1:2], Q[:, 2:3]
             a0, a1, a2 = A[:, :, 0], A[:, :, 1], A[:, :, 2]
-            Jc[:, :, 0] = q1 * a2 - q2 * a1
+            Jc[:, :, 0] = q1 * a2 - q2 * a1  # -A [Q]x, row-wise cross(Q, A_a)
             Jc[:, :, 1] = q2 * a0 - q0 * a2
             Jc[:, :, 2] = q0 * a1 - q1 * a0
             Jc[:, :, 3:6] = A
             Jc[:, :, 6:9] = Jk
-            Jp = A @ R[ci]  # (M, 2, 3)
+            del Jk, Q
+            Jp = np.empty((M, 2, 3))
+            for c in cams_used:
+                s_, e_ = cb[c], cb[c + 1]
+                np.matmul(A[s_:e_].reshape(-1, 3), R[c], out=Jp[s_:e_].reshape(-1, 3))
+            del A
             tt = _tick("jac_assemble", tt)
-            # camera blocks U and gradient g_c: one BLAS product per camera, camera-sorted copy
-            Jcs = Jc[cperm].reshape(-1, 9)
-            rs = r[cperm].reshape(-1)
+            # camera blocks U and gradient g_c: one BLAS product per camera (contiguous)
             U = np.zeros((ncam, 9, 9))
             gc = np.zeros((ncam, 9))
-            for c in range(ncam):
-                s, e = 2 * cb[c], 2 * cb[c + 1]
-                if e > s:
-                    blk = Jcs[s:e]
-                    U[c] = blk.T @ blk
-                    gc[c] = blk.T @ rs[s:e]
+            Jcf = Jc.reshape(-1, 9)
+            rf = r.reshape(-1)
+            for c in cams_used:
+                s_, e_ = 2 * cb[c], 2 * cb[c + 1]
+                blk = Jcf[s_:e_]
+                U[c] = blk.T @ blk
+                gc[c] = blk.T @ rf[s_:e_]
             tt = _tick("U", tt)
-            # point blocks V, g_p: contiguous segments
+            # point blocks V, g_p: sparse sums over each point's observations
             JpT = Jp.transpose(0, 2, 1)
-            V = np.add.reduceat((JpT @ Jp).reshape(M, 9), st.pstarts, axis=0).reshape(nseen, 3, 3)
-            gp = np.add.reduceat(np.einsum("mka,mk->ma", Jp, r), st.pstarts, axis=0)
-            WT = JpT @ Jc  # (M, 3, 9) = (Jc^T Jp)^T
-            tt = _tick("V_W", tt)
+            V = np.asarray(Pm @ (JpT @ Jp).reshape(M, 9)).reshape(nseen, 3, 3)
+            gp = np.asarray(Pm @ np.einsum("mka,mk->ma", Jp, r))
+            WT = JpT @ Jc  # (M, 3, 9) = (Jc^T Jp)^T per observation
+            del Jc, Jcf, Jp, JpT
             gmax = max(float(np.max(np.abs(gc))), float(np.max(np.abs(gp))) if nseen else 0.0)
             if gmax <= opt.gradient_tolerance:
                 return finish(Termination.CONVERGED, f"gradient tolerance reached: max|g| = {gmax:.3g}", it, nsucc, hist)
             dU = np.clip(np.diagonal(U, axis1=1, axis2=2), opt.min_lm_diagonal, opt.max_lm_diagonal)
             dV = np.clip(np.diagonal(V, axis1=1, axis2=2), opt.min_lm_diagonal, opt.max_lm_diagonal)
             need_jac = False
+            tt = _tick("V_W", tt)
 
         if it >= opt.max_iterations:
             return finish(Termination.MAX_ITERATIONS, f"stopped after {it} iterations", it, nsucc, hist)
@@ -482,25 +484,24 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
         # ---- damped Schur solve
         lam = 1.0 / radius
         Vd = V.copy()
-        Vd[:, [0, 1, 2], [0, 1, 2]] += lam * dV
+        Vd[:, diag3[0], diag3[1]] += lam * dV
         Vinv, okv = _sym3_inv(Vd)
-        Vinv_o = np.repeat(Vinv, counts_seen, axis=0)  # per observation
-        YT = Vinv_o @ WT  # (M, 3, 9): V^-1 W^T per observation
-        # reduced camera system S = U + D_c/radius - sum_points W V^-1 W^T, camera-major copies
-        YTc = np.take(YT.reshape(M, 27), cperm, axis=0)
-        WTc = np.take(WT.reshape(M, 27), cperm, axis=0)
+        YT = np.take(Vinv, slot, axis=0) @ WT  # (M, 3, 9): V^-1 W^T per observation
+        YTf = YT.reshape(M, 27)
+        WTf = WT.reshape(M, 27)
+        # reduced camera system S = U + D_c/radius - sum_points W V^-1 W^T
         Sm = np.zeros((nc9, nc9))
         for c in range(ncam):
             s_, e_ = cb[c], cb[c + 1]
             blk = U[c]
             if e_ > s_:
-                blk = blk - YTc[s_:e_].reshape(-1, 9).T @ WTc[s_:e_].reshape(-1, 9)
+                blk = blk - YTf[s_:e_].reshape(-1, 9).T @ WTf[s_:e_].reshape(-1, 9)
             Sm[9 * c : 9 * c + 9, 9 * c : 9 * c + 9] = blk
 
         def do_chunk(ch):
             ps, pe, keys = ch
-            Yg = np.take(YTc, st.I[ps:pe], axis=0)
-            Wg = np.take(WTc, st.J[ps:pe], axis=0)
+            Yg = np.take(YTf, st.I[ps:pe], axis=0)
+            Wg = np.take(WTf, st.J[ps:pe], axis=0)
             # sum over shared points of W_i V^-1 W_j^T = sum (V^-1 W_i^T)^T W_j^T
             return [(c1, c2, Yg[a:b].reshape(-1, 9).T @ Wg[a:b].reshape(-1, 9)) for a, b, c1, c2 in keys]
 
@@ -512,16 +513,14 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
             for c1, c2, blk in blocks:
                 Sm[9 * c1 : 9 * c1 + 9, 9 * c2 : 9 * c2 + 9] -= blk
                 Sm[9 * c2 : 9 * c2 + 9, 9 * c1 : 9 * c1 + 9] -= blk.T
-        tt = _tick("S", tt)
         Sm[np.arange(nc9), np.arange(nc9)] += lam * dU.reshape(-1)
+        tt = _tick("S", tt)
         # rhs: -g_c + sum_obs (V^-1 W^T)^T g_p
-        vg = np.repeat(gp, counts_seen, axis=0)  # (M, 3)
-        y = np.einsum("mkc,mk->mc", YT, vg)
+        y = np.einsum("mkc,mk->mc", YT, np.take(gp, slot, axis=0))
+        del YT, YTf
         yb = np.zeros((ncam, 9))
-        ys = y[cperm]
-        for c in range(ncam):
-            if cb[c + 1] > cb[c]:
-                yb[c] = ys[cb[c] : cb[c + 1]].sum(axis=0)
+        for c in cams_used:
+            yb[c] = y[cb[c] : cb[c + 1]].sum(axis=0)
         b = (-gc + yb).reshape(-1)
         tt = _tick("rhs", tt)
         step_ok = bool(np.all(okv))
@@ -536,8 +535,8 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
         if step_ok:
             dcb = dc.reshape(ncam, 9)
             # back-substitution: dp = V^-1 (-g_p - sum W^T dc)
-            wdc = np.einsum("mkc,mc->mk", WT, dcb[ci])
-            rp = -gp - np.add.reduceat(wdc, st.pstarts, axis=0)
+            wdc = np.einsum("mkc,mc->mk", WT, np.repeat(dcb, counts_c, axis=0))
+            rp = -gp - np.asarray(Pm @ wdc)
             dp = np.einsum("nij,nj->ni", Vinv, rp)
             # model cost reduction: 1/2 (-g^T d + d^T D d / radius)
             gd = float(np.dot(gc.ravel(), dc) + np.einsum("ij,ij->", gp, dp))
