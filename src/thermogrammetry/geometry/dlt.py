@@ -620,7 +620,6 @@ def _finish(P, params, adj, X, x, image_size, pitch, sigma_px, T, U, names, outc
     cov_d = np.full((nd, nd), np.nan)
     cov_dp = np.full((nd, nd), np.nan)
     if adj is not None and np.all(np.isfinite(adj.cofactor)):
-        base = np.array([values[n] for n in dnames])
         Q = adj.cofactor
         std_p = np.sqrt(np.clip(np.diag(Q), 0, None))
         Jd = np.zeros((nd, params.size))
@@ -637,7 +636,6 @@ def _finish(P, params, adj, X, x, image_size, pitch, sigma_px, T, U, names, outc
             Jd[:, i] = dv / (2 * h)
         cov_dp = Jd @ (adj.covariance_prior) @ Jd.T
         cov_d = Jd @ adj.covariance @ Jd.T
-        _ = base
     sd = np.sqrt(np.clip(np.diag(cov_d), 0, None)) if np.all(np.isfinite(np.diag(cov_d))) else np.full(nd, np.nan)
     sdp = np.sqrt(np.clip(np.diag(cov_dp), 0, None)) if np.all(np.isfinite(np.diag(cov_dp))) else np.full(nd, np.nan)
     if adj is not None:

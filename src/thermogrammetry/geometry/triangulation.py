@@ -46,8 +46,9 @@ class TriangulationResult:
     points : ndarray (N, 3)
         World coordinates, metres (NaN where no estimate exists).
     covariance : ndarray (N, 3, 3)
-        A posteriori ``σ̂0² Q`` (NaN with only 2 views' worth of redundancy 1 is still defined;
-        NaN when the redundancy is 0 or the point is degenerate).
+        A posteriori ``σ̂0² Q`` per point (NaN when the point is degenerate). With 2 views the
+        redundancy is 1, so σ̂0 of a single point is a poor estimate: prefer ``covariance_prior``
+        with a known image precision, or a σ0 pooled over many points.
     covariance_prior : ndarray (N, 3, 3)
         ``σ² Q`` with the a-priori image precision ``sigma_px``.
     sigma0 : ndarray (N,)
