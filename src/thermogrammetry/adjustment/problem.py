@@ -8,10 +8,13 @@ A :class:`BundleProblem` collects
   ``t <- t + dt``), free or fixed;
 - **rigs** (constant relative orientation between two cameras across frames, seed 002
   eq. 4-5): a rig block ``(R_rel, t_rel)`` and *derived* views ``R_s = R_rel R_m``,
-  ``t_s = R_rel t_m + t_rel`` of a master pose. ``R_rel`` constant is eq. 4
-  (``R* = R_RGB^T R_IR`` with the photogrammetric rotation matrices); ``t_rel`` constant is eq. 5
-  (the slave projection centre is ``C_s = C_m + R_m^T b`` with a constant base vector ``b``
-  in the master camera frame; ``t_rel = -R_rel b``);
+  ``t_s = R_rel t_m + t_rel`` of a master pose. Seed 002 writes eq. 4 as ``R* = R_RGB^T R_IR``;
+  that product is constant only when ``R`` denotes the world_from_camera rotation (``R^T`` in
+  our ``cam_from_world`` terms; with photo_from_world matrices it would change with the rig's
+  attitude), and then ``R* = R_m R_s^T = R_rel^T``. Eq. 5, ``X0_IR = R_RGB t + X0_RGB`` with the
+  same world_from_camera ``R_RGB``, is ``C_s = C_m + R_m^T b`` with a constant base vector ``b``
+  in the master camera frame, i.e. ``t_rel = -R_rel b``. (The seed's text is garbled here; this
+  follows the standard rigid-rig formulation.)
 - **points** (3D, metres), free or fixed;
 - **observations**: image points (px) with sigma per observation, per axis or per sensor;
   control-point coordinates (weighted, sigma in m); GNSS camera-centre priors with a lever arm
@@ -19,7 +22,7 @@ A :class:`BundleProblem` collects
 
 The **gauge** (datum) is either given by control/fixed parameters/priors
 (``Gauge.CONTROL``) or by inner constraints on the free points (``Gauge.INNER``, free network:
-minimum trace of the point covariance; Fraser 1982, Granshaw 1980).
+minimum trace of the point covariance; Granshaw 1980).
 
 The problem is solved by :func:`thermogrammetry.adjustment.solve` with
 :class:`thermogrammetry.adjustment.SolverOptions` (how it is solved).
