@@ -85,3 +85,13 @@ def test_library_convert_raw_counts_only_is_a_failure(tmp_path):
     assert "raw counts only" in rep.results[0].message
     # same stem twice -> distinct outputs
     assert sorted(Path(o).name for r in rep.results for o in r.outputs) == ["IR_2412.tif", "IR_2412_2.tif"]
+
+
+def test_cli_convert_accepts_a_folder(tmp_path, capsys):
+    src = tmp_path / "flight"
+    src.mkdir()
+    for name in ("DJI_XT2.jpg", "DJI_XTR.jpg"):
+        shutil.copy(data_path("rjpeg_samples", "images", name), src / name)
+    code = main(["convert", str(src), "-o", str(tmp_path / "out")])
+    assert code == 0
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["DJI_XT2.tif", "DJI_XTR.tif"]

@@ -30,7 +30,7 @@ def _temperature_k(text: Optional[str], unit: str, flag: str) -> Optional[float]
 
 @app.command("convert")
 def convert(
-    inputs: List[Path] = typer.Argument(..., help="Thermal files: FLIR/DJI/Workswell R-JPEG, SEQ, CSQ, FFF, TIFF, CSV/NPY."),
+    inputs: List[Path] = typer.Argument(..., help="Thermal files (FLIR/DJI/Workswell R-JPEG, SEQ, CSQ, FFF, TIFF, CSV/NPY) or folders of them."),
     out_dir: Path = typer.Option(..., "-o", "--out", help="Output folder (created)."),
     unit: str = typer.Option("K", "--unit", help="Output unit: K or C."),
     encoding: str = typer.Option("float32", "--encoding", help="float32, or uint16 with GDAL scale/offset (<= 0.01 K step)."),
@@ -70,6 +70,11 @@ def convert(
                               dji_sdk=None if dji_sdk is None else str(dji_sdk))
     except ConfigError as exc:
         raise typer.BadParameter(str(exc)) from None
+
+    files: list[Path] = []
+    for item in inputs:  # a folder stands for the files directly inside it (sorted)
+        files += sorted(q for q in item.iterdir() if q.is_file() and not q.name.startswith(".")) if item.is_dir() else [item]
+    inputs = files
 
     with Progress(TextColumn("[bold]convert"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   TextColumn("{task.description}"), console=console, transient=False) as progress:
