@@ -42,7 +42,11 @@ def closerange(
     ambient_c: float = typer.Option(22.0, "--ambient-c", help="Reflected ambient temperature (°C)."),
     sigma_px: float = typer.Option(0.5, "--sigma-px", help="A-priori σ of the image measurements (px)."),
     thermal_unit: Optional[str] = typer.Option(None, "--thermal-unit", help="K or C, for a float image that does not declare its unit."),
-    max_angle_deg: float = typer.Option(80.0, "--max-angle-deg", help="No correction beyond this viewing angle."),
+    max_angle_deg: float = typer.Option(75.0, "--max-angle-deg", help="No correction beyond this viewing angle."),
+    emissivity: str = typer.Option("cosine", "--emissivity", help="cosine (seed 000 eq. 8) or fresnel."),
+    refractive_index: float = typer.Option(1.5, "--refractive-index", help="For --emissivity fresnel."),
+    transmission: bool = typer.Option(False, "--transmission/--no-transmission", help="Atmospheric transmission over the per-pixel distance."),
+    humidity: float = typer.Option(50.0, "--humidity", help="Relative humidity in percent, for --transmission."),
     bundle: bool = typer.Option(False, "--bundle/--no-bundle", help="Joint adjustment of all cameras and pass points after the sequential chain."),
     additional: str = typer.Option("", "--additional", help="With --bundle: distortion terms of the optical cameras, e.g. k1,p1,p2."),
 ) -> None:
@@ -74,6 +78,8 @@ def closerange(
             thermal_k = img.require_temperature()
             unit = (thermal_unit or _unit_of(img)).upper().lstrip("°")
         cfg = CloseRangeConfig(ambient_c=ambient_c, sigma_px=sigma_px, max_angle_deg=max_angle_deg, bundle=bundle,
+                               emissivity=emissivity, refractive_index=refractive_index, transmission=transmission,
+                               relative_humidity=humidity / 100.0,
                                additional_parameters=tuple(a for a in additional.split(",") if a.strip()))
         project = FolderProject(out)
         write_inputs(project, control_csv=read_text(control, "control file"),

@@ -67,7 +67,7 @@ def correct(
     transmission: bool = typer.Option(False, "--transmission/--no-transmission", help="Atmospheric transmission over the per-pixel distance."),
     humidity: float = typer.Option(50.0, "--humidity", help="Relative humidity in percent, for --transmission."),
     thermal_unit: Optional[str] = typer.Option(None, "--thermal-unit", help="K or C, for a float image that does not declare its unit."),
-    max_angle_deg: float = typer.Option(80.0, "--max-angle-deg", help="No correction beyond this viewing angle."),
+    max_angle_deg: float = typer.Option(75.0, "--max-angle-deg", help="No correction beyond this viewing angle."),
 ) -> None:
     """Correct an oriented thermal image for viewing angle, directional emissivity and distance over planes."""
     from rich.console import Console

@@ -72,7 +72,7 @@ class CloseRangeConfig:
     transmission: bool = False
     relative_humidity: float = 0.5
     air_c: float | None = None
-    max_angle_deg: float = 80.0
+    max_angle_deg: float = 75.0  # radiometry.DEFAULT_MAX_ANGLE_DEG: the models' documented valid range
     edge_margin_px: float = 1.5
     max_sigma_k: float | None = None
     bundle: bool = False
@@ -125,10 +125,10 @@ class CloseRangeConfig:
     def emissivity_function(self) -> Callable[[np.ndarray], np.ndarray]:
         if self.emissivity == EmissivityModelName.COSINE:
             return corr.cosine_emissivity
-        from ._interim import fresnel_emissivity
+        from ..radiometry import fresnel_emissivity
 
         n = self.refractive_index
-        return lambda th: fresnel_emissivity(th, n)
+        return lambda th: fresnel_emissivity(np.clip(th, 0.0, np.pi / 2), n)
 
 
 def thermal_geometry(net: NetworkResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -342,10 +342,8 @@ def correct_thermal_image(
 
 
 def _transmission(distance_m, air_k, rh):
-    try:
-        from ..radiometry.atmosphere import atmospheric_transmission
-    except ImportError:  # radiometry not installed yet
-        from ._interim import atmospheric_transmission
+    from ..radiometry import atmospheric_transmission
+
     return atmospheric_transmission(distance_m, air_k, rh)
 
 
