@@ -97,3 +97,24 @@ def test_per_point_sigma_scales_precision(rng):
     assert np.allclose(b.center_std_prior, 0.5 * a.center_std_prior, rtol=1e-9)
     with pytest.raises(InvalidInputError, match="sigma_px"):
         resection(CAM, X, xy, sigma_px=-1.0)
+
+
+def test_free_interior_photogrammetric_flir_a320(rng):
+    # seed 001 Table 2 FLIR A320 (correction form): c, x0, y0 free from 30 non-coplanar points
+    a320 = dict(c_mm=17.2262, x0_mm=0.2883, y0_mm=-0.1995, K1=-30.6381e-4, K2=2599.4545e-7,
+                K3=-98791.5437e-10, P1=-22.6353e-5, P2=28.1114e-5)
+    cam = Camera("photogrammetric", (320, 240), a320, pixel_pitch_um=25.0)
+    pose = Pose.look_at([0.4, -3.0, 0.6], [0.0, 0.0, 0.0])
+    X = rng.uniform(-0.8, 0.8, (300, 3))
+    xy = cam.project(pose.transform(X))
+    ok = np.all((xy > 0) & (xy < [319, 239]), axis=1)
+    X, xy = X[ok][:30], xy[ok][:30]
+    start = cam.replace(c_mm=16.5, x0_mm=0.0, y0_mm=0.0)
+    truth = np.array([a320["c_mm"], a320["x0_mm"], a320["y0_mm"]])
+    r = resection(start, X, xy, free_interior=True)
+    assert r.interior_names == ("c_mm", "x0_mm", "y0_mm") and r.termination is Termination.CONVERGED
+    assert np.abs(r.interior - truth).max() < 1e-9 and np.abs(r.center - pose.center).max() < 1e-9
+    r = resection(start, X, xy + rng.normal(0, 0.2, xy.shape), free_interior=True, sigma_px=0.2)
+    # one seeded noisy run: every estimate within 4 σ (a-priori) of the truth
+    assert np.all(np.abs(r.interior - truth) < 4 * r.interior_std_prior), (r.interior - truth) / r.interior_std_prior
+    assert r.camera.params[0] == r.interior[0]  # the returned camera carries the estimate
