@@ -307,6 +307,7 @@ def test_temperature_tiff_roundtrip_gdal_and_geotags(tmp_path):
         g = back.metadata.geotag
         assert g.latitude_deg == pytest.approx(img.metadata.geotag.latitude_deg, abs=1e-7)
         assert g.longitude_deg == pytest.approx(img.metadata.geotag.longitude_deg, abs=1e-7)
+        assert g.gimbal_yaw_deg == pytest.approx(82.400002, abs=1e-9) and g.relative_altitude_m == pytest.approx(1.9)  # XMP kept
         exif = Image.open(p).getexif()
         gps = exif.get_ifd(0x8825)
         assert gps[1] == "N" and gps[3] == "E" and float(gps[2][0]) == 9.0  # 9° 58' 19.77" N
@@ -353,3 +354,16 @@ def test_directional_correction_on_a_real_image():
     assert np.all(corr.temperature_k[:, -1] > img.temperature_k[:, -1])
     with pytest.raises(InvalidInputError, match="grazing"):
         img.correct_directional(np.full((h, w), np.deg2rad(80.0)), model)
+
+
+def test_emissivity_table_csv(tmp_path):
+    from thermogrammetry.io.matrix import read_emissivity_table
+
+    p = tmp_path / "brick.csv"
+    p.write_text("angle_deg,emissivity\n0,0.93\n45,0.92\n70,0.85\n")
+    tab = read_emissivity_table(p)
+    assert float(tab(np.deg2rad(57.5))) == pytest.approx(0.885, abs=1e-12)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("0,0.9\n10,1.2\n")
+    with pytest.raises(InvalidInputError, match=r"bad\.csv: .*\(0, 1\]"):
+        read_emissivity_table(bad)

@@ -19,7 +19,7 @@ from ..errors import ConfigError, CorruptFileError, UnsupportedFormatError
 from ..radiometry.encoding import to_kelvin
 from .thermal import ReadOptions, ThermalImage, ThermalMetadata, register_reader
 
-__all__ = ["read_matrix"]
+__all__ = ["read_matrix", "read_emissivity_table"]
 
 
 def _need_unit(path: Path, opts: ReadOptions) -> str:
@@ -69,6 +69,30 @@ def read_matrix(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalI
 
 
 _NUMERIC_LINE = re.compile(rb"^\s*[-+0-9.eEnaN]+(\s*[,;\t ]\s*[-+0-9.eEnaN]*)+\s*$")
+
+
+def read_emissivity_table(path: str | Path):
+    """Directional emissivity table from a CSV file: two columns, angle from the normal in degrees and
+    emissivity (a header line is allowed), e.g. measured values from the literature for the material.
+
+    Returns
+    -------
+    :class:`~thermogrammetry.radiometry.TabulatedEmissivity` (validated: increasing angles, values in (0, 1]).
+    """
+    from ..radiometry.directional import TabulatedEmissivity
+
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise CorruptFileError(f"{p}: cannot read emissivity table ({exc.strerror or exc})") from None
+    arr = _parse_csv(p, text)
+    if arr.shape[1] != 2:
+        raise UnsupportedFormatError(f"{p}: emissivity table needs 2 columns (angle_deg, emissivity), found {arr.shape[1]}")
+    try:
+        return TabulatedEmissivity(tuple(arr[:, 0].tolist()), tuple(arr[:, 1].tolist()))
+    except ValueError as exc:
+        raise type(exc)(f"{p}: {exc}") from None
 
 
 def _sniff(head: bytes, path: Path) -> bool:

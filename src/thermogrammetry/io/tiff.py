@@ -48,7 +48,7 @@ from ..radiometry.encoding import (
     from_kelvin,
     to_kelvin,
 )
-from .exif import read_exif
+from .exif import parse_xmp, read_exif
 from .thermal import Geotag, ReadOptions, ThermalImage, ThermalMetadata, register_reader
 
 __all__ = ["write_temperature_tiff", "read_gdal_metadata", "atomic_write_bytes"]
@@ -350,8 +350,10 @@ def _read_tiff(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalIm
     ds, band = read_gdal_metadata(tags.get(42112) if isinstance(tags.get(42112), str) else None)
     make = str(tags.get(271, "") or "").strip() or exif.get("make")
     model = str(tags.get(272, "") or "").strip() or exif.get("model")
+    xmp_raw = tags.get(700)
+    xmp = parse_xmp(bytes(xmp_raw) if isinstance(xmp_raw, (bytes, bytearray)) else str(xmp_raw or "").encode())
     md = ThermalMetadata(
-        make=make, model=model, serial=exif.get("serial"), geotag=Geotag.from_sources(exif, {}),
+        make=make, model=model, serial=exif.get("serial"), geotag=Geotag.from_sources(exif, xmp),
         timestamp=exif.get("timestamp"), focal_length_mm=exif.get("focal_length_mm"),
         pixel_pitch_um=exif.get("pixel_pitch_um"), source_path=str(path), reader="tiff", exif=exif,
         extra={"gdal_metadata": ds},
