@@ -131,19 +131,25 @@ def ideal_from_measured_mm(xy_mm: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.stack([xb + dx, yb + dy], axis=1)
 
 
-def measured_from_ideal_mm(a: np.ndarray, b: np.ndarray, p: np.ndarray, *, iterations: int = 30, tol_mm: float = 1e-12):
+def measured_from_ideal_mm(a: np.ndarray, b: np.ndarray, p: np.ndarray, *, iterations: int = 30, tol_mm: float = 1e-12,
+                           start: np.ndarray | None = None):
     """Solve ``x̄ + Δx(x̄, ȳ) = a``, ``ȳ + Δy(x̄, ȳ) = b`` for x̄, ȳ (mm) by Newton's method.
 
+    ``start`` (N,2): optional starting values of x̄, ȳ (e.g. the measured point); default ``(a, b)``.
     Returns ``(xb, yb, D, converged)`` with ``D = ∂Δ/∂x̄`` at the solution and ``converged`` (N,) bool.
     """
-    xb = a.copy()
-    yb = b.copy()
+    if start is None:
+        xb = a.copy()
+        yb = b.copy()
+    else:
+        xb = np.array(start[:, 0], dtype=float)
+        yb = np.array(start[:, 1], dtype=float)
     converged = np.zeros(a.shape[0], dtype=bool)
     for _ in range(iterations):
         dx, dy = correction(xb, yb, p)
         fx = xb + dx - a
         fy = yb + dy - b
-        D, _ = correction_jacobians(xb, yb, p)
+        D = _correction_D(xb, yb, p)
         a11 = 1 + D[:, 0, 0]
         a12 = D[:, 0, 1]
         a21 = D[:, 1, 0]
@@ -158,12 +164,29 @@ def measured_from_ideal_mm(a: np.ndarray, b: np.ndarray, p: np.ndarray, *, itera
         converged = step < tol_mm
         if np.all(converged):
             break
-    D, _ = correction_jacobians(xb, yb, p)
+    D = _correction_D(xb, yb, p)
     ok = converged & np.isfinite(xb) & np.isfinite(yb)
     return xb, yb, D, ok
 
 
-def project(points_cam: np.ndarray, p: np.ndarray, image_size, pitch_mm, *, jacobians: bool = True):
+def _correction_D(xb, yb, p):
+    """∂(Δx, Δy)/∂(x̄, ȳ) only (N,2,2) -- the part Newton's method needs."""
+    K = p[3:8]
+    P1, P2, B1, B2 = p[8], p[9], p[10], p[11]
+    r2 = xb * xb + yb * yb
+    rad = r2 * (K[0] + r2 * (K[1] + r2 * (K[2] + r2 * (K[3] + r2 * K[4]))))
+    drad = K[0] + r2 * (2 * K[1] + r2 * (3 * K[2] + r2 * (4 * K[3] + r2 * 5 * K[4])))
+    D = np.empty((xb.shape[0], 2, 2))
+    cross = 2 * xb * yb * drad + 2 * P1 * yb + 2 * P2 * xb
+    D[:, 0, 0] = rad + 2 * xb * xb * drad + 6 * P1 * xb + 2 * P2 * yb + B1
+    D[:, 0, 1] = cross + B2
+    D[:, 1, 0] = cross
+    D[:, 1, 1] = rad + 2 * yb * yb * drad + 2 * P1 * xb + 6 * P2 * yb
+    return D
+
+
+def project(points_cam: np.ndarray, p: np.ndarray, image_size, pitch_mm, *, jacobians: bool = True,
+            start_px: np.ndarray | None = None):
     """Measured pixel coordinates of camera-frame points, with Jacobians.
 
     Parameters
@@ -179,6 +202,9 @@ def project(points_cam: np.ndarray, p: np.ndarray, image_size, pitch_mm, *, jaco
     J_point : (N, 2, 3) ∂xy_px/∂points_cam (only when ``jacobians``).
     J_params : (N, 2, 12) ∂xy_px/∂p (only when ``jacobians``).
     ok : (N,) bool, in front of the camera and Newton converged.
+
+    ``start_px`` (N,2): optional starting pixels for Newton's method (the measured points are an
+    excellent start inside an adjustment); the solution does not depend on it.
     """
     X, Y, Z = points_cam[:, 0], points_cam[:, 1], points_cam[:, 2]
     c = p[0]
@@ -188,10 +214,13 @@ def project(points_cam: np.ndarray, p: np.ndarray, image_size, pitch_mm, *, jaco
     yn = Y / Zs
     a = c * xn
     b = -c * yn
-    xb, yb, D, ok = measured_from_ideal_mm(a, b, p)
-    ok &= front
     w, h = image_size
     pxm, pym = pitch_mm
+    start = None
+    if start_px is not None:
+        start = np.stack([(start_px[:, 0] - (w - 1) / 2.0) * pxm - p[1], -(start_px[:, 1] - (h - 1) / 2.0) * pym - p[2]], axis=1)
+    xb, yb, D, ok = measured_from_ideal_mm(a, b, p, start=start)
+    ok &= front
     u = (xb + p[1]) / pxm + (w - 1) / 2.0
     v = -(yb + p[2]) / pym + (h - 1) / 2.0
     xy = np.stack([u, v], axis=1)
@@ -220,8 +249,8 @@ def project(points_cam: np.ndarray, p: np.ndarray, image_size, pitch_mm, *, jaco
     Jrhs = -Jd
     Jrhs[:, 0, 0] = xn
     Jrhs[:, 1, 0] = -yn
-    Jxb_p = np.einsum("nij,njk->nik", Minv, Jrhs)  # d(xb, yb)/dp
-    Jxb_pt = np.einsum("nij,njk->nik", Minv, Jab)
+    Jxb_p = Minv @ Jrhs  # d(xb, yb)/dp
+    Jxb_pt = Minv @ Jab
     # measured x = xb + x0, y = yb + y0
     Jxb_p[:, 0, 1] += 1.0
     Jxb_p[:, 1, 2] += 1.0

@@ -1,10 +1,15 @@
 """Small self-calibrating bundle adjustment (dense Levenberg–Marquardt) with precision.
 
-INTERIM SOLVER. The project's adjustment engine (:mod:`thermogrammetry.adjustment`) is being
-written at the same time as this module; until its API is settled the self-calibration solves its
-normal equations here, densely (calibration problems are small: tens of images, a few hundred
-unknowns). Everything the calibration needs from a solver goes through the single call
-:func:`solve_bundle`, so switching to the engine is a change in one place.
+Everything the calibration needs from a solver goes through the single call :func:`solve_bundle`.
+It has two back ends that solve the same least-squares problem:
+
+* ``engine="adjustment"`` (default): the project's adjustment engine
+  (:func:`thermogrammetry.adjustment.solve`, sparse LM + Schur with precision); the problem below is
+  translated into its ``BundleProblem`` (cameras as :class:`thermogrammetry.Camera` model
+  ``photogrammetric``, poses, rig blocks, fixed or weighted points) and the result translated back;
+* ``engine="dense"``: the dense Levenberg–Marquardt of this module, written before the engine
+  existed, kept as an independent cross-check (``tests/test_calibration_selfcal.py`` compares both)
+  and as the fallback when the engine cannot be imported.
 
 Model
 -----
@@ -180,7 +185,7 @@ def _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True):
     n = lay["n"]
     Xw = pts[problem.obs_point]
     Rf = R[problem.obs_pose]
-    RX = np.einsum("nij,nj->ni", Rf, Xw)
+    RX = (Rf @ Xw[:, :, None])[:, :, 0]
     Y = RX + t[problem.obs_pose]
     has_rig = problem.obs_rig >= 0
     Xc = Y.copy()
@@ -188,7 +193,7 @@ def _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True):
     if np.any(has_rig):
         g = problem.obs_rig[has_rig]
         Rr[has_rig] = rigR[g]
-        Xc[has_rig] = np.einsum("nij,nj->ni", rigR[g], Y[has_rig]) + rigt[g]
+        Xc[has_rig] = (rigR[g] @ Y[has_rig][:, :, None])[:, :, 0] + rigt[g]
     xy = np.empty((N, 2))
     ok = np.zeros(N, dtype=bool)
     Jpt = np.zeros((N, 2, 3))
@@ -197,7 +202,8 @@ def _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True):
         sel = np.nonzero(problem.obs_camera == ci)[0]
         if sel.size == 0:
             continue
-        xyc, Jp3, Jpar, okc = _model.project(Xc[sel], cb.params, cb.image_size, cb.pitch_mm, jacobians=want_jac)
+        xyc, Jp3, Jpar, okc = _model.project(Xc[sel], cb.params, cb.image_size, cb.pitch_mm, jacobians=want_jac,
+                                             start_px=problem.obs_xy[sel])
         xy[sel] = xyc
         ok[sel] = okc
         if want_jac:
@@ -215,8 +221,8 @@ def _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True):
     pidx = lay["pose"][problem.obs_pose]
     has_pose = pidx >= 0
     if np.any(has_pose):
-        JR = np.einsum("nij,njk->nik", Jpt, Rr)  # d xy / d Y
-        Jrot = -np.einsum("nij,njk->nik", JR, _skew(RX))
+        JR = Jpt @ Rr  # d xy / d Y
+        Jrot = -(JR @ _skew(RX))
         r = rows[has_pose]
         cols = pidx[has_pose][:, None] + np.arange(6)[None, :]
         blk = np.concatenate([Jrot[has_pose], JR[has_pose]], axis=2)  # (k,2,6)
@@ -224,8 +230,8 @@ def _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True):
         J[(2 * r + 1)[:, None], cols] = blk[:, 1, :]
     if np.any(has_rig):
         gidx = lay["rig"][problem.obs_rig[has_rig]]
-        RY = np.einsum("nij,nj->ni", Rr[has_rig], Y[has_rig])
-        Jrot = -np.einsum("nij,njk->nik", Jpt[has_rig], _skew(RY))
+        RY = (Rr[has_rig] @ Y[has_rig][:, :, None])[:, :, 0]
+        Jrot = -(Jpt[has_rig] @ _skew(RY))
         blk = np.concatenate([Jrot, Jpt[has_rig]], axis=2)
         r = rows[has_rig]
         cols = gidx[:, None] + np.arange(6)[None, :]
@@ -234,7 +240,7 @@ def _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True):
     qidx = lay["point"][problem.obs_point]
     has_pt = qidx >= 0
     if np.any(has_pt):
-        blk = np.einsum("nij,njk->nik", Jpt[has_pt], np.einsum("nij,njk->nik", Rr[has_pt], Rf[has_pt]))
+        blk = Jpt[has_pt] @ (Rr[has_pt] @ Rf[has_pt])
         r = rows[has_pt]
         cols = qidx[has_pt][:, None] + np.arange(3)[None, :]
         J[(2 * r)[:, None], cols] = blk[:, 0, :]
@@ -277,12 +283,25 @@ def residuals(problem: BundleProblem) -> tuple[np.ndarray, np.ndarray]:
     return res, ok
 
 
-def solve_bundle(problem: BundleProblem, *, max_iterations: int = 200, tolerance: float = 1e-10) -> BundleSolution:
-    """Levenberg–Marquardt on the dense normal equations; returns the estimate with precision.
+def solve_bundle(problem: BundleProblem, *, max_iterations: int = 200, tolerance: float = 1e-10,
+                 engine: str = "adjustment") -> BundleSolution:
+    """Solve the bundle; returns the estimate with precision.
 
+    ``engine``: ``"adjustment"`` (the project's engine) or ``"dense"`` (this module's LM).
     Failure to converge or a singular normal matrix is reported through ``solution.outcome``
     (:class:`~thermogrammetry.results.Termination`), never raised.
     """
+    if engine == "adjustment":
+        try:
+            from ..adjustment import SolverOptions as _SO  # noqa: F401
+        except ImportError:  # pragma: no cover - engine absent: dense fallback
+            engine = "dense"
+    if engine == "adjustment":
+        return _solve_engine(problem, max_iterations)
+    if engine != "dense":
+        from ..errors import ConfigError
+
+        raise ConfigError(f"engine={engine!r}; expected 'adjustment' or 'dense'")
     if _threadpool_limits is not None:
         with _threadpool_limits(limits=1, user_api="blas"):
             return _solve_bundle(problem, max_iterations, tolerance)
@@ -328,7 +347,9 @@ def _solve_bundle(problem: BundleProblem, max_iterations: int, tolerance: float)
         return _fail(problem, cams, R, t, rigR, rigt, pts, res, Termination.DEGENERATE,
                      f"{np.count_nonzero(~ok)} observations project behind a camera or outside the model's range at the start", lay)
     cost = float(e @ e)
-    lam = 1e-4
+    # small initial damping: self-calibration normal matrices have tiny eigenvalues along the
+    # correlated K1-K3 directions, and a larger λ would turn Gauss-Newton into slow gradient steps
+    lam = 1e-9
     it = 0
     term = Termination.MAX_ITERATIONS
     reason = f"no convergence in {max_iterations} iterations"
@@ -362,7 +383,7 @@ def _solve_bundle(problem: BundleProblem, max_iterations: int, tolerance: float)
         cams, R, t, rigR, rigt, pts = cand
         rel = (cost - cost2) / max(cost, 1e-300)
         cost = cost2
-        lam = max(lam / 10, 1e-12)
+        lam = max(lam / 10, 1e-15)
         e, ok, J, res = full_system(cams, R, t, rigR, rigt, pts)
         # stop when the cost no longer decreases, or when the step is below 1e-6 of every
         # parameter's conditional standard deviation (step_s is the step in units of 1/sqrt(N_ii))
@@ -439,4 +460,97 @@ def _fail(problem, cams, R, t, rigR, rigt, pts, res, term, reason, lay):
     sol.pose_std = np.full((R.shape[0], 6), np.nan)
     sol.rig_std = np.full((rigR.shape[0], 6), np.nan)
     sol._w = np.full((N, 2), np.nan)
+    return sol
+
+
+def _solve_engine(problem: BundleProblem, max_iterations: int) -> BundleSolution:
+    """Translate to :mod:`thermogrammetry.adjustment`, solve, translate back."""
+    from ..adjustment import BundleProblem as EngineProblem
+    from ..adjustment import SolverOptions, solve
+    from ..camera import Camera, CameraModel
+
+    lay = _layout(problem)
+    pb = EngineProblem()
+    for ci, cb in enumerate(problem.cameras):
+        cam = Camera(CameraModel.PHOTOGRAMMETRIC, cb.image_size, dict(zip(_model.PARAM_NAMES, map(float, cb.params))),
+                     pixel_pitch_um=(cb.pitch_mm[0] * 1e3, cb.pitch_mm[1] * 1e3), name=cb.name)
+        fixed = [n for n, f in zip(_model.PARAM_NAMES, cb.free) if not f]
+        pb.add_camera(cam, fixed=fixed if len(fixed) < _model.N_PARAMS else True, name=f"cam{ci}")
+    free_pts = lay["point"] >= 0
+    pb.add_points(problem.points, fixed=False)
+    pb.set_points_fixed(np.nonzero(~free_pts)[0], True) if np.any(~free_pts) else None
+    if np.any(free_pts):
+        idx = np.nonzero(free_pts)[0]
+        pb.add_control(idx, problem.points[idx], np.asarray(problem.point_prior_std, float)[idx])
+    views = [pb.add_pose((problem.R[f], problem.t[f]), fixed=not bool(problem.pose_free[f]), name=f"pose{f}")
+             for f in range(problem.R.shape[0])]
+    rigs = [pb.add_rig((problem.rig_R[g], problem.rig_t[g])) for g in range(problem.rig_R.shape[0])]
+    rig_views: dict[tuple[int, int], int] = {}
+    order = []
+    keys = np.stack([problem.obs_camera, problem.obs_pose, problem.obs_rig], axis=1)
+    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    for u, (ci, f, g) in enumerate(uniq):
+        sel = np.nonzero(inv == u)[0]
+        if g >= 0:
+            v = rig_views.get((f, g))
+            if v is None:
+                v = rig_views[(f, g)] = pb.add_rig_view(rigs[g], views[f])
+        else:
+            v = views[f]
+        pb.add_image_points(int(ci), v, problem.obs_point[sel], problem.obs_xy[sel], problem.obs_sigma[sel])
+        order.append(sel)
+    order = np.concatenate(order)
+    res = solve(pb, SolverOptions(max_iterations=max_iterations, data_snooping=False, compute_redundancy=True,
+                                  function_tolerance=1e-10, parameter_tolerance=1e-10))
+    N = problem.obs_xy.shape[0]
+    cams = []
+    for ci, cb in enumerate(problem.cameras):
+        cams.append(CameraBlock(np.array(res.problem.cameras[ci].params, float), cb.free.copy(), cb.image_size, cb.pitch_mm, cb.name))
+    R = np.array(res.problem.pose_R, float).reshape(-1, 3, 3)
+    t = np.array(res.problem.pose_t, float).reshape(-1, 3)
+    rigR = np.array(res.problem.rig_R, float).reshape(-1, 3, 3)
+    rigt = np.array(res.problem.rig_t, float).reshape(-1, 3)
+    pts = np.array(res.problem.points, float)
+    resid = np.full((N, 2), np.nan)
+    if res.image_residuals is not None:
+        resid[order] = res.image_residuals
+    if not res.success or res.covariance is None:
+        return _fail(problem, cams, R, t, rigR, rigt, pts, resid, res.termination, res.reason or "adjustment failed", lay)
+    red = np.full((N, 2), np.nan)
+    red[order] = res.image_redundancy
+    w = np.full((N, 2), np.nan)
+    w[order] = res.image_w
+    s0 = float(res.sigma0)
+    cov = np.asarray(res.covariance)
+    names = list(res.param_names)
+    sol = BundleSolution(Outcome(res.termination, res.reason), cams, R, t, rigR, rigt, pts, resid, red, s0,
+                         int(res.redundancy), res.iterations, cov / max(s0**2, 1e-300), {"engine": "adjustment", "names": names})
+    pos = {n: i for i, n in enumerate(names)}
+    sol.camera_std, sol.camera_cov = [], []
+    for ci, cb in enumerate(cams):
+        std = np.full(_model.N_PARAMS, np.nan)
+        C = np.zeros((_model.N_PARAMS, _model.N_PARAMS))
+        ix = [(k, pos.get(f"cam{ci}.{n}")) for k, n in enumerate(_model.PARAM_NAMES)]
+        ix = [(k, j) for k, j in ix if j is not None]
+        if ix:
+            ks = np.array([k for k, _ in ix])
+            js = np.array([j for _, j in ix])
+            C[np.ix_(ks, ks)] = cov[np.ix_(js, js)]
+            std[ks] = np.sqrt(np.diag(cov)[js])
+        sol.camera_std.append(std)
+        sol.camera_cov.append(C)
+    sol.pose_std = np.asarray(res.pose_std, float) if res.pose_std is not None else np.full((R.shape[0], 6), np.nan)
+    sol.rig_std = np.full((rigR.shape[0], 6), np.nan)
+    sol.rig_cov = []
+    comp = ("wx", "wy", "wz", "tx", "ty", "tz")
+    for g in range(rigR.shape[0]):
+        js = [pos.get(f"rig{g}.{c}") for c in comp]
+        if all(j is not None for j in js):
+            js = np.array(js)
+            sol.rig_std[g] = np.sqrt(np.diag(cov)[js])
+            sol.rig_cov.append(cov[np.ix_(js, js)])
+        else:
+            sol.rig_cov.append(np.full((6, 6), np.nan))
+    sol._w = w
     return sol

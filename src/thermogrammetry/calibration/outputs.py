@@ -51,6 +51,12 @@ def camera_from_calibration(cc: CameraCalibration):
                   param_std=std, name=cc.name)
 
 
+def calibration_solver(r: CalibrationResult) -> str:
+    if r.solution is not None and r.solution.layout.get("engine") == "adjustment":
+        return "thermogrammetry.adjustment (sparse LM + Schur)"
+    return "dense Levenberg-Marquardt (thermogrammetry.calibration.bundle)"
+
+
 def _f(v):
     v = float(v)
     return v if np.isfinite(v) else None
@@ -109,7 +115,7 @@ def calibration_dict(run: CalibrationRun, exports: dict | None = None) -> dict[s
         "stage1": r.stage1,
         "blunder_test": r.snooping_test,
         "blunders": r.blunders,
-        "solver": "interim dense Levenberg-Marquardt (thermogrammetry.calibration.bundle)",
+        "solver": calibration_solver(r),
         "run": run.meta,
     }
     if cams:
@@ -313,7 +319,7 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
     out.append(f"<p>Route: <b>{e(str(meta.get('route', '')))}</b>. Termination: <b>{e(r.outcome.termination.value)}</b> "
                f"({e(r.outcome.reason)}). σ0 = {r.sigma0:.4f} (a-priori σ of a coordinate = 1 unless given), "
                f"redundancy {r.dof}, RMS {r.rms_px:.4f} px. Blunder test: {e(r.snooping_test)}. "
-               "Solver: interim dense Levenberg–Marquardt with the correction-form (photogrammetric) model, "
+               f"Solver: {e(calibration_solver(r))} with the correction-form (photogrammetric) model, "
                "Brown (1971) / Fraser (1997).</p>")
     if meta.get("pixel_pitch_assumed"):
         out.append(f"<p class='warn'>Pixel pitch not given: {meta['pixel_pitch_um'][0]} µm assumed. Values in mm scale with "

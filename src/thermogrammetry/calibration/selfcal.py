@@ -21,8 +21,8 @@ the common object points). When images of different cameras share a ``frame`` ke
 the second camera's poses are the first camera's pose composed with a constant relative orientation
 ``cam2_from_cam1`` (estimated, with precision): the relative orientation of a thermal + RGB pair.
 
-The solve is one call, :func:`thermogrammetry.calibration.bundle.solve_bundle` (interim dense
-solver; see there).
+The solve is one call, :func:`thermogrammetry.calibration.bundle.solve_bundle`: by default the
+project's adjustment engine (:mod:`thermogrammetry.adjustment`), or the dense LM kept as a cross-check.
 
 References
 ----------
@@ -84,6 +84,8 @@ class SelfCalibrationOptions:
     max_image_rms_factor : after stage 2, an image whose RMS exceeds this factor times the median
         image RMS (and 1 px) is rejected and the solve repeated.
     snooping : disable to run the adjustment without blunder elimination (Monte-Carlo studies).
+    solver : ``"adjustment"`` (the project's engine, default) or ``"dense"`` (the independent dense
+        LM of :mod:`~thermogrammetry.calibration.bundle`).
     """
 
     k45: bool = False
@@ -98,8 +100,11 @@ class SelfCalibrationOptions:
     min_points_per_image: int = 6
     max_image_rms_factor: float = 5.0
     snooping: bool = True
+    solver: str = "adjustment"
 
     def __post_init__(self):
+        if self.solver not in ("adjustment", "dense"):
+            raise ConfigError(f"solver = {self.solver!r}: expected 'adjustment' or 'dense'")
         bad = [n for n in self.fixed if n not in _model.PARAM_NAMES]
         if bad:
             raise ConfigError(f"fixed: unknown parameter(s) {bad}; expected names from {list(_model.PARAM_NAMES)}")
@@ -602,7 +607,7 @@ def calibrate(
         sol = None
         for rnd in range(opt.max_snooping_rounds + 1):
             prob, sel, pose_keys = build(cam_params, free_masks, active)
-            sol = solve_bundle(prob)
+            sol = solve_bundle(prob, engine=opt.solver)
             if not sol.outcome.success:
                 return sol, sel, pose_keys
             store(sol, pose_keys)
