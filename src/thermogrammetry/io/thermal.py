@@ -390,6 +390,10 @@ def sniff_reader(path: str | Path, head: bytes | None = None) -> ReaderSpec:
     if not head:
         what = "empty file"
     elif head.startswith(b"\xff\xd8"):
+        if len(head) < _SNIFF_BYTES:  # the whole file is in ``head``: say so if it is a cut JPEG
+            from .exif import jpeg_segments
+
+            jpeg_segments(head, p)  # raises CorruptFileError naming the truncation
         what = ("a JPEG without radiometric data: no FLIR/Workswell FFF block in APP1, no DJI thermal block in "
                 "APP3/APP4 -- an ordinary visible or palette-rendered image")
     elif head[:4] in (b"II*\x00", b"MM\x00*"):
