@@ -51,7 +51,7 @@ from ..radiometry.encoding import (
 from .exif import parse_xmp, read_exif
 from .thermal import Geotag, ReadOptions, ThermalImage, ThermalMetadata, register_reader
 
-__all__ = ["write_temperature_tiff", "read_gdal_metadata", "atomic_write_bytes"]
+__all__ = ["write_temperature_tiff", "encode_temperature_tiff", "read_gdal_metadata", "atomic_write_bytes"]
 
 # TIFF field types
 _BYTE, _ASCII, _SHORT, _LONG, _RATIONAL, _UNDEFINED, _DOUBLE = 1, 2, 3, 4, 5, 7, 12
