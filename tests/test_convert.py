@@ -95,3 +95,12 @@ def test_cli_convert_accepts_a_folder(tmp_path, capsys):
     code = main(["convert", str(src), "-o", str(tmp_path / "out")])
     assert code == 0
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["DJI_XT2.tif", "DJI_XTR.tif"]
+
+
+def test_cli_convert_matrix_needs_input_unit(tmp_path, capsys):
+    m = tmp_path / "m.npy"
+    np.save(m, np.full((4, 5), 21.5))
+    assert main(["convert", str(m), "-o", str(tmp_path / "a")]) == 1
+    assert "unit" in capsys.readouterr().out
+    assert main(["convert", str(m), "-o", str(tmp_path / "b"), "--input-unit", "C"]) == 0
+    np.testing.assert_allclose(read_thermal(tmp_path / "b" / "m.tif").temperature_k, 21.5 + 273.15, atol=1e-4)

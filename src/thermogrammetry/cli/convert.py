@@ -40,6 +40,7 @@ def convert(
     reflected: Optional[str] = typer.Option(None, "--reflected", help="Override reflected apparent temperature, e.g. 20C or 293.15K (bare number: --unit)."),
     air_temperature: Optional[str] = typer.Option(None, "--air-temperature", help="Override air temperature, e.g. 20C or 293.15K (bare number: --unit)."),
     dji_sdk: Optional[Path] = typer.Option(None, "--dji-sdk", help="Path of DJI's Thermal SDK library (libdirp) for DJI R-JPEGs."),
+    input_unit: Optional[str] = typer.Option(None, "--input-unit", help="Unit (K or C) of CSV/NPY temperature matrices, which carry none."),
 ) -> None:
     """Convert radiometric thermal images/sequences to one temperature TIFF per image or frame.
 
@@ -67,7 +68,8 @@ def convert(
             "atmospheric_temperature_k": _temperature_k(air_temperature, u, "--air-temperature"),
         }
         opts = ConvertOptions(unit=u, encoding=encoding, overrides={k: v for k, v in overrides.items() if v is not None},
-                              dji_sdk=None if dji_sdk is None else str(dji_sdk))
+                              dji_sdk=None if dji_sdk is None else str(dji_sdk),
+                              input_unit=None if input_unit is None else input_unit.strip().upper().lstrip("°"))
     except ConfigError as exc:
         raise typer.BadParameter(str(exc)) from None
 

@@ -31,13 +31,15 @@ class ConvertOptions:
 
     ``overrides``: measurement parameters replacing the files' (``emissivity``, ``distance_m``,
     ``relative_humidity`` fraction, ``reflected_temperature_k``, ``atmospheric_temperature_k``).
-    ``dji_sdk``: path of DJI's Thermal SDK library for DJI R-JPEGs.
+    ``dji_sdk``: path of DJI's Thermal SDK library for DJI R-JPEGs.  ``input_unit``: "K" or "C", the unit
+    of CSV/NPY temperature matrices (which carry none).
     """
 
     unit: TemperatureUnit = TemperatureUnit.K
     encoding: Encoding = Encoding.FLOAT32
     overrides: dict = field(default_factory=dict)
     dji_sdk: str | None = None
+    input_unit: str | None = None  # declared unit of CSV/NPY matrices and float TIFFs without a unit tag
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "unit", TemperatureUnit(self.unit))
@@ -101,7 +103,7 @@ def convert_files(
                 stem = f"{p.stem}_{k}"
                 k += 1
             used.add(stem)
-            frames = iter_thermal(p, dji_sdk=opts.dji_sdk, **opts.overrides)
+            frames = iter_thermal(p, dji_sdk=opts.dji_sdk, unit=opts.input_unit, **opts.overrides)
             first = next(frames)
             second = next(frames, None)
             multi = second is not None
