@@ -97,6 +97,11 @@ def test_transmission_is_one_at_zero_distance_and_falls():
 
 
 def test_transmission_refuses_bad_input():
+    # the empirical FLIR fit turns negative far outside its range (here 2 km at 40 C, saturated air)
+    assert float(atmospheric_transmission(2000.0, 313.15, 1.0)) < 0
+    with pytest.raises(InvalidInputError, match="outside the valid range of FLIR's empirical"):
+        object_temperature_from_raw(18000.0, SC660, MeasurementParams(distance_m=2000.0, atmospheric_temperature_k=313.15,
+                                                                      relative_humidity=1.0))
     with pytest.raises(InvalidInputError, match="distance_m"):
         atmospheric_transmission(-1.0, 293.15, 0.5)
     with pytest.raises(InvalidInputError, match="fraction"):

@@ -85,7 +85,11 @@ def convert(
         def done(r):
             progress.update(task, advance=1, description=Path(r.path).name)
 
-        report = convert_files(inputs, out_dir, opts, on_file_done=done)
+        def frame(path, idx):
+            if idx:  # sequences: show the running frame number
+                progress.update(task, description=f"{Path(path).name} frame {idx}")
+
+        report = convert_files(inputs, out_dir, opts, on_file_done=done, on_frame_done=frame)
 
     off = 273.15 if u == "C" else 0.0
     table = Table(title=f"convert -> {out_dir} ({opts.encoding.value}, {u})")

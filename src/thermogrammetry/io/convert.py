@@ -78,8 +78,12 @@ def convert_files(
     options: ConvertOptions | None = None,
     *,
     on_file_done: Callable[[FileResult], None] | None = None,
+    on_frame_done: Callable[[str, int], None] | None = None,
 ) -> ConvertReport:
     """Convert every input file; never stops at a bad file (see module docstring).
+
+    ``on_file_done(result)`` is called after each file, ``on_frame_done(path, frame_index)`` after each
+    written frame (progress display of long sequences).
 
     Returns
     -------
@@ -120,6 +124,8 @@ def convert_files(
                 target = out / (f"{stem}_f{idx:05d}.tif" if multi else f"{stem}.tif")
                 write_temperature_tiff(target, t, unit=opts.unit, encoding=opts.encoding, metadata=img.metadata)
                 written.append(target)
+                if on_frame_done is not None:
+                    on_frame_done(str(p), idx)
                 if np.any(np.isfinite(t)):
                     lo, hi = min(lo, float(np.nanmin(t))), max(hi, float(np.nanmax(t)))
                 res.reader, res.shape = img.metadata.reader or "", img.shape

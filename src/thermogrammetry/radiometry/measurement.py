@@ -127,6 +127,14 @@ def measurement_weights(params: MeasurementParams) -> dict[str, np.ndarray]:
     params.validate()
     d = np.asarray(params.distance_m, dtype=np.float64)
     tau = atmospheric_transmission(d / 2.0, params.atmospheric_temperature_k, params.relative_humidity, params.coefficients)
+    if np.any(~(tau > 0)):
+        dmax = float(np.nanmax(d))
+        raise InvalidInputError(
+            f"atmospheric transmission <= 0 (min {float(np.nanmin(tau)):.3g}) for distance up to {dmax:g} m at "
+            f"{float(np.nanmax(np.asarray(params.atmospheric_temperature_k))) - 273.15:.1f} °C and humidity "
+            f"{float(np.nanmax(np.asarray(params.relative_humidity))):.2f}: outside the valid range of FLIR's empirical "
+            "atmosphere model (a few hundred metres); shorten the distance or use a radiative-transfer model"
+        )
     tau1 = tau2 = tau
     e = np.asarray(params.emissivity, dtype=np.float64)
     w = float(params.window_transmission)
