@@ -228,3 +228,11 @@ def test_eq8_is_the_measurement_equation_with_cosine_emissivity(rng):
     assert ok.mean() > 0.95  # NaN only where no real solution exists (cold object, big angle)
     assert np.max(np.abs(got[ok] - temperature_correction_eq8(t0, ta, phi)[ok])) < 1e-9
     np.testing.assert_array_equal(np.isnan(got), np.isnan(temperature_correction_eq8(t0, ta, phi)))
+
+
+def test_nan_distance_marks_pixels_without_surface():
+    d = np.array([[1.0, np.nan], [5.0, 10.0]])
+    tau = atmospheric_transmission(d, 293.15, 0.5)
+    assert np.isnan(tau[0, 1]) and np.all(np.isfinite(tau[[0, 1, 1], [0, 0, 1]]))
+    t = object_temperature_from_raw(np.full((2, 2), 18500.0), SC660, MeasurementParams(distance_m=d, emissivity=0.9))
+    assert np.isnan(t[0, 1]) and np.all(np.isfinite(t[[0, 1, 1], [0, 0, 1]]))

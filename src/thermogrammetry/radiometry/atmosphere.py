@@ -59,10 +59,11 @@ class AtmosphericCoefficients:
 def _nonneg(a, name: str) -> np.ndarray:
     arr = np.asarray(a, dtype=np.float64)
     with np.errstate(invalid="ignore"):
-        bad = ~(arr >= 0)
+        bad = (arr < 0) | np.isinf(arr)
     if np.any(bad):
         first = arr[bad].ravel()[0]
-        raise InvalidInputError(f"{name}: {int(np.sum(bad))} value(s) negative or NaN (first {first!r}); expected >= 0")
+        raise InvalidInputError(f"{name}: {int(np.sum(bad))} value(s) negative or infinite (first {first!r}); expected >= 0 "
+                                "(NaN marks pixels without a distance)")
     return arr
 
 
@@ -104,7 +105,7 @@ def atmospheric_transmission(
     Parameters
     ----------
     distance_m : array_like
-        Path length in metres (>= 0); a per-pixel distance map works (broadcasting).
+        Path length in metres (>= 0); a per-pixel distance map works (broadcasting); NaN (no surface) gives NaN.
     air_temperature_k : array_like
         Air temperature in kelvin.
     relative_humidity : array_like

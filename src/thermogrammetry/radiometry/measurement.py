@@ -127,7 +127,7 @@ def measurement_weights(params: MeasurementParams) -> dict[str, np.ndarray]:
     params.validate()
     d = np.asarray(params.distance_m, dtype=np.float64)
     tau = atmospheric_transmission(d / 2.0, params.atmospheric_temperature_k, params.relative_humidity, params.coefficients)
-    if np.any(~(tau > 0)):
+    if np.any(tau <= 0):  # NaN (pixels without a distance) propagates instead
         dmax = float(np.nanmax(d))
         raise InvalidInputError(
             f"atmospheric transmission <= 0 (min {float(np.nanmin(tau)):.3g}) for distance up to {dmax:g} m at "
