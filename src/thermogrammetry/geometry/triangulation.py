@@ -150,17 +150,27 @@ def triangulate_linear(cameras, poses: Sequence[Pose], xy_px, *, mask=None):
     return _linear(cams, poses, xy, m)
 
 
-def _linear(cams, poses, xy, m):
+def _unproject_all(cams, xy, m):
+    """(V, N, 3) undistorted camera-frame rays with z = 1 (zeros where not observed)."""
+    V, N = m.shape
+    rays = np.zeros((V, N, 3))
+    for v, c in enumerate(cams):
+        if np.any(m[v]):
+            rays[v, m[v]] = c.unproject(xy[v, m[v]])
+    return rays
+
+
+def _linear(cams, poses, xy, m, rays_all=None):
     V, N = m.shape
     centers = np.stack([p.center for p in poses])
     origin = centers.mean(0)
     scale = max(np.linalg.norm(centers - origin, axis=1).mean(), 1e-9)
     A = np.zeros((N, 2 * V, 4))
-    for v, (c, p) in enumerate(zip(cams, poses)):
+    if rays_all is None:
+        rays_all = _unproject_all(cams, xy, m)
+    for v, p in enumerate(poses):
         sel = m[v]
-        rays = np.zeros((N, 3))
-        if np.any(sel):
-            rays[sel] = c.unproject(xy[v, sel])
+        rays = rays_all[v]
         Pm = np.hstack([scale * p.R, (p.R @ origin + p.t)[:, None]])  # acts on (X'·, 1), X = origin + scale X'
         r1 = rays[:, :1] * Pm[2] - Pm[0]
         r2 = rays[:, 1:2] * Pm[2] - Pm[1]
@@ -263,14 +273,15 @@ def triangulate(
     elif sig.shape == (V, N, 2):
         sig = np.where(m[..., None], sig, 1.0)
     sig = sigma_per_coordinate(sig, (V, N))
-    X0, w = _linear(cams, poses, xy, m)
+    rays_all = _unproject_all(cams, xy, m)
+    X0, w = _linear(cams, poses, xy, m, rays_all)
     nviews = m.sum(0)
     few = nviews < 2
     # ray directions (world) for the intersection angle
     dirs = np.zeros((V, N, 3))
     for v, (c, p) in enumerate(zip(cams, poses)):
         if np.any(m[v]):
-            r = c.unproject(xy[v, m[v]])
+            r = rays_all[v, m[v]]
             d = r @ p.R  # Rᵀ r
             dirs[v, m[v]] = d / np.linalg.norm(d, axis=1, keepdims=True)
     cosmin = np.ones(N)
