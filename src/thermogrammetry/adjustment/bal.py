@@ -51,8 +51,8 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from ..results import Termination
-from ._so3 import axis_angles, rotation_matrices
+from thermogrammetry.results import Termination
+from thermogrammetry.adjustment._so3 import axis_angles, rotation_matrices
 
 __all__ = [
     "BALSolverOptions",
@@ -161,7 +161,7 @@ def bal_project_jacobian(cameras: np.ndarray, points: np.ndarray):
     ths = np.where(small, 1.0, th)
     a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
     b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / ths**3)
-    from ._so3 import skew
+    from thermogrammetry.adjustment._so3 import skew
 
     K = skew(rv)
     Jl = np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
@@ -218,7 +218,7 @@ class BALSolverOptions:
     max_pairs_per_chunk: int = 12000
 
     def __post_init__(self):
-        from ..errors import ConfigError
+        from thermogrammetry.errors import ConfigError
 
         if self.max_iterations < 0:
             raise ConfigError(f"max_iterations={self.max_iterations!r}; expected an integer >= 0")
@@ -353,7 +353,7 @@ def _sym3_inv(V):
 
 
 def solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
-    from ._threads import blas_single_thread
+    from thermogrammetry.adjustment._threads import blas_single_thread
 
     # BLAS calls inside are small; OpenBLAS's own threads only spin against ours on few cores.
     with blas_single_thread(), np.errstate(all="ignore"):
@@ -435,6 +435,7 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
     while True:
         tt = time.perf_counter()
         if need_jac:
+            WT = V = gp = None  # release the previous linearisation before building the next
             Q, (r, A, Jk) = residuals(R, t, intr, X, True)
             tt = _tick("jac_eval", tt)
             # camera Jacobian (M, 2, 9): [d/dw (left perturbation), d/dt, d/d(f,k1,k2)]
@@ -466,7 +467,7 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
             tt = _tick("U", tt)
             # point blocks V, g_p: sparse sums over each point's observations
             JpT = Jp.transpose(0, 2, 1)
-            V = np.asarray(Pm @ (JpT @ Jp).reshape(M, 9)).reshape(nseen, 3, 3)
+            V = np.asarray(Pm @ np.einsum("mai,maj->mij", Jp, Jp).reshape(M, 9)).reshape(nseen, 3, 3)
             gp = np.asarray(Pm @ np.einsum("mka,mk->ma", Jp, r))
             WT = JpT @ Jc  # (M, 3, 9) = (Jc^T Jp)^T per observation
             del Jc, Jcf, Jp, JpT
@@ -486,7 +487,9 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
         Vd = V.copy()
         Vd[:, diag3[0], diag3[1]] += lam * dV
         Vinv, okv = _sym3_inv(Vd)
-        YT = np.take(Vinv, slot, axis=0) @ WT  # (M, 3, 9): V^-1 W^T per observation
+        YT = np.empty_like(WT)  # (M, 3, 9): V^-1 W^T per observation, built in slabs
+        for s_ in range(0, M, 16384):
+            np.matmul(np.take(Vinv, slot[s_ : s_ + 16384], axis=0), WT[s_ : s_ + 16384], out=YT[s_ : s_ + 16384])
         YTf = YT.reshape(M, 27)
         WTf = WT.reshape(M, 27)
         # reduced camera system S = U + D_c/radius - sum_points W V^-1 W^T
@@ -522,6 +525,7 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
         for c in cams_used:
             yb[c] = y[cb[c] : cb[c + 1]].sum(axis=0)
         b = (-gc + yb).reshape(-1)
+        del y, Vd
         tt = _tick("rhs", tt)
         step_ok = bool(np.all(okv))
         if step_ok:
@@ -537,6 +541,7 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
             # back-substitution: dp = V^-1 (-g_p - sum W^T dc)
             wdc = np.einsum("mkc,mc->mk", WT, np.repeat(dcb, counts_c, axis=0))
             rp = -gp - np.asarray(Pm @ wdc)
+            del wdc
             dp = np.einsum("nij,nj->ni", Vinv, rp)
             # model cost reduction: 1/2 (-g^T d + d^T D d / radius)
             gd = float(np.dot(gc.ravel(), dc) + np.einsum("ij,ij->", gp, dp))
@@ -561,6 +566,7 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
         if step_ok:
             change = cost - cost_new
             R, t, intr, X = R_new, t_new, intr_new, X_new
+            del r_new
             cost = cost_new
             nsucc += 1
             hist.append(cost)
