@@ -154,7 +154,7 @@ def test_write_survey_ground_truth_files(scene):
         assert ds.crs.to_epsg() == ter.epsg
         dsm = ds.read(1)
         # pixel-corner transform: centre of (col, row) = transform * (col + 0.5, row + 0.5)
-        e, n = ds.transform * (10 + 0.5, 7 + 0.5)  # noqa
+        e, n = ds.transform @ (10 + 0.5, 7 + 0.5)
     np.testing.assert_allclose(dsm, ter.dsm, atol=1e-5)
     assert e == pytest.approx(ter.origin_en[0] + 10.5 * ter.dsm_cell_m, abs=1e-9)
     assert n == pytest.approx(ter.origin_en[1] + ter.height_m - 7.5 * ter.dsm_cell_m, abs=1e-9)

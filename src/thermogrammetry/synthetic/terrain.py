@@ -338,7 +338,7 @@ class HeightfieldCaster:
         y = oy + t * dy
         return (oz - t) - bilinear(self.dsm, x / self.cell - 0.5, (self.ytop - y) / self.cell - 0.5)
 
-    def cast(self, origin, dirs, *, refine_iterations: int = 10):
+    def cast(self, origin, dirs, *, refine_iterations: int = 40):
         """Return (t_hit (N,), hit (N,) bool) for rays ``origin + t·d`` with d scaled to d_z = −1."""
         o = np.asarray(origin, dtype=np.float64)
         d = np.asarray(dirs, dtype=np.float64)
@@ -386,13 +386,19 @@ class HeightfieldCaster:
             y = o[1] + tcur[act] * dy[act]
             outside = (x < 0) | (x > w * cell) | (y < 0) | (y > self.ytop)
             act = act[~outside]
+            x = x[~outside]
+            y = y[~outside]
             if not act.size:
                 break
             # --- fine march through one block, in chunks of samples (most rays cross in the first few)
+            # nothing in the 3x3-block neighbourhood is higher than its max: start where the ray reaches it
+            bc = np.clip(x * (1.0 / (cell * b)), 0, wb - 1).astype(np.intp)
+            br = np.clip((self.ytop - y) * (1.0 / (cell * b)), 0, hb - 1).astype(np.intp)
+            tcur[act] = np.maximum(tcur[act], o[2] - self.bmax[br, bc] - 1e-9)
             J = 2 * b
             done = np.zeros(act.size, dtype=bool)
             t_prev = tcur[act].copy()
-            f_prev = self.f(o[0], o[1], o[2], dx[act], dy[act], t_prev)
+            f_prev = np.full(act.size, np.nan)  # evaluated lazily, only where the first sample is below
             j0 = 1
             sub = np.arange(act.size)
             for chunk in (2, 3, J):
@@ -409,8 +415,13 @@ class HeightfieldCaster:
                 if has.any():
                     k = first[has]
                     rows = np.flatnonzero(has)
-                    ta_ = np.where(k > 0, ts[rows, np.maximum(k - 1, 0)], t_prev[sub[has]])
-                    fa = np.where(k > 0, fv[rows, np.maximum(k - 1, 0)], f_prev[sub[has]])
+                    sh_ = sub[has]
+                    lazy = (k == 0) & np.isnan(f_prev[sh_])
+                    if lazy.any():
+                        li = sh_[lazy]
+                        f_prev[li] = self.f(o[0], o[1], o[2], dx[act[li]], dy[act[li]], t_prev[li])
+                    ta_ = np.where(k > 0, ts[rows, np.maximum(k - 1, 0)], t_prev[sh_])
+                    fa = np.where(k > 0, fv[rows, np.maximum(k - 1, 0)], f_prev[sh_])
                     tb_ = ts[rows, k]
                     fb = fv[rows, k]
                     hit_idx = ra[has]
@@ -421,33 +432,41 @@ class HeightfieldCaster:
                 f_prev[sub[keep]] = fv[keep, -1]
                 sub = sub[keep]
                 j0 = j1 + 1
-            # rays without a crossing continue after this block
+            # rays without a crossing continue from their last sample (all earlier samples were above)
             rest = act[~done]
-            tcur[rest] = tcur[rest] + dt_c[rest]
+            tcur[rest] = t_prev[~done]
             act = rest[tcur[rest] < t1]
         return t_hit, np.isfinite(t_hit)
 
     def _refine(self, o, dx, dy, ta, tb, fa, fb, iterations):
-        """Illinois regula falsi on the bracket (fa > 0 >= fb); returns the root."""
-        fa = fa.copy()
-        fb = fb.copy()
-        ta = ta.copy()
-        tb = tb.copy()
+        """Illinois regula falsi on the bracket (fa > 0 >= fb); returns the root.
+
+        Rays whose |f| at the new estimate is below 1e-9 m (or whose bracket is shorter than 1e-9)
+        stop early; the others run up to ``iterations`` steps.
+        """
+        ta, tb, fa, fb = ta.copy(), tb.copy(), fa.copy(), fb.copy()
+        out = np.empty(len(ta))
         side = np.zeros(len(ta), dtype=np.int8)
+        idx = np.arange(len(ta))
         for _ in range(iterations):
             tm = self._secant(ta, tb, fa, fb)
-            fm = self.f(o[0], o[1], o[2], dx, dy, tm)
+            fm = self.f(o[0], o[1], o[2], dx[idx], dy[idx], tm)
+            conv = (np.abs(fm) < 1e-9) | ((tb - ta) < 1e-9)
+            out[idx[conv]] = tm[conv]
             pos = fm > 0
-            # replace the endpoint with the same sign; Illinois: halve the stale one's f
             ta = np.where(pos, tm, ta)
-            fa_new = np.where(pos, fm, fa)
             tb = np.where(pos, tb, tm)
+            fa_new = np.where(pos, fm, fa)
             fb_new = np.where(pos, fb, fm)
             fb_new = np.where(pos & (side == 1), 0.5 * fb_new, fb_new)
             fa_new = np.where(~pos & (side == -1), 0.5 * fa_new, fa_new)
             side = np.where(pos, 1, -1).astype(np.int8)
-            fa, fb = fa_new, fb_new
-        return self._secant(ta, tb, fa, fb)
+            keep = ~conv
+            idx, ta, tb, fa, fb, side = idx[keep], ta[keep], tb[keep], fa_new[keep], fb_new[keep], side[keep]
+            if not idx.size:
+                return out
+        out[idx] = self._secant(ta, tb, fa, fb)
+        return out
 
     @staticmethod
     def _secant(ta, tb, fa, fb):
