@@ -373,6 +373,11 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
     opt = options or BALSolverOptions()
     t0 = time.perf_counter()
     ncam, npt = problem.num_cameras, problem.num_points
+    if problem.num_observations == 0:
+        return BALResult(
+            problem.copy(), 0.0, 0.0, 0, 0, Termination.TOO_FEW_OBSERVATIONS, "the problem has no observations",
+            time.perf_counter() - t0, [0.0],
+        )
     st = _Structure(problem.camera_index, problem.point_index, ncam, npt, opt.max_pairs_per_chunk)
     obs = problem.observations[st.order]
     ci, pi, slot, Pm = st.ci, st.pi, st.slot, st.P
