@@ -73,3 +73,36 @@ def test_config_requires_bundle_for_additional_parameters():
     with pytest.raises(ConfigError, match="unknown closerange option"):
         CloseRangeConfig.from_dict({"ambient": 3})
     assert CloseRangeConfig(bundle=True, additional_parameters=("K1",)).additional_parameters == ("k1",)
+
+
+@pytest.mark.parametrize("joint", [False, True])
+def test_weighted_control_monte_carlo(joint):
+    # control coordinates known to 1 mm (perturbed each run) + 0.5 px image noise: the propagated
+    # sigma of pass points, thermal centre and control points matches the scatter (200 runs, ±20 %)
+    s = make_closerange_scene()
+    rng = np.random.default_rng(17 + joint)
+    sc = 0.001
+    X, sig, C, sC, Xc, sXc = [], [], [], [], [], []
+    for _ in range(200):
+        ctrl = {k: v + sc * rng.standard_normal(3) for k, v in s.control.items()}
+        net = solve_network(ctrl, Observations.from_rows(measure(s, 0.5, rng), 0.5), s.thermal, control_sigma_m=sc)
+        if joint:
+            net = adjust_network(net)
+        X.append(net.points_world)
+        sig.append(net.point_sigmas)
+        c, cc = net.thermal_center()
+        C.append(c)
+        sC.append(np.sqrt(np.diag(cc)))
+        Xc.append(net.point("8"))
+        sXc.append(np.sqrt(np.diag(net.cov(net.point_jacobian("8")))))
+    X, sig, C, sC, Xc, sXc = map(np.array, (X, sig, C, sC, Xc, sXc))
+    r = X.std(axis=0, ddof=1) / sig.mean(axis=0)
+    assert 0.8 < r.min() and r.max() < 1.2, r
+    rc = C.std(axis=0, ddof=1) / sC.mean(axis=0)
+    assert 0.8 < rc.min() and rc.max() < 1.2, rc
+    rx = Xc.std(axis=0, ddof=1) / sXc.mean(axis=0)
+    assert 0.8 < rx.min() and rx.max() < 1.2, rx
+    if joint:  # the adjusted control point is better than its given 1 mm in at least one axis
+        assert sXc.mean(axis=0).min() < 0.95 * sc
+    else:
+        assert np.allclose(sXc, sc)

@@ -130,8 +130,14 @@ def test_cli_bundle_with_known_thermal_camera(case, tmp_path):
     out = tmp_path / "O"
     rc = main(["closerange", "--control", str(tmp_path / "control.csv"), "--measurements", str(tmp_path / "m.csv"),
                "--thermal", "thermal", "--planes", str(tmp_path / "planes.csv"), "--camera",
-               f"thermal={tmp_path / 't.json'}", "--bundle", "--additional", "k1", "-o", str(out)])
+               f"thermal={tmp_path / 't.json'}", "--bundle", "--additional", "k1", "--control-sigma-mm", "1",
+               "-o", str(out)])
     assert rc == 0
+    pts = {r["id"]: r for r in csv.DictReader(io.StringIO((out / "points.csv").read_text()))}
+    # weighted control (1 mm) is adjusted: its sigma is positive and not above the given 1 mm
+    for pid in s.control:
+        sx = [float(pts[pid][k]) for k in ("sX", "sY", "sZ")]
+        assert all(0 < v <= 0.001 + 1e-9 for v in sx), (pid, sx)
     cams = json.loads((out / "cameras.json").read_text())["cameras"]
     assert cams["thermal"]["method"].startswith("resection (known interior orientation)")
     assert cams["thermal"]["method"].endswith("joint adjustment")

@@ -47,6 +47,7 @@ def closerange(
     refractive_index: float = typer.Option(1.5, "--refractive-index", help="For --emissivity fresnel."),
     transmission: bool = typer.Option(False, "--transmission/--no-transmission", help="Atmospheric transmission over the per-pixel distance."),
     humidity: float = typer.Option(50.0, "--humidity", help="Relative humidity in percent, for --transmission."),
+    control_sigma_mm: Optional[float] = typer.Option(None, "--control-sigma-mm", help="σ of the control coordinates (mm); default errorless."),
     bundle: bool = typer.Option(False, "--bundle/--no-bundle", help="Joint adjustment of all cameras and pass points after the sequential chain."),
     additional: str = typer.Option("", "--additional", help="With --bundle: distortion terms of the optical cameras, e.g. k1,p1,p2."),
 ) -> None:
@@ -80,6 +81,7 @@ def closerange(
         cfg = CloseRangeConfig(ambient_c=ambient_c, sigma_px=sigma_px, max_angle_deg=max_angle_deg, bundle=bundle,
                                emissivity=emissivity, refractive_index=refractive_index, transmission=transmission,
                                relative_humidity=humidity / 100.0,
+                               control_sigma_m=None if control_sigma_mm is None else control_sigma_mm / 1000.0,
                                additional_parameters=tuple(a for a in additional.split(",") if a.strip()))
         project = FolderProject(out)
         write_inputs(project, control_csv=read_text(control, "control file"),

@@ -1,7 +1,9 @@
 """Joint least-squares adjustment of the close-range network (optional step after the sequential chain).
 
 All cameras (optical and thermal) and all pass points are estimated together from every image
-measurement; control points are fixed (they define the datum). Optical DLT cameras may carry the
+measurement; control points are fixed (they define the datum), or — when the observations carry
+control coordinates with σ (``solve_network(..., control_sigma_m=...)``) — adjusted as weighted
+observations. Optical DLT cameras may carry the
 additional parameters of seed 000 eq. 2 (``dx, dy``: systematic image errors), in the correction form
 evaluated at the measured coordinates (Karara's iterative DLT; Brown 1971; Fraser 1997)::
 
@@ -132,6 +134,11 @@ def adjust_network(
             pos += 11 + na
     p0 = pos
     start.append(frame.to_norm(net.points_world).ravel() if len(net.pass_ids) else np.zeros(0))
+    # weighted control points are parameters too, with their given coordinates as observations
+    wc_ids = tuple(obs.control_ids)
+    c0 = p0 + 3 * len(net.pass_ids)
+    given = np.array([net.control[i] for i in wc_ids]).reshape(-1, 3)
+    start.append(frame.to_norm(given).ravel() if wc_ids else np.zeros(0))
     theta = np.concatenate(start)
     n_par = theta.size
 
@@ -152,6 +159,9 @@ def adjust_network(
         return G
 
     def point(pid, th):
+        if pid in wc_ids:
+            j = wc_ids.index(pid)
+            return th[c0 + 3 * j:c0 + 3 * j + 3]
         if pid in net.control:
             return frame.to_norm(net.control[pid])
         i = pass_index[pid]
@@ -194,6 +204,9 @@ def adjust_network(
                 i = pass_index.get(obs.ids[k])
                 if i is not None:
                     J[2 * sel[jj]:2 * sel[jj] + 2, p0 + 3 * i:p0 + 3 * i + 3] = JX[jj]
+                elif obs.ids[k] in wc_ids:
+                    c = c0 + 3 * wc_ids.index(obs.ids[k])
+                    J[2 * sel[jj]:2 * sel[jj] + 2, c:c + 3] = JX[jj]
             # ∂r/∂x_ideal = −(I + ∂dx/∂x)
             if na:
                 h = 1e-4
@@ -208,10 +221,26 @@ def adjust_network(
             Ro[sel] = -(np.eye(2)[None] + dd)
         return r, J, Ro
 
-    w = 1.0 / np.repeat(obs.sigma_px[rows], 2) ** 2
+    def control_residuals(th):
+        """Given control coordinates as observations: r = X(θ) − X_given (m), J = ∂r/∂θ."""
+        rc = (frame.to_world(th[c0:c0 + 3 * len(wc_ids)].reshape(-1, 3)) - given).ravel()
+        Jc = np.zeros((rc.size, n_par))
+        Jc[:, c0:c0 + rc.size] = np.eye(rc.size) * frame.scale
+        return rc, Jc
+
+    w_img = 1.0 / np.repeat(obs.sigma_px[rows], 2) ** 2
+    w = np.concatenate([w_img, 1.0 / np.repeat(obs.control_sigma_m, 3) ** 2])
+
+    def residuals_all(th):
+        r, J, Ro = residuals(th)
+        if wc_ids:
+            rc, Jc = control_residuals(th)
+            r, J = np.concatenate([r, rc]), np.vstack([J, Jc])
+        return r, J, Ro
+
     term, reason, it = Termination.MAX_ITERATIONS, f"no convergence in {max_iterations} iterations", 0
     for it in range(1, max_iterations + 1):
-        r, J, _ = residuals(theta)
+        r, J, _ = residuals_all(theta)
         Nm = (J * w[:, None]).T @ J
         col = np.sqrt(np.diag(Nm))
         col[col == 0] = 1.0
@@ -227,18 +256,24 @@ def adjust_network(
         if np.linalg.norm(step * col) < 1e-10 * (1 + np.linalg.norm(theta * col)):
             term, reason = Termination.CONVERGED, f"joint adjustment converged in {it} iterations"
             break
-    r, J, Ro = residuals(theta)
+    r, J, Ro = residuals_all(theta)
     Nm = (J * w[:, None]).T @ J
     col = np.sqrt(np.diag(Nm))
     col[col == 0] = 1.0
     Ninv = np.linalg.pinv(Nm / np.outer(col, col)) / np.outer(col, col)
-    # dθ/d(measured) = −N⁻¹ Jᵀ W (∂r/∂ideal) (∂ideal/∂measured)
-    G = -(Ninv @ (J.T * w)).reshape(n_par, len(rows), 2)  # then × ∂r/∂ideal × ∂ideal/∂measured per row
+    # dθ/d(measured) = −N⁻¹ Jᵀ W (∂r/∂ideal) (∂ideal/∂measured); for given control ∂r/∂given = −I
+    NJW = Ninv @ (J.T * w)
+    m_img = 2 * len(rows)
+    G = -NJW[:, :m_img].reshape(n_par, len(rows), 2)  # then × ∂r/∂ideal × ∂ideal/∂measured per row
     Gm = np.einsum("pna,nab,nbc->pnc", G, Ro, D[rows]).reshape(n_par, -1)
     dtheta = np.zeros((n_par, obs.n))
     dtheta[:, obs.cols(rows)] = Gm
-    red = 2 * len(rows) - n_par
-    s0 = float(np.sqrt((w * r**2).sum() / red)) if red > 0 else float("nan")
+    if wc_ids:
+        dtheta[:, 2 * len(obs.ids):] = NJW[:, m_img:]
+    vtpv = float((w * r**2).sum())
+    r = r[:m_img]
+    red = 2 * len(rows) + 3 * len(wc_ids) - n_par
+    s0 = float(np.sqrt(vtpv / red)) if red > 0 else float("nan")
     outcome = Outcome(term, reason)
     cams = {}
     for im in names:
@@ -259,9 +294,15 @@ def adjust_network(
         old = net.cameras[im]
         cams[im] = OrientedCamera(im, old.kind, L, JL, tuple(obs.ids[rows[j]] for j in sel), res, s0, outcome,
                                   extra=extra)
-    Xn = theta[p0:].reshape(-1, 3)
+    Xn = theta[p0:c0].reshape(-1, 3)
     warnings = list(net.warnings)
     if not outcome.success:
         warnings.append(f"joint adjustment: {outcome.termination}: {outcome.reason}")
+    control = dict(net.control)
+    J_control = {}
+    for j, pid in enumerate(wc_ids):
+        control[pid] = frame.to_world(theta[c0 + 3 * j:c0 + 3 * j + 3])
+        J_control[pid] = dtheta[c0 + 3 * j:c0 + 3 * j + 3] * frame.scale
     return replace(net, cameras=cams, points_world=frame.to_world(Xn) if len(Xn) else net.points_world,
-                   J_points=dtheta[p0:] * frame.scale, warnings=warnings, adjusted=True)
+                   J_points=dtheta[p0:c0] * frame.scale, warnings=warnings, adjusted=True, control=control,
+                   J_control=J_control)

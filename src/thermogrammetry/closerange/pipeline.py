@@ -84,7 +84,8 @@ def load_inputs(project: ProjectStore) -> dict[str, Any]:
 def _solve(project: ProjectStore) -> tuple[dict, NetworkResult]:
     inp = load_inputs(project)
     obs = Observations.from_rows(inp["rows"], inp["config"].sigma_px)
-    net = solve_network(inp["control"], obs, inp["thermal"], known=inp["known"])
+    net = solve_network(inp["control"], obs, inp["thermal"], known=inp["known"],
+                        control_sigma_m=inp["config"].control_sigma_m)
     if inp["config"].bundle:
         from .adjust import adjust_network
 
@@ -157,7 +158,8 @@ def _step_orient(project: ProjectStore) -> dict:
     sig = net.point_sigmas
     lines = ["id,X,Y,Z,sX,sY,sZ,kind"]
     for pid, X in net.control.items():
-        lines.append(f"{pid},{X[0]:.6f},{X[1]:.6f},{X[2]:.6f},0,0,0,control")
+        sc = np.sqrt(np.maximum(np.diag(net.cov(net.point_jacobian(pid))), 0))
+        lines.append(f"{pid},{X[0]:.6f},{X[1]:.6f},{X[2]:.6f},{sc[0]:.6f},{sc[1]:.6f},{sc[2]:.6f},control")
     for k, pid in enumerate(net.pass_ids):
         X, s = net.points_world[k], sig[k]
         lines.append(f"{pid},{X[0]:.6f},{X[1]:.6f},{X[2]:.6f},{s[0]:.6f},{s[1]:.6f},{s[2]:.6f},pass")
@@ -261,7 +263,8 @@ def _step_report(project: ProjectStore) -> dict:
             c = ln.split(",")
             if c[7] != kind:
                 continue
-            sig = "".join(f"<td>{1000 * float(x):.2f}</td>" for x in c[4:7]) if kind == "pass" else "<td colspan=3>fixed</td>"
+            fixed = kind == "control" and all(float(x) == 0 for x in c[4:7])
+            sig = "<td colspan=3>fixed</td>" if fixed else "".join(f"<td>{1000 * float(x):.2f}</td>" for x in c[4:7])
             parts.append(f"<tr><td>{e(c[0])}</td><td>{float(c[1]):.4f}</td><td>{float(c[2]):.4f}</td>"
                          f"<td>{float(c[3]):.4f}</td>{sig}</tr>")
     parts.append("</table><h2>Cameras</h2><table><tr><th>camera</th><th>method</th><th>X0 [m]</th><th>Y0 [m]</th>"

@@ -52,6 +52,28 @@ class Observations:
     ids: tuple[str, ...]
     xy: np.ndarray  # (K, 2)
     sigma_px: np.ndarray  # (K,)
+    #: control points whose coordinates are observations too (weighted control), appended to the
+    #: observation vector after the 2K image coordinates as X, Y, Z per point
+    control_ids: tuple[str, ...] = ()
+    control_sigma_m: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,)
+
+    def with_control(self, ids: Sequence[str], sigma_m: float | Mapping[str, float]) -> "Observations":
+        """The same measurements plus control coordinates as observations with σ (m)."""
+        ids = tuple(str(i) for i in ids)
+        if isinstance(sigma_m, Mapping):
+            sig = np.array([float(sigma_m[i]) for i in ids])
+        else:
+            sig = np.full(len(ids), float(sigma_m))
+        if np.any(~(sig > 0)):
+            raise InvalidInputError(f"control_sigma_m: expected positive values, got {sorted(set(sig.tolist()))}")
+        return Observations(self.images, self.ids, self.xy, self.sigma_px, ids, sig)
+
+    def control_cols(self, pid: str) -> np.ndarray | None:
+        """Columns of control point ``pid``'s X, Y, Z in the observation vector (None when fixed)."""
+        if pid not in self.control_ids:
+            return None
+        k = 2 * len(self.ids) + 3 * self.control_ids.index(pid)
+        return np.arange(k, k + 3)
 
     @classmethod
     def from_rows(cls, rows: Sequence[tuple[str, str, float, float]], sigma_px: float | Mapping[str, float] = 0.5):
@@ -73,7 +95,7 @@ class Observations:
 
     @property
     def n(self) -> int:
-        return 2 * len(self.ids)
+        return 2 * len(self.ids) + 3 * len(self.control_ids)
 
     def on(self, image: str) -> list[int]:
         return [k for k, im in enumerate(self.images) if im == image]
@@ -83,8 +105,8 @@ class Observations:
         return np.column_stack([2 * rows, 2 * rows + 1]).ravel()
 
     def cov_diag(self) -> np.ndarray:
-        """(2K,) variances of the observation vector (px²)."""
-        return np.repeat(self.sigma_px**2, 2)
+        """(n,) variances of the observation vector (px² for image coordinates, m² for control)."""
+        return np.concatenate([np.repeat(self.sigma_px**2, 2), np.repeat(self.control_sigma_m**2, 3)])
 
 
 @dataclass
@@ -119,6 +141,7 @@ class NetworkResult:
     warnings: list[str] = field(default_factory=list)
     known: dict = field(default_factory=dict)  # image → camera with a known interior orientation
     adjusted: bool = False  # True after the joint adjustment (adjust.adjust_network)
+    J_control: dict = field(default_factory=dict)  # control id → (3, n_obs) when control is weighted
 
     # -- covariance helpers --------------------------------------------------------------------
     def cov(self, J: np.ndarray) -> np.ndarray:
@@ -132,9 +155,10 @@ class NetworkResult:
         return self.points_world[self.pass_ids.index(pid)]
 
     def point_jacobian(self, pid: str) -> np.ndarray:
-        """(3, n_obs): zero for control points (fixed)."""
+        """(3, n_obs) derivative of a point's world coordinates w.r.t. the observations
+        (zero for fixed control points)."""
         if pid in self.control:
-            return np.zeros((3, self.obs.n))
+            return self.J_control.get(pid, np.zeros((3, self.obs.n)))
         i = self.pass_ids.index(pid)
         return self.J_points[3 * i:3 * i + 3]
 
@@ -203,6 +227,7 @@ def solve_network(
     *,
     optical: Sequence[str] | None = None,
     known: Mapping[str, object] | None = None,
+    control_sigma_m: float | Mapping[str, float] | None = None,
 ) -> NetworkResult:
     """Run seed 000's orientation chain.
 
@@ -220,6 +245,10 @@ def solve_network(
         Known interior orientation (``thermogrammetry.Camera`` or anything with ``.K`` and
         ``.undistort``): that image is positioned by space resection (6 pose parameters) from its
         undistorted measurements instead of the 11-parameter DLT — the remedy for coplanar control.
+    control_sigma_m : float or mapping id → σ, optional
+        Standard deviation of the control coordinates (m). The control points still fix the datum
+        (the chain is sequential), but their uncertainty is propagated into every result; the joint
+        adjustment (:mod:`.adjust`) then adjusts them as weighted observations. Default: errorless.
 
     Raises
     ------
@@ -237,6 +266,17 @@ def solve_network(
     if len(control) < 6:
         raise TooFewPointsError(f"{len(control)} control points ({', '.join(control)}): the DLT needs at least 6")
     frame = nw.Frame.from_points(np.array(list(control.values())))
+    if control_sigma_m is not None:
+        obs = obs.with_control(list(control), control_sigma_m)
+
+    def control_J(ids):  # (3N, n): d X̃ / d obs of control points (selector / scale when weighted)
+        out = np.zeros((3 * len(ids), obs.n))
+        for j, i in enumerate(ids):
+            c = obs.control_cols(i)
+            if c is not None:
+                out[3 * j + np.arange(3), c] = 1.0 / frame.scale
+        return out
+
     cams: dict[str, OrientedCamera] = {}
     warnings: list[str] = []
     known = dict(known or {})
@@ -266,6 +306,7 @@ def solve_network(
         rc = _orient(im, known.get(im), Xn, ideal[rows], frame, "control points", ids)
         J = np.zeros((11, obs.n))
         J[:, obs.cols(rows)] = chain(rc.dL_dobs, rows)
+        J += rc.dL_dX @ control_J(ids)
         cams[im] = OrientedCamera(im, "optical", rc.L, J, tuple(ids), rc.residuals, rc.sigma0_px, rc.outcome)
         if not rc.outcome.success:
             warnings.append(f"DLT of {im!r}: {rc.outcome.termination}: {rc.outcome.reason}")
@@ -317,7 +358,7 @@ def solve_network(
     rc = _orient(thermal, known.get(thermal), Xn_t, ideal[use], frame, "pass points", use_ids)
     Jt = np.zeros((11, obs.n))
     Jt[:, obs.cols(use)] += chain(rc.dL_dobs, use)
-    JX = np.vstack([np.zeros((3, obs.n)) if i in control else J_pass_n[3 * pass_ids.index(i):3 * pass_ids.index(i) + 3]
+    JX = np.vstack([control_J([i]) if i in control else J_pass_n[3 * pass_ids.index(i):3 * pass_ids.index(i) + 3]
                     for i in use_ids])
     Jt += rc.dL_dX @ JX
     cams[thermal] = OrientedCamera(thermal, "thermal", rc.L, Jt, tuple(use_ids), rc.residuals, rc.sigma0_px,
@@ -335,6 +376,7 @@ def solve_network(
         J_points=J_pass_n * frame.scale,
         warnings=warnings,
         known=known,
+        J_control={i: control_J([i]) * frame.scale for i in obs.control_ids},
     )
 
 

@@ -59,6 +59,8 @@ class CloseRangeConfig:
     edge_margin_px : pixels closer than this to a plane polygon's edge are marked invalid (mixed
         pixels; the polygon's vertices are uncertain by the image precision)
     max_sigma_k : pixels whose propagated 1-σ exceeds this (K) are marked invalid; None: no limit
+    control_sigma_m : σ of the control coordinates (m); None: errorless control. Propagated into every
+        result; adjusted as weighted observations in the joint adjustment
     bundle : after the sequential chain, adjust all cameras and pass points jointly (:mod:`.adjust`)
     additional_parameters : distortion terms of the optical DLT cameras in the joint adjustment
         (names of :data:`.adjust.ADDITIONAL_PARAMETERS`, e.g. ``("k1", "p1", "p2")``)
@@ -75,6 +77,7 @@ class CloseRangeConfig:
     max_angle_deg: float = 75.0  # radiometry.DEFAULT_MAX_ANGLE_DEG: the models' documented valid range
     edge_margin_px: float = 1.5
     max_sigma_k: float | None = None
+    control_sigma_m: float | None = None
     bundle: bool = False
     additional_parameters: tuple[str, ...] = ()
 
@@ -83,6 +86,8 @@ class CloseRangeConfig:
         object.__setattr__(self, "emissivity", EmissivityModelName(self.emissivity))
         if not self.sigma_px > 0:
             raise ConfigError(f"sigma_px={self.sigma_px!r}: expected a positive number of pixels")
+        if self.control_sigma_m is not None and not self.control_sigma_m > 0:
+            raise ConfigError(f"control_sigma_m={self.control_sigma_m!r}: expected a positive number of metres or None")
         if not 0 < self.max_angle_deg < 90:
             raise ConfigError(f"max_angle_deg={self.max_angle_deg!r}: expected a value in (0, 90)")
         if not 0 <= self.relative_humidity <= 1:
