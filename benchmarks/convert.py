@@ -55,6 +55,15 @@ def main(argv=None) -> int:
                 opts = ConvertOptions(unit="C", encoding=enc)
                 t, rep = _time(lambda: convert_files([p], Path(tmp) / enc, opts), args.repeat)
                 rows.append((f"thermogrammetry convert ({enc})", name, size, t, t / mp, "ok" if rep.results[0].ok else "FAILED"))
+        # batch: 16 copies of the XT2 file, one thread vs two (per-file time)
+        batch = [Path(tmp) / f"xt2_{i:02d}.jpg" for i in range(16)]
+        for b in batch:
+            b.write_bytes((DATA / "DJI_XT2.jpg").read_bytes())
+        for jobs in (1, 2):
+            opts = ConvertOptions(unit="C", encoding="float32")
+            t, rep = _time(lambda: convert_files(batch, Path(tmp) / f"batch{jobs}", opts, jobs=jobs), max(1, args.repeat // 2))
+            rows.append((f"thermogrammetry convert, 16 files, -j {jobs}", "DJI_XT2.jpg", "640x512", t / 16,
+                         t / 16 / (640 * 512 / 1e6), "ok" if not rep.failures else "FAILED"))
         try:
             import flyr
         except ImportError:
@@ -74,9 +83,9 @@ def main(argv=None) -> int:
             else:
                 rows.append(("flyr unpack().kelvin", "DJI_XT2.jpg", "640x512", float("nan"), float("nan"), "not run (--flyr-xt2): flyr fails on it"))
     print(f"python {sys.version.split()[0]}, median of {args.repeat} run(s)")
-    print(f"{'tool':34s} {'file':15s} {'size':8s} {'s/file':>9s} {'s/MP':>8s}  status")
+    print(f"{'tool':38s} {'file':15s} {'size':8s} {'s/file':>9s} {'s/MP':>8s}  status")
     for tool, name, size, t, tmp_, status in rows:
-        print(f"{tool:34s} {name:15s} {size:8s} {t:9.4f} {tmp_:8.4f}  {status}")
+        print(f"{tool:38s} {name:15s} {size:8s} {t:9.4f} {tmp_:8.4f}  {status}")
     return 0
 
 

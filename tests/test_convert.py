@@ -80,7 +80,7 @@ def test_library_convert_raw_counts_only_is_a_failure(tmp_path):
     ir = data_path(*THERMIMAGE, "IR_2412.jpg")
     copy = tmp_path / "IR_2412.jpg"
     shutil.copy(ir, copy)
-    rep = convert_files([m3t, copy, ir], tmp_path / "o", ConvertOptions(unit="K"))
+    rep = convert_files([m3t, copy, ir], tmp_path / "o", ConvertOptions(unit="K"), jobs=2)
     assert [r.ok for r in rep.results] == [False, True, True]
     assert "raw counts only" in rep.results[0].message
     # same stem twice -> distinct outputs

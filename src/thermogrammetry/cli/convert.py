@@ -40,6 +40,7 @@ def convert(
     reflected: Optional[str] = typer.Option(None, "--reflected", help="Override reflected apparent temperature, e.g. 20C or 293.15K (bare number: --unit)."),
     air_temperature: Optional[str] = typer.Option(None, "--air-temperature", help="Override air temperature, e.g. 20C or 293.15K (bare number: --unit)."),
     dji_sdk: Optional[Path] = typer.Option(None, "--dji-sdk", help="Path of DJI's Thermal SDK library (libdirp) for DJI R-JPEGs."),
+    jobs: int = typer.Option(1, "--jobs", "-j", help="Files converted at once (threads)."),
     input_unit: Optional[str] = typer.Option(None, "--input-unit", help="Unit (K or C) of CSV/NPY temperature matrices, which carry none."),
 ) -> None:
     """Convert radiometric thermal images/sequences to one temperature TIFF per image or frame.
@@ -89,7 +90,7 @@ def convert(
             if idx:  # sequences: show the running frame number
                 progress.update(task, description=f"{Path(path).name} frame {idx}")
 
-        report = convert_files(inputs, out_dir, opts, on_file_done=done, on_frame_done=frame)
+        report = convert_files(inputs, out_dir, opts, jobs=jobs, on_file_done=done, on_frame_done=frame)
 
     off = 273.15 if u == "C" else 0.0
     table = Table(title=f"convert -> {out_dir} ({opts.encoding.value}, {u})")
