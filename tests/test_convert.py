@@ -104,3 +104,10 @@ def test_cli_convert_matrix_needs_input_unit(tmp_path, capsys):
     assert "unit" in capsys.readouterr().out
     assert main(["convert", str(m), "-o", str(tmp_path / "b"), "--input-unit", "C"]) == 0
     np.testing.assert_allclose(read_thermal(tmp_path / "b" / "m.tif").temperature_k, 21.5 + 273.15, atol=1e-4)
+
+
+def test_convert_options_refuse_unknown_override():
+    from thermogrammetry.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="emisivity"):
+        ConvertOptions(overrides={"emisivity": 0.9})

@@ -236,3 +236,6 @@ def test_nan_distance_marks_pixels_without_surface():
     assert np.isnan(tau[0, 1]) and np.all(np.isfinite(tau[[0, 1, 1], [0, 0, 1]]))
     t = object_temperature_from_raw(np.full((2, 2), 18500.0), SC660, MeasurementParams(distance_m=d, emissivity=0.9))
     assert np.isnan(t[0, 1]) and np.all(np.isfinite(t[[0, 1, 1], [0, 0, 1]]))
+    e = np.array([[0.9, 0.9], [np.nan, 0.95]])  # an emissivity map with a no-data pixel
+    t = object_temperature_from_raw(np.full((2, 2), 18500.0), SC660, MeasurementParams(emissivity=e))
+    assert np.isnan(t[1, 0]) and np.isfinite(t[1, 1])

@@ -42,8 +42,15 @@ class ConvertOptions:
     input_unit: str | None = None  # declared unit of CSV/NPY matrices and float TIFFs without a unit tag
 
     def __post_init__(self) -> None:
+        from ..radiometry.measurement import MeasurementParams
+
         object.__setattr__(self, "unit", TemperatureUnit(self.unit))
         object.__setattr__(self, "encoding", Encoding(self.encoding))
+        unknown = sorted(set(self.overrides) - set(MeasurementParams.field_names()))
+        if unknown:
+            raise ConfigError(f"unknown override(s) {unknown}; valid: {sorted(MeasurementParams.field_names())}")
+        if self.input_unit is not None and str(self.input_unit).upper() not in ("K", "C"):
+            raise ConfigError(f"input_unit={self.input_unit!r}: expected 'K' or 'C'")
 
 
 @dataclass

@@ -100,13 +100,14 @@ class MeasurementParams:
         def arr(x):
             return np.asarray(x, dtype=np.float64)
 
+        # NaN in a per-pixel map means "no data here" and propagates to a NaN temperature
         e = arr(self.emissivity)
         with np.errstate(invalid="ignore"):
-            if np.any(~((e > 0) & (e <= 1))):
+            if np.any((e <= 0) | (e > 1) | np.isinf(e)):
                 raise InvalidInputError(f"emissivity: values must be in (0, 1], got min {np.nanmin(e)!r} max {np.nanmax(e)!r}")
             for name in ("reflected_temperature_k", "atmospheric_temperature_k", "window_temperature_k"):
                 a = arr(getattr(self, name))
-                if np.any(~(a > 0)):
+                if np.any((a <= 0) | np.isinf(a)):
                     raise InvalidInputError(f"{name}: expected kelvin > 0, got min {np.nanmin(a)!r}")
             w = float(self.window_transmission)
             r = float(self.window_reflectance)

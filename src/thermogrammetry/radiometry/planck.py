@@ -97,7 +97,7 @@ SignalModel = PlanckConstants | StefanBoltzmann
 
 def _check_temperature(t: np.ndarray, name: str = "temperature_k") -> None:
     with np.errstate(invalid="ignore"):
-        bad = np.asarray(t) <= 0
+        bad = np.asarray(t) <= 0  # NaN passes (no-data pixels stay NaN)
     if np.any(bad):
         first = np.asarray(t)[bad].ravel()[0]
         raise InvalidInputError(f"{name}: {int(np.sum(bad))} value(s) <= 0 K (first {first!r}); expected kelvin > 0")
