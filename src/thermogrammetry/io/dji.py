@@ -38,7 +38,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..errors import ConfigError, CorruptFileError, DataFileError, InvalidInputError, UnsupportedFormatError
+from ..errors import ConfigError, CorruptFileError, InvalidInputError, UnsupportedFormatError
 from ..radiometry.measurement import MeasurementParams
 from .exif import jpeg_segments, parse_xmp, read_exif
 from .thermal import Geotag, ReadOptions, ThermalImage, ThermalMetadata, register_reader
@@ -213,4 +213,3 @@ def _sniff_dji(head: bytes, path: Path) -> bool:
 register_reader("dji_rjpeg", _sniff_dji, _read_dji, priority=5,
                 description="DJI R-JPEG (raw counts; temperatures with the DJI Thermal SDK)")
 
-_ = DataFileError  # re-exported errors are part of the documented behaviour

@@ -28,7 +28,6 @@ import struct
 import tempfile
 import xml.etree.ElementTree as ET
 import zlib
-from datetime import datetime
 from fractions import Fraction
 from pathlib import Path
 from typing import Iterator
@@ -218,7 +217,6 @@ def encode_temperature_tiff(
 
     md = metadata
     g = md.geotag if md is not None else Geotag()
-    exif = (md.exif or {}) if md is not None else {}
     items = {"THERMOGRAMMETRY_QUANTITY": "temperature", "THERMOGRAMMETRY_UNIT": u.value,
              "THERMOGRAMMETRY_ENCODING": enc.value}
     items.update(_provenance(md))
@@ -291,7 +289,6 @@ def encode_temperature_tiff(
         ifd0.append(_entry(34853, _LONG, gps_off))
     ifd0_off = place(ifd0)
     buf[4:8] = struct.pack("<I", ifd0_off)
-    _ = exif  # source EXIF tags are summarised in ThermalMetadata fields above
     return bytes(buf), mapping
 
 
@@ -407,4 +404,3 @@ def _sniff_tiff(head: bytes, path: Path) -> bool:
 register_reader("tiff", _sniff_tiff, _read_tiff, priority=1,
                 description="radiometric TIFF (GDAL scale/offset/unit, float K/°C, 16-bit counts e.g. Workswell WIRIS)")
 
-_ = datetime
