@@ -355,3 +355,51 @@ def test_robust_loss_resists_blunders(rng):
     # the robust estimates are at least 3x closer to the truth than plain least squares
     assert np.max(out["huber"]) * 3 < np.max(out["trivial"])
     assert np.max(out["cauchy"]) * 3 < np.max(out["trivial"])
+
+
+def test_warnings_for_correlation_and_insignificant_parameters(rng):
+    pb, cam, poses, X = _calib_problem(rng)
+    pb.free_camera_params(0, ["k3"])  # the truth has k3 = 0
+    res = solve(pb)
+    assert res.termination is Termination.CONVERGED
+    names = res.param_names
+    i, j = names.index("camera0.fx"), names.index("camera0.fy")
+    assert res.correlation[i, j] > 0.9  # square pixels, one focal length in the truth
+    assert any("high correlation" in w and "camera0.fx" in w and "camera0.fy" in w for w in res.warnings)
+    k = res.cameras[0].param_names.index("k3")
+    tval = abs(res.cameras[0].params[k]) / res.camera_std[0][k]
+    # k3 = 0 in the truth: its t-value is |N(0,1)|, below 1.97 with probability 0.95 (seeded)
+    assert tval < 1.97
+    assert any("camera0.k3 insignificant" in w for w in res.warnings)
+    # correlation matrix: symmetric, unit diagonal, |rho| <= 1
+    C = res.correlation
+    np.testing.assert_allclose(C, C.T, atol=1e-12)
+    np.testing.assert_allclose(np.diag(C), 1.0, atol=1e-12)
+    assert np.all(np.abs(C) <= 1 + 1e-9)
+
+
+def test_weighted_control_and_staged_freeing(rng):
+    cam, poses, X, xy = _truth()
+    pb = BundleProblem()
+    ic = pb.add_camera(cam.replace(fx=590, fy=590, k1=0, k2=0), fixed=True)
+    pb.set_camera_fixed(ic, FIXED_DIST + ["k1", "k2"])  # stage 1: fx fy cx cy
+    pts = pb.add_points(X + rng.normal(0, 0.001, X.shape))
+    pb.add_control(pts, X + rng.normal(0, 0.001, X.shape), sigma_m=0.001)
+    for p, x in zip(poses, xy):
+        pb.add_image_points(ic, pb.add_pose(p), pts, x + rng.normal(0, 0.3, x.shape), sigma_px=0.3)
+    r1 = solve(pb)
+    assert r1.termination is Termination.CONVERGED
+    assert "camera0.k1" not in r1.param_names
+    pb2 = r1.problem
+    pb2.free_camera_params(ic, ["k1", "k2"])
+    r2 = solve(pb2)
+    assert r2.termination is Termination.CONVERGED
+    assert "camera0.k1" in r2.param_names
+    # the distortion-free stage cannot fit k1 = -0.2; the second stage must
+    assert r2.sigma0 < 0.6 * r1.sigma0  # weighted points absorb part of it: sigma0 1.9 -> 1.0
+    assert 0.85 < r2.sigma0 < 1.15  # 504 - 46 dof (+126 control) -> sd ~ 0.03
+    k = r2.cameras[0].param_names.index("k1")
+    assert abs(r2.cameras[0].params[k] + 0.2) < 4.5 * r2.camera_std[0][k]
+    assert r2.control_residuals.shape == (42, 3)
+    # weighted control: control residuals are of the order of their sigma (1 mm)
+    assert 0.0003 < np.sqrt(np.mean(r2.control_residuals**2)) < 0.002
