@@ -223,3 +223,20 @@ def test_optical_dlt_agrees_with_geometry_dlt(scene):
         assert rep["exterior_std"][k] == pytest.approx(g.std_prior[k], rel=1e-4)
     assert rep["interior"]["fx_px"] == pytest.approx(g.values["fx"], rel=1e-9)
     assert rep["interior_std"]["fx_px"] == pytest.approx(g.std_prior["fx"], rel=1e-4)
+
+
+def test_plane_with_unknown_point_and_missing_thermal_image(scene):
+    from thermogrammetry.errors import InvalidInputError
+
+    net = _solve(scene, np.random.default_rng(3))
+    with pytest.raises(InvalidInputError, match=r"plane 'lid': point\(s\) 99 have no coordinates"):
+        estimate_planes(net, {"lid": ("1", "4", "99")})
+    rows = measure(scene, SIGMA, np.random.default_rng(1))
+    with pytest.raises(InvalidInputError, match=r"thermal image 'IR_0001' has no measurements.*'opt1'"):
+        solve_network(scene.control, Observations.from_rows(rows), "IR_0001")
+
+
+def test_optical_image_with_five_control_points_is_refused(scene):
+    rows = [r for r in measure(scene, SIGMA, np.random.default_rng(1)) if not (r[0] == "opt2" and r[1] == "11")]
+    with pytest.raises(TooFewPointsError, match=r"5 control points on image 'opt2' \(2, 3, 6, 8, 10\).*at least 6"):
+        solve_network(scene.control, Observations.from_rows(rows), scene.thermal)

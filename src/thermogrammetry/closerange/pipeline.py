@@ -145,6 +145,7 @@ def camera_report(net: NetworkResult, name: str) -> dict[str, Any]:
         "R_cam_from_world": R.tolist(),
         "center_m": C.tolist(),
         "dlt_L_world": P.ravel()[:11].tolist(),
+        **({"camera": net.known[name].to_dict()} if known and hasattr(net.known[name], "to_dict") else {}),
         **cam.extra,
         "conventions": "pixels: OpenCV origin; R is cam_from_world (x right, y down, z forward); "
                        "omega/phi/kappa: M = R_kappa R_phi R_omega = photo_from_world (docs/conventions.md)",
