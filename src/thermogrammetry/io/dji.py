@@ -183,7 +183,7 @@ def _read_dji(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalIma
         geotag=Geotag.from_sources(exif, xmp), timestamp=exif.get("timestamp"),
         focal_length_mm=exif.get("focal_length_mm"), pixel_pitch_um=exif.get("pixel_pitch_um"),
         source_path=str(path), reader="dji_rjpeg", frame_index=None, notes=notes,
-        extra={"dji_params": dji, "xmp": xmp}, exif=exif,
+        extra={"dji_params": dji, "xmp": xmp, "utc_at_exposure": xmp.get("UTCAtExposure")}, exif=exif,
     )
     sdk = opts.dji_sdk or os.environ.get(SDK_ENV)
     temperature = None

@@ -227,6 +227,15 @@ class ThermalImage:
                 f"raw_counts shape {self.raw_counts.shape} differs from temperature_k shape {self.temperature_k.shape}"
             )
 
+    def __repr__(self) -> str:
+        md = self.metadata
+        rng = ""
+        if self.temperature_k is not None and np.any(np.isfinite(self.temperature_k)):
+            rng = f", {float(np.nanmin(self.temperature_k)):.2f}..{float(np.nanmax(self.temperature_k)):.2f} K"
+        elif self.raw_counts is not None:
+            rng = f", counts {int(self.raw_counts.min())}..{int(self.raw_counts.max())}"
+        return f"ThermalImage({self.width}x{self.height}, {self.signal_unit.value}{rng}, {md.describe()})"
+
     @property
     def is_temperature(self) -> bool:
         """True when ``temperature_k`` is available."""
