@@ -300,6 +300,9 @@ def test_temperature_tiff_roundtrip_gdal_and_geotags(tmp_path):
         with rasterio.open(p) as ds:  # GDAL applies nothing itself; scale/offset/unit are in the metadata
             codes = ds.read(1)
             assert ds.units[0] == unit and ds.nodata == 0
+            ex = ds.tags(ns="EXIF")  # GDAL, an independent reader, sees EXIF, GPS and XMP
+            assert ex["EXIF_GPSLatitudeRef"] == "N" and ex["EXIF_GPSLongitude"].startswith("(76) (22)")
+            assert "xml:XMP" in ds.tag_namespaces()
             gis = codes * ds.scales[0] + ds.offsets[0] + off
         assert np.max(np.abs(gis - t64)) <= 0.5 * m.scale * (1 + 1e-6)  # below half a quantisation step
         back = read_thermal(p)
