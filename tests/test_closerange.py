@@ -240,3 +240,11 @@ def test_optical_image_with_five_control_points_is_refused(scene):
     rows = [r for r in measure(scene, SIGMA, np.random.default_rng(1)) if not (r[0] == "opt2" and r[1] == "11")]
     with pytest.raises(TooFewPointsError, match=r"5 control points on image 'opt2' \(2, 3, 6, 8, 10\).*at least 6"):
         solve_network(scene.control, Observations.from_rows(rows), scene.thermal)
+
+
+def test_third_optical_image_without_control_is_left_out_with_warning():
+    s = make_closerange_scene(n_optical=3)
+    rows = [r for r in measure(s, SIGMA, np.random.default_rng(1)) if not (r[0] == "opt3" and r[1] in ("10", "11"))]
+    net = solve_network(s.control, Observations.from_rows(rows), s.thermal)
+    assert set(net.cameras) == {"opt1", "opt2", "thermal"}
+    assert any("opt3" in w and "4 control points" in w for w in net.warnings)

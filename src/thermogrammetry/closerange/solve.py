@@ -20,7 +20,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..errors import InvalidInputError, TooFewPointsError
+from ..errors import DegenerateInputError, InvalidInputError, TooFewPointsError
 from ..results import Outcome
 from . import network as nw
 
@@ -253,7 +253,9 @@ def solve_network(
     Raises
     ------
     TooFewPointsError, DegenerateInputError
-        An optical image with fewer than 6 / coplanar control points; fewer than 2 optical cameras;
+        Fewer than 2 optical cameras can be positioned (the error of the first image refused: fewer
+        than 6 or coplanar control points; with ≥ 2 others positioned such an image is left out with a
+        warning);
         fewer than 6 points with coordinates on the thermal image (the message lists those seen).
     """
     control = {str(k): np.asarray(v, float) for k, v in control.items()}
@@ -299,17 +301,26 @@ def solve_network(
         m = Jc.shape[0]
         return np.einsum("mna,nab->mnb", Jc.reshape(m, len(rows), 2), D[rows]).reshape(m, -1)
 
+    refused: list[DegenerateInputError] = []
     for im in optical:
         rows = [k for k in obs.on(im) if obs.ids[k] in control]
         ids = [obs.ids[k] for k in rows]
         Xn = frame.to_norm(np.array([control[i] for i in ids]).reshape(-1, 3))
-        rc = _orient(im, known.get(im), Xn, ideal[rows], frame, "control points", ids)
+        try:
+            rc = _orient(im, known.get(im), Xn, ideal[rows], frame, "control points", ids)
+        except DegenerateInputError as exc:  # includes TooFewPointsError
+            refused.append(exc)
+            continue
         J = np.zeros((11, obs.n))
         J[:, obs.cols(rows)] = chain(rc.dL_dobs, rows)
         J += rc.dL_dX @ control_J(ids)
         cams[im] = OrientedCamera(im, "optical", rc.L, J, tuple(ids), rc.residuals, rc.sigma0_px, rc.outcome)
         if not rc.outcome.success:
             warnings.append(f"DLT of {im!r}: {rc.outcome.termination}: {rc.outcome.reason}")
+    if len(cams) < 2 and refused:
+        raise refused[0]  # the specific reason (too few / coplanar control points on that image)
+    for exc in refused:
+        warnings.append(f"optical image left out: {exc}")
     if len(cams) < 2:
         raise TooFewPointsError(
             f"{len(cams)} optical camera(s) ({', '.join(cams)}) could be positioned; intersecting pass points "
