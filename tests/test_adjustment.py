@@ -403,3 +403,26 @@ def test_weighted_control_and_staged_freeing(rng):
     assert r2.control_residuals.shape == (42, 3)
     # weighted control: control residuals are of the order of their sigma (1 mm)
     assert 0.0003 < np.sqrt(np.mean(r2.control_residuals**2)) < 0.002
+
+
+def test_distance_observation_fixes_the_scale_of_a_free_network(rng):
+    cam, poses, X, xy = _truth(nview=5)
+    a, b = 0, len(X) - 1  # opposite corners of the field
+    d_true = np.linalg.norm(X[a] - X[b])
+    pb = BundleProblem(gauge="inner")
+    ic = pb.add_camera(cam, fixed=True)
+    # approximate points and centres 10 % too large: only the distance can fix the scale
+    pts = pb.add_points(1.1 * X + rng.normal(0, 0.01, X.shape))
+    for p, x in zip(poses, xy):
+        v = pb.add_pose(Pose.from_center(p.R, 1.1 * p.center))
+        pb.add_image_points(ic, v, pts, x + rng.normal(0, 0.3, x.shape), sigma_px=0.3)
+    pb.add_distance([a], [b], d_true + rng.normal(0, 1e-4), sigma_m=1e-4)
+    res = solve(pb, SolverOptions(compute_point_covariance=True))
+    assert res.termination is Termination.CONVERGED, res.reason
+    # datum defect 6 with the scale observed
+    assert res.redundancy == 5 * 42 * 2 + 1 - (30 + 126) + 6
+    s, R, t = _umeyama(res.points, X)
+    assert abs(s - 1) < 1e-3  # 0.1 mm on a 2.6 m distance, sigma 0.1 mm
+    assert np.isfinite(res.point_covariance[a]).all() and np.isfinite(res.point_covariance[5]).all()
+    assert 0.85 < res.sigma0 < 1.15
+    assert np.nansum(res.image_redundancy) <= res.redundancy + 1e-6

@@ -136,6 +136,7 @@ class BundleProblem:
         self._img: list[_ImageObs] = []
         self._ctrl: list[tuple] = []  # (point idx (K,), xyz (K,3), sigma (K,3))
         self._gnss: list[tuple] = []  # (pose idx (K,), xyz (K,3), sigma (K,3), lever (K,3))
+        self._dist: list[tuple] = []  # (point a (K,), point b (K,), distance (K,), sigma (K,))
 
     # ---------------------------------------------------------------- blocks
     def add_camera(self, camera, *, fixed=False, name: str | None = None) -> int:
@@ -292,6 +293,30 @@ class BundleProblem:
             raise ShapeError(f"antenna_xyz: {len(xyz)} rows for {len(v)} views; expected equal counts")
         lever = np.broadcast_to(as_array(lever_arm_m, "lever_arm_m"), (len(v), 3)).copy()
         self._gnss.append((poses, xyz, _sigma(sigma_m, len(v), 3, "sigma_m"), lever))
+
+    def add_distance(self, points_a, points_b, distance_m, sigma_m) -> None:
+        """Observed distances between pairs of points (scale bars, taped distances), metres.
+
+        Points in distance observations are solved together with the camera-side parameters
+        (they are coupled and leave the block-diagonal point system).
+        """
+        a = self._check_indices(points_a, len(self.points), "points_a")
+        b = self._check_indices(points_b, len(self.points), "points_b")
+        if len(a) != len(b):
+            raise ShapeError(f"points_b: {len(b)} indices for {len(a)} in points_a; expected equal counts")
+        if np.any(a == b):
+            raise InvalidInputError(f"points_a/points_b: a distance needs two different points, got {int(a[a == b][0])} twice")
+        d = np.broadcast_to(as_array(distance_m, "distance_m"), (len(a),)).copy()
+        if np.any(d <= 0):
+            raise InvalidInputError(f"distance_m: distances must be > 0, got {d.min()!r}")
+        sig = _sigma(sigma_m, len(a), 1, "sigma_m")[:, 0]
+        self._dist.append((a, b, d, sig))
+
+    def distance_observations(self):
+        if not self._dist:
+            z = np.zeros(0, dtype=np.int64)
+            return z, z, np.zeros(0), np.zeros(0)
+        return tuple(np.concatenate([g[k] for g in self._dist]) for k in range(4))
 
     # ---------------------------------------------------------------- helpers
     @staticmethod

@@ -248,9 +248,22 @@ class _Layout:
                 self.rig_col[r] = col
                 col += 6
                 names += [f"rig{r}.{a}" for a in ("wx", "wy", "wz", "tx", "ty", "tz")]
+        # free points in distance observations are coupled: they join the camera side
+        da, db, _, _ = pb.distance_observations()
+        free = ~pb.point_fixed
+        coupled = np.zeros(len(pb.points), dtype=bool)
+        coupled[da] = True
+        coupled[db] = True
+        coupled &= free
+        self.cs_points = np.nonzero(coupled)[0]
+        self.point_col = np.full(len(pb.points), -1, dtype=np.int64)
+        for p in self.cs_points:
+            self.point_col[p] = col
+            col += 3
+            names += [f"point{p}.{a}" for a in ("X", "Y", "Z")]
         self.nc = col
         self.names = names
-        free = ~pb.point_fixed
+        free &= ~coupled
         self.free_points = np.nonzero(free)[0]
         self.point_slot = np.full(len(pb.points), -1, dtype=np.int64)
         self.point_slot[self.free_points] = np.arange(len(self.free_points))
@@ -289,6 +302,8 @@ class _State:
         s.X = self.X.copy()
         if lay.npf:
             s.X[lay.free_points] += dp.reshape(-1, 3)
+        if len(lay.cs_points):
+            s.X[lay.cs_points] += dc[lay.point_col[lay.cs_points][:, None] + np.arange(3)]
         return s
 
     def write_to(self, pb: BundleProblem) -> None:
@@ -317,8 +332,9 @@ class _Data:
         self.vrig = np.asarray(pb.view_rig, dtype=np.int64)[self.view] if len(a) else np.zeros(0, np.int64)
         self.c_pt, self.c_xyz, self.c_sig = pb.control_observations()
         self.g_pose, self.g_xyz, self.g_sig, self.g_lever = pb.gnss_observations()
+        self.d_a, self.d_b, self.d_len, self.d_sig = pb.distance_observations()
         self.K = len(a)
-        self.m = 2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose)
+        self.m = 2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose) + len(self.d_a)
 
 
 def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
@@ -397,6 +413,8 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
             slot = lay.point_slot[data.pt]
             jp[: 2 * K] = Jpt.reshape(-1, 3)
             pslot[: 2 * K] = np.repeat(slot, 2)
+            pcol = lay.point_col[data.pt]
+            trip(rowbase, 2, Jpt, pcol, pcol >= 0)
     row = 2 * K
     nc_ = len(data.c_pt)
     if nc_:
@@ -407,6 +425,8 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
             eye = np.eye(3)[None] / data.c_sig[:, :, None]
             jp[row : row + 3 * nc_] = eye.reshape(-1, 3)
             pslot[row : row + 3 * nc_] = np.repeat(slot, 3)
+            pcol = lay.point_col[data.c_pt]
+            trip(row + 3 * np.arange(nc_), 3, eye, pcol, pcol >= 0)
         row += 3 * nc_
     ng = len(data.g_pose)
     if ng:
@@ -420,6 +440,18 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
             J = np.concatenate([RT @ skew(lt), -RT], axis=2) / data.g_sig[:, :, None]
             pc = lay.pose_col[data.g_pose]
             trip(row + 3 * np.arange(ng), 3, J, pc, pc >= 0)
+        row += 3 * ng
+    nd = len(data.d_a)
+    if nd:
+        diff = st.X[data.d_a] - st.X[data.d_b]
+        L = np.linalg.norm(diff, axis=1)
+        r[row : row + nd] = (L - data.d_len) / data.d_sig
+        if want_jac:
+            u = (diff / L[:, None] / data.d_sig[:, None])[:, None, :]
+            rws = row + np.arange(nd)
+            for pts_, sgn in ((data.d_a, 1.0), (data.d_b, -1.0)):
+                pcol = lay.point_col[pts_]
+                trip(rws, 1, sgn * u, pcol, pcol >= 0)
     if not want_jac:
         return r
     if rows:
@@ -610,15 +642,17 @@ def _gauge_basis(pb, lay, st):
         c = lay.rig_col[r]
         if c >= 0:
             G[c + 3 : c + 6, 6] = st.rt[r]
-    base = lay.nc
-    Xf = st.X[lay.free_points]
-    for k in range(lay.npf):
-        rows = slice(base + 3 * k, base + 3 * k + 3)
+    E = np.zeros_like(G)
+    rows_pts = [(slice(base_ + 3 * k, base_ + 3 * k + 3), p) for base_, plist in ((lay.nc, lay.free_points),) for k, p in enumerate(plist)]
+    rows_pts += [(slice(int(lay.point_col[p]), int(lay.point_col[p]) + 3), p) for p in lay.cs_points]
+    for rows, p in rows_pts:
+        Xp = st.X[p]
         G[rows, 0:3] = np.eye(3)
-        G[rows, 3:6] = -skew(Xf[k])
-        G[rows, 6] = Xf[k]
-    E = G.copy()
-    E[: lay.nc] = 0.0
+        G[rows, 3:6] = -skew(Xp)
+        G[rows, 6] = Xp
+        E[rows] = G[rows]
+    if len(pb.distance_observations()[0]):  # observed distances define the scale
+        G, E = G[:, :6], E[:, :6]
     return G, E
 
 
@@ -648,7 +682,7 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
     active = np.ones(K_all, dtype=bool)
     st = _State(pb)
     n = lay.nc + 3 * lay.npf
-    defect = 7 if pb.gauge is Gauge.INNER else 0
+    defect = (6 if len(pb.distance_observations()[0]) else 7) if pb.gauge is Gauge.INNER else 0
     warnings: list[str] = []
 
     def result(term, reason, it, c0, c1, **kw):
@@ -669,7 +703,8 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
         )
     # free points observed too rarely cannot be determined
     nobs_pt = np.bincount(data.pt, minlength=len(pb.points)) + np.bincount(data.c_pt, minlength=len(pb.points))
-    weak = lay.free_points[nobs_pt[lay.free_points] < 2]
+    weak = np.concatenate([lay.free_points, lay.cs_points])
+    weak = weak[nobs_pt[weak] < 2]
     weak = weak[np.bincount(data.c_pt, minlength=len(pb.points))[weak] == 0]
     if len(weak):
         return result(
@@ -732,7 +767,7 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     w, cost = _robust(r, data.K, opt)
     ne = _Normal(r, Jc, jp, pslot, lay, w)
     n = lay.nc + 3 * lay.npf
-    defect = 7 if pb.gauge is Gauge.INNER else 0
+    defect = (6 if len(data.d_a) else 7) if pb.gauge is Gauge.INNER else 0
     red = data.m - n + defect
     vtpv = float(np.sum((r * w) ** 2))
     sigma0 = float(np.sqrt(vtpv / red)) if red > 0 else float("nan")
@@ -768,11 +803,11 @@ def _precision(pb, lay, st, data, opt, active, warnings):
             N0 = np.linalg.inv(N + E @ E.T)
             P = np.eye(n) - G @ np.linalg.solve(E.T @ G, E.T)
         except np.linalg.LinAlgError:
-            return (Termination.RANK_DEFICIENT, "free network: normal matrix singular beyond the 7 datum parameters")
+            return (Termination.RANK_DEFICIENT, f"free network: normal matrix singular beyond the {defect} datum parameters")
         Qfull = P @ N0 @ P.T
         # check: N Q N = N within rounding; otherwise the defect is larger than 7
         if np.max(np.abs(N @ Qfull @ N - N)) > 1e-6 * np.max(np.abs(N)):
-            return (Termination.RANK_DEFICIENT, "free network: rank defect larger than the 7 datum parameters")
+            return (Termination.RANK_DEFICIENT, f"free network: rank defect larger than the {defect} datum parameters")
         Q = Qfull[:nc, :nc]
         Qpp_full = Qfull[nc:, nc:]
     else:
@@ -847,7 +882,8 @@ def _precision(pb, lay, st, data, opt, active, warnings):
             pb.cameras[c] = cam
     st.cam_params = [c.params.copy() for c in pb.cameras]
     npf = lay.npf
-    if npf and (opt.compute_point_covariance or opt.compute_redundancy):
+    Qpp = np.zeros((0, 3, 3))
+    if npf and opt.compute_point_covariance:
         if Qfull is not None:
             Qpp = np.stack([Qpp_full[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] for k in range(npf)])
         else:
@@ -856,10 +892,13 @@ def _precision(pb, lay, st, data, opt, active, warnings):
                 Hd = H.toarray().reshape(nc, npf, 3)
                 QH = np.einsum("ij,jpk->ipk", Q, Hd)
                 Qpp += np.einsum("ipa,ipb->pab", Hd, QH)
-        if opt.compute_point_covariance:
-            pc = np.full((len(pb.points), 3, 3), np.nan)
-            pc[lay.free_points] = s2 * Qpp
-            out["point_covariance"] = pc
+    if opt.compute_point_covariance:
+        pc = np.full((len(pb.points), 3, 3), np.nan)
+        pc[lay.free_points] = s2 * Qpp
+        for p in lay.cs_points:
+            c0 = int(lay.point_col[p])
+            pc[p] = cov[c0 : c0 + 3, c0 : c0 + 3]
+        out["point_covariance"] = pc
     if opt.compute_redundancy:
         # h_i = J_i Q J_i^T for every whitened row
         m = data.m
