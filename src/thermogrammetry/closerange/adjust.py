@@ -31,7 +31,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import ConfigError
-from ..results import Outcome, Termination
+from ..results import Outcome
 from . import network as nw
 from .solve import NetworkResult, OrientedCamera, _undistort_with_jacobian, single_threaded_blas
 
@@ -238,24 +238,16 @@ def adjust_network(
             r, J = np.concatenate([r, rc]), np.vstack([J, Jc])
         return r, J, Ro
 
-    term, reason, it = Termination.MAX_ITERATIONS, f"no convergence in {max_iterations} iterations", 0
-    for it in range(1, max_iterations + 1):
-        r, J, _ = residuals_all(theta)
-        Nm = (J * w[:, None]).T @ J
-        col = np.sqrt(np.diag(Nm))
-        col[col == 0] = 1.0
-        try:
-            step = np.linalg.solve(Nm / np.outer(col, col), -(J.T @ (w * r)) / col) / col
-        except np.linalg.LinAlgError:
-            term, reason = Termination.RANK_DEFICIENT, "singular normal matrix (parameters not determined)"
-            break
-        theta = theta + step
-        if not np.all(np.isfinite(theta)):
-            term, reason = Termination.DIVERGED, "non-finite parameters"
-            break
-        if np.linalg.norm(step * col) < 1e-10 * (1 + np.linalg.norm(theta * col)):
-            term, reason = Termination.CONVERGED, f"joint adjustment converged in {it} iterations"
-            break
+    # the project's dense least-squares kernel (Gauss–Newton / Levenberg–Marquardt) does the iterations
+    from ..adjustment.dense import DenseOptions, solve_dense
+
+    def fun(th):
+        r, J, _ = residuals_all(th)
+        return r, J
+
+    sol = solve_dense(fun, theta, cov=1.0 / w, options=DenseOptions(max_iterations=max_iterations))
+    theta = np.asarray(sol.x, float)
+    term, reason = sol.outcome.termination, sol.outcome.reason
     r, J, Ro = residuals_all(theta)
     Nm = (J * w[:, None]).T @ J
     col = np.sqrt(np.diag(Nm))
