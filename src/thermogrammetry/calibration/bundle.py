@@ -502,7 +502,7 @@ def _solve_engine(problem: BundleProblem, max_iterations: int) -> BundleSolution
         order.append(sel)
     order = np.concatenate(order)
     res = solve(pb, SolverOptions(max_iterations=max_iterations, data_snooping=False, compute_redundancy=True,
-                                  function_tolerance=1e-10, parameter_tolerance=1e-10))
+                                  function_tolerance=1e-15, parameter_tolerance=1e-15))
     N = problem.obs_xy.shape[0]
     cams = []
     for ci, cb in enumerate(problem.cameras):

@@ -53,26 +53,13 @@ def _expand(paths: List[Path]) -> list[Path]:
 
 
 def read_image(path: Path) -> np.ndarray:
-    """Read an 8-bit JPEG/PNG, a 16-bit TIFF/PNG or a float TIFF as an array (no rescaling)."""
-    import cv2
+    """Read an 8-bit JPEG/PNG, a 16-bit TIFF/PNG or a float TIFF as an array (no rescaling).
 
-    from ..errors import UnsupportedFormatError
+    Delegates to the detection package's reader (:func:`thermogrammetry.calibration.detect_io.read_image`).
+    """
+    from ..calibration.detect_io import read_image as _read
 
-    img = None
-    if path.suffix.lower() in (".tif", ".tiff"):
-        try:
-            import tifffile
-
-            img = tifffile.imread(str(path))
-        except Exception:  # noqa: BLE001 - fall back to OpenCV's reader
-            img = None
-    if img is None:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise UnsupportedFormatError(f"{path}: cannot read as an image (expected JPEG, PNG or TIFF)")
-    img = np.asarray(img)
-    if img.ndim == 3 and img.shape[0] in (1, 3, 4) and img.shape[2] not in (1, 3, 4):  # planar TIFF
-        img = np.moveaxis(img, 0, -1)
+    img = np.asarray(_read(path))
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     return img
