@@ -99,6 +99,17 @@ def test_cli_closerange_and_correct(case, tmp_path):
     assert rc == 0
     ang = read_thermal(tmp_path / "OUT2" / "corrected.tif").temperature_k
     assert ang.shape == corr.shape
+    # with the points, only inside the planes' outlines: the same result as closerange's own correction
+    rc = main(["correct", "--thermal-image", str(tmp_path / "thermal.tif"), "--cameras", str(out / "cameras.json"),
+               "--thermal", "thermal", "--planes", str(out / "planes.csv"), "--points", str(out / "points.csv"),
+               "--ambient-c", "22", "-o", str(tmp_path / "OUT3")])
+    assert rc == 0
+    c3 = read_thermal(tmp_path / "OUT3" / "corrected.tif").temperature_k
+    import tifffile
+
+    v = tifffile.imread(out / "valid.tif").astype(bool) & tifffile.imread(tmp_path / "OUT3" / "valid.tif").astype(bool)
+    assert v.sum() > 0.95 * tifffile.imread(out / "valid.tif").sum()
+    assert np.abs(c3[v] - corr[v]).max() < 1e-3  # float32 files; same geometry through cameras.json
     assert json.loads((out / "cameras.json").read_text())["thermal"] == "thermal"
 
 

@@ -46,7 +46,7 @@ def _planes_csv(text: str, source: str):
     if not rows or not need <= set(rows[0]):
         raise DataFileError(f"{source}: expected columns name,normal_x,normal_y,normal_z,d_m (closerange planes.csv)")
     return [(r.get("name", f"plane{i}"), [float(r["normal_x"]), float(r["normal_y"]), float(r["normal_z"])],
-             float(r["d_m"])) for i, r in enumerate(rows)]
+             float(r["d_m"]), (r.get("ids") or "").split()) for i, r in enumerate(rows)]
 
 
 @app.command("correct")
@@ -58,6 +58,7 @@ def correct(
     camera: Optional[Path] = typer.Option(None, "--camera", help="camera.json (interior orientation, from `calibrate`)."),
     pose: Optional[Path] = typer.Option(None, "--pose", help="pose.json: R,t (cam_from_world) or omega/phi/kappa_deg + X0,Y0,Z0."),
     planes: Optional[Path] = typer.Option(None, "--planes", help="planes.csv with normal_x,normal_y,normal_z,d_m."),
+    points: Optional[Path] = typer.Option(None, "--points", help="points.csv (id,X,Y,Z): with --planes that list their ids, correct only inside each plane's outline."),
     plane: List[str] = typer.Option([], "--plane", help="A,B,C,D of a plane A X + B Y + C Z + D = 0 (m); repeatable."),
     mesh: Optional[Path] = typer.Option(None, "--mesh", help="Triangle mesh (OBJ/PLY/STL) in the object frame."),
     dsm: Optional[Path] = typer.Option(None, "--dsm", help="DSM GeoTIFF (heights in m) in the object frame."),
@@ -68,6 +69,7 @@ def correct(
     humidity: float = typer.Option(50.0, "--humidity", help="Relative humidity in percent, for --transmission."),
     thermal_unit: Optional[str] = typer.Option(None, "--thermal-unit", help="K or C, for a float image that does not declare its unit."),
     max_angle_deg: float = typer.Option(75.0, "--max-angle-deg", help="No correction beyond this viewing angle."),
+    sigma_angle_deg: Optional[float] = typer.Option(None, "--sigma-angle-deg", help="σ of the viewing angle (°) for sigma_k.tif."),
 ) -> None:
     """Correct an oriented thermal image for viewing angle, directional emissivity and distance over planes."""
     from rich.console import Console
@@ -89,9 +91,16 @@ def correct(
             if thermal not in d.get("cameras", {}):
                 raise ConfigError(f"{cameras}: no camera {thermal!r}; cameras: {sorted(d.get('cameras', {}))}")
             c = d["cameras"][thermal]
-            P = nw.dlt_matrix(c["dlt_L_world"])
-            K, R, C = nw.decompose_projection(P)
-            cam, t = K, -R @ C
+            if "camera" in c:  # positioned with a known interior orientation: keep its distortion
+                from ..camera import Camera
+
+                cam = Camera.from_dict(c["camera"], source=f"{cameras}: {thermal}")
+                R = np.asarray(c["R_cam_from_world"], float)
+                t = -R @ np.asarray(c["center_m"], float)
+            else:
+                P = nw.dlt_matrix(c["dlt_L_world"])
+                K, R, C = nw.decompose_projection(P)
+                cam, t = K, -R @ C
         elif camera is not None and pose is not None:
             from ..camera import Camera
 
@@ -100,8 +109,21 @@ def correct(
         else:
             raise ConfigError("give the orientation: --cameras cameras.json --thermal NAME, or --camera camera.json --pose pose.json")
         pl = []
+        outlines = None
         if planes is not None:
-            pl += [(n, dd) for _, n, dd in _planes_csv(read_text(planes, "planes file"), str(planes))]
+            rows = _planes_csv(read_text(planes, "planes file"), str(planes))
+            pl += [(n, dd) for _, n, dd, _ in rows]
+            if points is not None:
+                pts = {r["id"]: [float(r["X"]), float(r["Y"]), float(r["Z"])]
+                       for r in csv.DictReader(io.StringIO(read_text(points, "points file")))}
+                outlines = []
+                for name, _, _, ids in rows:
+                    missing = [i for i in ids if i not in pts]
+                    if len(ids) < 3 or missing:
+                        raise ConfigError(f"plane {name!r} in {planes}: ids {ids} not all in {points} (missing {missing})")
+                    outlines.append(np.array([pts[i] for i in ids]))
+        if plane and outlines is not None:
+            raise ConfigError("--plane has no outline: use it without --points, or put the plane in planes.csv")
         for spec in plane:
             try:
                 a, b, cc, dd = (float(x) for x in spec.split(","))
@@ -139,7 +161,8 @@ def correct(
         image_size = (T0.shape[1], T0.shape[0])
         if hasattr(cam, "image_size") and tuple(cam.image_size) != image_size:
             raise ConfigError(f"camera image size {cam.image_size} differs from the thermal image's {image_size}")
-        cr = correct_oriented_image(T0, cam, R, t, pl or None, cfg, mesh=surf)
+        cr = correct_oriented_image(T0, cam, R, t, pl or None, cfg, mesh=surf, polygons_world=outlines,
+                                    sigma_angle_rad=None if sigma_angle_deg is None else np.radians(sigma_angle_deg))
         from ..io.tiff import encode_temperature_tiff
 
         project = FolderProject(out)
@@ -148,6 +171,8 @@ def correct(
         project.write_bytes("angle_deg.tif", _tif_bytes(np.degrees(cr.angle_rad).astype(np.float32)))
         project.write_bytes("distance_m.tif", _tif_bytes(cr.distance_m.astype(np.float32)))
         project.write_bytes("valid.tif", _tif_bytes(cr.valid.astype(np.uint8)))
+        if sigma_angle_deg is not None:
+            project.write_bytes("sigma_k.tif", _tif_bytes(cr.sigma_k.astype(np.float32)))
     except ThermogrammetryError as exc:
         console.print(f"[red]error:[/] {exc}")
         raise typer.Exit(2)
