@@ -159,14 +159,15 @@ class AdjustmentResult:
         ``statistic``, ``dof``, ``lower``, ``upper``, ``passed`` of the two-sided chi^2 test.
     param_names : list of str
         Camera-side parameters in covariance order: ``"<camera>.<param>"``,
-        ``"<pose>.wx|wy|wz|tx|ty|tz"`` (rotation increments in rad, translation in m),
+        ``"<pose>.wx|wy|wz|X0|Y0|Z0"`` (rotation increments in rad, projection centre in m),
         ``"rig<i>.wx..tz"``.
     covariance, correlation : (n, n) arrays (a posteriori) or None
     std : (n,) array or None
     camera_std : list of (P,) arrays (NaN where fixed)
-    pose_std : (n_poses, 6) array: rotation (rad, small angles about the world axes... see below)
-        and projection-centre standard deviations (m). The rotation part is the left increment
-        ``R <- exp([dw]x) R`` (camera-frame axes); NaN for fixed poses.
+    pose_std : (n_poses, 6) array
+        Rotation (rad; the left increment ``R <- exp([dw]x) R``, i.e. small rotations about the
+        camera-frame axes applied after R) and projection-centre ``X0 Y0 Z0`` standard
+        deviations (m); NaN for fixed poses.
     point_covariance : (N, 3, 3) or None
         A posteriori, free points only (NaN elsewhere), when requested.
     image_residuals : (K, 2) px, ``measured - computed`` corrections v (0 for rejected)
@@ -828,11 +829,31 @@ def _precision(pb, lay, st, data, opt, active, warnings):
             Q = np.zeros((0, 0))
         Qfull = None
     s2 = sigma0**2 if np.isfinite(sigma0) else float("nan")
-    cov = s2 * Q
+    # report poses as (rotation increment, projection centre): dC = -R^T [t]x dw - R^T dt
+    names = list(lay.names)
+    T = sp.lil_matrix((nc, nc))
+    T.setdiag(1.0)
+    for p in range(len(st.R)):
+        c = int(lay.pose_col[p])
+        if c < 0:
+            continue
+        R, t = st.R[p], st.t[p]
+        T[c + 3 : c + 6, c : c + 3] = -R.T @ skew(t)
+        T[c + 3 : c + 6, c + 3 : c + 6] = -R.T
+        for k, a in enumerate(("X0", "Y0", "Z0")):
+            names[c + 3 + k] = f"{pb.pose_names[p]}.{a}"
+    T = T.tocsr()
+    cov = s2 * np.asarray(T @ (T @ Q).T)
+    cov = 0.5 * (cov + cov.T)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / std[:, None] / std[None, :]
-    out.update(param_names=list(lay.names), covariance=cov, std=std, correlation=corr)
+    out.update(param_names=names, covariance=cov, std=std, correlation=corr)
+    kind = np.zeros(nc, dtype=np.int8)  # 1 = intrinsics or rig (findings), 0 = pose or point
+    for cc in lay.cam_cols:
+        kind[cc[cc >= 0]] = 1
+    for c in lay.rig_col[lay.rig_col >= 0]:
+        kind[c : c + 6] = 1
     # per-camera and per-pose std
     cam_std = []
     for c, cc in enumerate(lay.cam_cols):
@@ -846,22 +867,15 @@ def _precision(pb, lay, st, data, opt, active, warnings):
         c = lay.pose_col[p]
         if c < 0:
             continue
-        Cq = cov[c : c + 6, c : c + 6]
-        # projection centre C = -R^T t: dC = -R^T dt - R^T [t]x dw
-        R, t = st.R[p], st.t[p]
-        A = np.concatenate([-R.T @ skew(t), -R.T], axis=1)
-        pose_std[p, :3] = np.sqrt(np.maximum(np.diag(Cq[:3, :3]), 0))
-        pose_std[p, 3:] = np.sqrt(np.maximum(np.diag(A @ Cq @ A.T), 0))
+        pose_std[p] = std[c : c + 6]
     out["pose_std"] = pose_std
     # warnings: correlations and insignificant additional parameters
     if nc > 1:
         iu = np.triu_indices(nc, 1)
         big = np.abs(corr[iu]) > opt.correlation_warning
         for a, b in zip(iu[0][big], iu[1][big]):
-            na, nb = lay.names[a], lay.names[b]
-            if na.split(".")[0] == nb.split(".")[0] and (na.endswith(("wx", "wy", "wz", "tx", "ty", "tz"))):
-                continue  # within-pose rotation/translation correlations are geometry, not a finding
-            warnings.append(f"high correlation {corr[a, b]:+.3f} between {na} and {nb}")
+            if kind[a] or kind[b]:  # pose-pose correlations are block geometry, not a finding
+                warnings.append(f"high correlation {corr[a, b]:+.3f} between {names[a]} and {names[b]}")
     if red > 0:
         tcrit = scipy.stats.t.ppf(1 - opt.significance_alpha / 2, red)
         for c, cc in enumerate(lay.cam_cols):
