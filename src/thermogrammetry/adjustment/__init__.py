@@ -29,11 +29,13 @@ points, staged freeing of parameters)::
     res.termination, res.sigma0, res.chi2["passed"]
     res.cameras[ic].params, res.camera_std[ic]              # estimates and a-posteriori sigmas
     res.param_names, res.correlation, res.warnings          # |rho| > 0.9, insignificant APs
+    res.pose_std                                            # (n_poses, 6): rotation rad, X0 Y0 Z0 m
     res.image_residuals, res.image_redundancy, res.image_w, res.rejected
 
 Other blocks and observations: ``pb.add_rig(relative_pose)`` + ``pb.add_rig_view(rig,
 master_view)`` (constant relative orientation, seed 002 eq. 4-5), ``pb.add_gnss(views, xyz,
-sigma_m, lever_arm_m)``, ``BundleProblem(gauge="inner")`` for a free network,
+sigma_m, lever_arm_m)``, ``pb.add_distance(a, b, distance_m, sigma_m)`` (scale bars),
+``BundleProblem(gauge="inner")`` for a free network (inner constraints on the free points),
 ``SolverOptions(loss="huber", loss_scale=3)`` for robust estimation,
 ``SolverOptions(compute_point_covariance=True)``.
 
