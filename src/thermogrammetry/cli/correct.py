@@ -71,7 +71,7 @@ def correct(
     max_angle_deg: float = typer.Option(75.0, "--max-angle-deg", help="No correction beyond this viewing angle."),
     sigma_angle_deg: Optional[float] = typer.Option(None, "--sigma-angle-deg", help="σ of the viewing angle (°) for sigma_k.tif."),
 ) -> None:
-    """Correct an oriented thermal image for viewing angle, directional emissivity and distance over planes."""
+    """Correct an oriented thermal image for viewing angle, directional emissivity and distance over planes, a mesh or a DSM."""
     from rich.console import Console
 
     from ..closerange import network as nw
