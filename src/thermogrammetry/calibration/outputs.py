@@ -217,7 +217,7 @@ def _figures(run: CalibrationRun, ci: int) -> dict[str, str]:
     figs = {}
     # residual vectors
     fig, ax = plt.subplots(figsize=(6.4, 6.4 * h / w + 0.6))
-    scale = 0.05 * w / max(np.sqrt(np.mean(np.sum(v**2, axis=1))) if v.size else 1.0, 1e-9)
+    scale = 0.02 * w / max(np.sqrt(np.mean(np.sum(v**2, axis=1))) if v.size else 1.0, 1e-9)
     ax.quiver(xy[:, 0], xy[:, 1], v[:, 0], v[:, 1], angles="xy", scale_units="xy", scale=1.0 / scale, width=0.002, color="C3")
     ax.set_xlim(-0.5, w - 0.5)
     ax.set_ylim(h - 0.5, -0.5)

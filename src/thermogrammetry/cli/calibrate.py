@@ -153,6 +153,8 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
     from ..pipeline import FolderProject, MemoryProject
 
     console = Console(soft_wrap=True)
+    if output.exists() and not output.is_dir():
+        raise typer.BadParameter(f"-o {output}: exists and is not a folder")
     csv_route = control is not None or measurements is not None
     if csv_route:
         if images:
