@@ -47,6 +47,14 @@ def iter_sample_rays(camera, supersample: int, *, max_samples: int = 2_000_000) 
     distortion is exactly the model's). OpenCV pixel origin: pixel (col, row) covers [col ± 0.5] × [row ± 0.5].
     """
     w, h = camera_size(camera)
+    key = (repr(camera), w, h, int(supersample))
+    cached = _RAY_CACHE.get(key)
+    if cached is not None:
+        for r0, r1, rays in cached:
+            yield slice(r0, r1), rays
+        return
+    total = w * h * int(supersample) ** 2
+    store = [] if total * 24 <= _RAY_CACHE_BYTES else None
     off = sample_offsets(supersample)
     oy, ox = np.meshgrid(off, off, indexing="ij")
     ox = ox.ravel()
@@ -60,8 +68,20 @@ def iter_sample_rays(camera, supersample: int, *, max_samples: int = 2_000_000) 
         x = cols[None, :, None] + ox[None, None, :] + 0.0 * rows[:, None, None]
         y = rows[:, None, None] + oy[None, None, :] + 0.0 * cols[None, :, None]
         xy = np.stack([x.ravel(), y.ravel()], axis=1)
-        rays = unproject_fast(camera, xy)
-        yield slice(r0, r1), rays.reshape(r1 - r0, w, ox.size, 3)
+        rays = unproject_fast(camera, xy).reshape(r1 - r0, w, ox.size, 3)
+        if store is not None:
+            rays.flags.writeable = False
+            store.append((r0, r1, rays))
+        yield slice(r0, r1), rays
+    if store is not None:
+        if len(_RAY_CACHE) >= 2:
+            _RAY_CACHE.pop(next(iter(_RAY_CACHE)))
+        _RAY_CACHE[key] = store
+
+
+#: camera rays of recently rendered (camera, supersample) pairs, for image series of one camera
+_RAY_CACHE: dict = {}
+_RAY_CACHE_BYTES = 64 * 1024 * 1024
 
 
 _LATTICE_CACHE: dict = {}
