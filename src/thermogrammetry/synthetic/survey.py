@@ -401,12 +401,30 @@ def _cast(scene, C_local, dirs):
     return raycast_heightfield(scene.terrain, C_local, dirs, caster=scene.caster)
 
 
-def render_frames(scene: SurveyScene, indices=None, *, threads: int = 2, on_frame: Callable | None = None):
-    """Render frames (default all) with a thread pool; yields ``(index, image_k)`` in order."""
-    from concurrent.futures import ThreadPoolExecutor
+_WORKER_SCENE = None
+
+
+def _init_worker(scene):
+    global _WORKER_SCENE
+    _WORKER_SCENE = scene
+
+
+def _render_in_worker(i):
+    return render_frame(_WORKER_SCENE, i)["image_k"]
+
+
+def render_frames(scene: SurveyScene, indices=None, *, threads: int = 2, on_frame: Callable | None = None,
+                  mode: str = "process"):
+    """Render frames (default all) in parallel; yields ``(index, image_k)`` in order.
+
+    ``mode="process"`` (default): forked worker processes sharing the scene copy-on-write (POSIX; falls
+    back to threads where ``fork`` is unavailable); ``mode="thread"``: a thread pool -- measured slower
+    here (the ray caster's many medium-sized numpy operations contend for the GIL).
+    """
+    from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
     idx = list(range(len(scene.frames))) if indices is None else list(indices)
-    scene.rays_cam()  # build the shared cache once, outside the threads
+    scene.rays_cam()  # build the shared cache once, before the workers start
     if threads <= 1:
         for i in idx:
             img = render_frame(scene, i)["image_k"]
@@ -414,8 +432,21 @@ def render_frames(scene: SurveyScene, indices=None, *, threads: int = 2, on_fram
                 on_frame(i)
             yield i, img
         return
-    with ThreadPoolExecutor(max_workers=int(threads)) as ex:
-        futs = [(i, ex.submit(lambda k: render_frame(scene, k)["image_k"], i)) for i in idx]
+    if mode not in ("thread", "process"):
+        raise ConfigError(f"mode={mode!r}: expected 'thread' or 'process'")
+    ex = None
+    if mode == "process":
+        import multiprocessing as mp
+
+        if "fork" in mp.get_all_start_methods():
+            ex = ProcessPoolExecutor(max_workers=int(threads), mp_context=mp.get_context("fork"),
+                                     initializer=_init_worker, initargs=(scene,))
+            submit = lambda k: ex.submit(_render_in_worker, k)  # noqa: E731
+    if ex is None:
+        ex = ThreadPoolExecutor(max_workers=int(threads))
+        submit = lambda k: ex.submit(lambda j: render_frame(scene, j)["image_k"], k)  # noqa: E731
+    with ex:
+        futs = [(i, submit(i)) for i in idx]
         for i, f in futs:
             img = f.result()
             if on_frame:
@@ -484,7 +515,7 @@ def _latlon(epsg: int, enh: np.ndarray) -> tuple[float, float]:
 
 
 def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads: int = 2, write_jpeg: bool = False,
-                 on_frame: Callable | None = None) -> dict:
+                 on_frame: Callable | None = None, mode: str = "process") -> dict:
     """Render all frames and write images + ground truth through ``project`` (see module docstring).
 
     Returns a small summary dict (counts, seconds spent rendering).
@@ -499,7 +530,7 @@ def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads
     t0 = time.perf_counter()
     lo, hi = None, None
     tr = ter.transform
-    for i, img in render_frames(scene, threads=threads, on_frame=on_frame):
+    for i, img in render_frames(scene, threads=threads, on_frame=on_frame, mode=mode):
         fr = scene.frames[i]
         lat, lon = _latlon(ter.epsg, fr.gnss_enh)
         md = ThermalMetadata(make="thermogrammetry", model="synthetic", focal_length_mm=cfg.focal_mm,
