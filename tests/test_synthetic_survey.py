@@ -180,6 +180,27 @@ def test_write_survey_ground_truth_files(scene):
     assert meta["n_frames"] == len(scene.frames) and meta["crs"] == f"EPSG:{ter.epsg}"
 
 
+def test_thermal_video_is_lossless_16bit_with_timestamps():
+    av = pytest.importorskip("av")
+    sc = make_survey(small_config(video_fps=8.0, speed_mps=6.0, max_frames=6))
+    proj = MemoryProject()
+    write_survey(proj, sc, threads=1)
+    c = av.open(io.BytesIO(proj.read_bytes("survey/video/thermal.mkv")))
+    scale = float(c.metadata["THERMOGRAMMETRY_SCALE"])
+    offset = float(c.metadata["THERMOGRAMMETRY_OFFSET"])
+    frames = list(c.decode(video=0))
+    assert len(frames) == 6
+    import tifffile
+
+    for k, f in enumerate(frames):
+        temp = f.to_ndarray().astype(float) * scale + offset
+        tif = tifffile.imread(io.BytesIO(proj.read_bytes(f"survey/images/T{k:04d}.tif")))
+        assert np.abs(temp - tif).max() <= 0.5 * scale + 1e-4  # quantisation only: lossless codec
+        assert f.time == pytest.approx(sc.frames[k].time_s, abs=1 / 8.0)
+    rows = list(csv.DictReader(io.StringIO(proj.read_text("survey/video/frames.csv"))))
+    assert [r["image"] for r in rows] == [f.name for f in sc.frames]
+
+
 def test_bad_survey_configuration():
     with pytest.raises(ConfigError, match="unknown"):
         SurveyConfig.from_dict({"flight_hieght_m": 10})

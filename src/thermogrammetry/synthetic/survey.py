@@ -506,6 +506,49 @@ def _geotiff_bytes(array: np.ndarray, transform, epsg: int, *, nodata=None, desc
         return mem.read()
 
 
+class _VideoWriter:
+    """Lossless 16-bit FFV1/Matroska in memory (PyAV)."""
+
+    def __init__(self, fps: float):
+        import av
+        from fractions import Fraction
+
+        self.buf = io.BytesIO()
+        self.container = av.open(self.buf, mode="w", format="matroska")
+        scale, offset = VIDEO_MAPPING
+        self.container.metadata.update({"THERMOGRAMMETRY_SCALE": repr(scale), "THERMOGRAMMETRY_OFFSET": repr(offset),
+                                        "THERMOGRAMMETRY_UNIT": "K", "THERMOGRAMMETRY_NODATA": "0"})
+        self.rate = Fraction(float(fps)).limit_denominator(1000)
+        self.stream = None
+        self.pts: list[int] = []
+
+    def add(self, image_k: np.ndarray, time_s: float) -> None:
+        import av
+
+        from ..radiometry.encoding import Uint16Mapping, encode_uint16
+
+        h, w = image_k.shape
+        if self.stream is None:
+            self.stream = self.container.add_stream("ffv1", rate=self.rate)
+            self.stream.width, self.stream.height, self.stream.pix_fmt = w, h, "gray16le"
+        codes = encode_uint16(image_k, Uint16Mapping(*VIDEO_MAPPING))
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(codes), format="gray16le")
+        pts = int(round(time_s * float(self.rate)))
+        if self.pts and pts <= self.pts[-1]:
+            pts = self.pts[-1] + 1
+        frame.pts = pts
+        self.pts.append(pts)
+        for packet in self.stream.encode(frame):
+            self.container.mux(packet)
+
+    def finish(self) -> bytes:
+        if self.stream is not None:
+            for packet in self.stream.encode():
+                self.container.mux(packet)
+        self.container.close()
+        return self.buf.getvalue()
+
+
 def _latlon(epsg: int, enh: np.ndarray) -> tuple[float, float]:
     from pyproj import Transformer
 
@@ -514,9 +557,18 @@ def _latlon(epsg: int, enh: np.ndarray) -> tuple[float, float]:
     return lat, lon
 
 
+VIDEO_MAPPING = (0.01, 150.0)  # (scale K/code, offset K): codes 1..65535 cover 150.01..805.35 K
+
+
 def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads: int = 2, write_jpeg: bool = False,
-                 on_frame: Callable | None = None, mode: str = "process") -> dict:
+                 on_frame: Callable | None = None, mode: str = "process", write_video: bool | None = None) -> dict:
     """Render all frames and write images + ground truth through ``project`` (see module docstring).
+
+    ``write_video`` (default: when ``config.video_fps`` is set) also writes ``video/thermal.mkv``: the
+    frames in flight order as lossless 16-bit FFV1 (``gray16le``), presentation time = exposure time,
+    temperature = ``code * 0.01 + 150.0`` K (container metadata ``THERMOGRAMMETRY_SCALE``,
+    ``THERMOGRAMMETRY_OFFSET``, ``THERMOGRAMMETRY_UNIT``; code 0 = no data), and ``video/frames.csv``
+    (frame, pts, time_s, image).
 
     Returns a small summary dict (counts, seconds spent rendering).
     """
@@ -530,7 +582,10 @@ def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads
     t0 = time.perf_counter()
     lo, hi = None, None
     tr = ter.transform
+    video = _VideoWriter(cfg.video_fps or 10.0) if (write_video if write_video is not None else cfg.video_fps) else None
     for i, img in render_frames(scene, threads=threads, on_frame=on_frame, mode=mode):
+        if video is not None:
+            video.add(img, scene.frames[i].time_s)
         fr = scene.frames[i]
         lat, lon = _latlon(ter.epsg, fr.gnss_enh)
         md = ThermalMetadata(make="thermogrammetry", model="synthetic", focal_length_mm=cfg.focal_mm,
@@ -547,6 +602,11 @@ def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads
             ok, jpg = cv2.imencode(".jpg", cv2.applyColorMap(u8, cv2.COLORMAP_INFERNO), [cv2.IMWRITE_JPEG_QUALITY, 92])
             project.write_bytes(f"{p}images_8bit/{fr.name}.jpg", jpg.tobytes())
     render_s = time.perf_counter() - t0
+    if video is not None:
+        project.write_bytes(f"{p}video/thermal.mkv", video.finish())
+        project.write_text(f"{p}video/frames.csv", _csv_text(
+            ["frame", "pts", "time_s", "image"],
+            [[k, pts, f"{f.time_s:.4f}", f.name] for k, (pts, f) in enumerate(zip(video.pts, scene.frames))]))
 
     crs = f"EPSG:{ter.epsg}"
     project.write_json(f"{p}cameras.json", {
