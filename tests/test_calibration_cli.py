@@ -100,8 +100,11 @@ def test_cli_testfield_route_writes_all_outputs(csv_files, tmp_path, capsys, fie
     assert rc == 0, text
     assert "16/16 images used" in text and "σx" in text
     for key in ("camera.json", "calibration.json", "report.html", "exports/opencv.yaml", "exports/opencv.json",
-                "exports/colmap_cameras.txt", "exports/metashape.xml"):
+                "exports/colmap_cameras.txt", "exports/metashape.xml", "observations.json",
+                "reports/observations.json", "reports/selfcal.json"):
         assert (out / key).is_file(), key
+    steps = json.loads((out / "reports/selfcal.json").read_text())
+    assert steps["status"] == "ok" and steps["summary"]["images_used"] == 16
     cam = Camera.load(out / "camera.json")
     assert cam.model.value == "photogrammetric" and cam.image_size == (320, 240)
     assert cam.param_std is not None

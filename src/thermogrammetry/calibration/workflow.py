@@ -17,7 +17,8 @@ from ..errors import InvalidInputError, TooFewPointsError
 from .selfcal import CalibrationResult, CameraSetup, ImageMeasurements, SelfCalibrationOptions, calibrate
 from .testfield_csv import ControlPoints, Measurements, check_measurement_ids
 
-__all__ = ["CalibrationRun", "calibrate_testfield", "calibrate_detections", "DEFAULT_PIXEL_PITCH_UM"]
+__all__ = ["CalibrationRun", "prepare_testfield", "calibrate_testfield", "prepare_detections", "calibrate_detections",
+           "DEFAULT_PIXEL_PITCH_UM"]
 
 #: pitch assumed when a target calibration is run without ``pixel_pitch_um``: the common pitch of
 #: uncooled microbolometer arrays. Pixel-unit results do not depend on it; mm values scale with it.
@@ -33,21 +34,19 @@ class CalibrationRun:
     detection_verdicts: dict[str, str] = field(default_factory=dict)  # image -> reason when not detected
 
 
-def calibrate_testfield(
+def prepare_testfield(
     control: ControlPoints,
     meas: Measurements,
     *,
     image_size: tuple[int, int],
     pixel_pitch_um: float | tuple[float, float],
     focal_mm: float,
-    options: SelfCalibrationOptions | None = None,
     camera_name: str = "camera",
-    progress=None,
-) -> CalibrationRun:
-    """Self-calibration on a 3D test field (control CSV + measurement CSV), seed 001.
+) -> tuple[list[CameraSetup], np.ndarray, np.ndarray | None, list[ImageMeasurements], dict[str, Any]]:
+    """Validate and assemble the inputs of a 3D test-field calibration (seed 001).
 
-    Unknown point IDs raise (naming the measurement file and row). Control points with sX, sY, sZ are
-    adjusted as weighted unknowns; without them they are fixed.
+    Unknown point IDs raise (naming the measurement file and row); measurements outside the image
+    (by more than 3 px) raise naming the row. Returns ``(cameras, points, point_std, images, meta)``.
     """
     if focal_mm is None or not np.isfinite(focal_mm) or focal_mm <= 0:
         raise InvalidInputError(f"focal_mm = {focal_mm!r}: expected the nominal focal length in mm (e.g. --focal-mm 18)")
@@ -68,7 +67,6 @@ def calibrate_testfield(
     for name in names:
         m = img_arr == name
         images.append(ImageMeasurements(name, 0, idx[m], meas.xy[m], None if meas.std is None else meas.std[m]))
-    res = calibrate([cam], control.xyz, images, point_std=control.std, options=options, progress=progress)
     meta = {
         "route": "testfield",
         "control": {"source": control.source, "n_points": len(control.ids), "weighted": control.std is not None},
@@ -78,21 +76,41 @@ def calibrate_testfield(
         "pixel_pitch_assumed": False,
         "point_ids": list(control.ids),
     }
+    return [cam], control.xyz, control.std, images, meta
+
+
+def calibrate_testfield(
+    control: ControlPoints,
+    meas: Measurements,
+    *,
+    image_size: tuple[int, int],
+    pixel_pitch_um: float | tuple[float, float],
+    focal_mm: float,
+    options: SelfCalibrationOptions | None = None,
+    camera_name: str = "camera",
+    progress=None,
+) -> CalibrationRun:
+    """Self-calibration on a 3D test field (control CSV + measurement CSV), seed 001.
+
+    Control points with sX, sY, sZ are adjusted as weighted unknowns; without them they are fixed.
+    See :func:`prepare_testfield` for the checks.
+    """
+    cams, pts, pstd, images, meta = prepare_testfield(control, meas, image_size=image_size, pixel_pitch_um=pixel_pitch_um,
+                                                      focal_mm=focal_mm, camera_name=camera_name)
+    res = calibrate(cams, pts, images, point_std=pstd, options=options, progress=progress)
     return CalibrationRun(res, meta)
 
 
-def calibrate_detections(
+def prepare_detections(
     detections: Sequence[Any],
     object_points_m: np.ndarray,
     *,
     target: dict[str, Any],
     pixel_pitch_um: float | tuple[float, float] | None = None,
     focal_mm: float | None = None,
-    options: SelfCalibrationOptions | None = None,
     camera_name: str = "camera",
-    progress=None,
-) -> CalibrationRun:
-    """Self-calibration from per-image detections of a planar target.
+) -> tuple[list[CameraSetup], np.ndarray, list[ImageMeasurements], dict[str, str], dict[str, Any]]:
+    """Validate per-image detections of a planar target and assemble the calibration inputs.
 
     Parameters
     ----------
@@ -102,6 +120,10 @@ def calibrate_detections(
     target : description for the report (kind, pattern, spacing).
     pixel_pitch_um : sensor pitch; when None :data:`DEFAULT_PIXEL_PITCH_UM` is assumed and flagged.
     focal_mm : nominal focal length; when None it is initialised from the views (Zhang).
+
+    Returns
+    -------
+    ``(cameras, points, images, not_detected {image: reason}, meta)``
 
     Raises
     ------
@@ -132,14 +154,7 @@ def calibrate_detections(
     pitch = DEFAULT_PIXEL_PITCH_UM if assumed else pixel_pitch_um
     nominal = {} if focal_mm is None else {"c_mm": float(focal_mm)}
     cam = CameraSetup(camera_name, size, pitch, nominal)
-    opt = options or SelfCalibrationOptions(min_points_per_image=6)
     images = [ImageMeasurements(d.image_id, 0, np.asarray(d.object_ids, int), np.asarray(d.points_px, float)) for d in found]
-    res = calibrate([cam], np.asarray(object_points_m, float), images, options=opt, progress=progress)
-    # images where detection failed get their verdict too
-    from .selfcal import ImageVerdict
-
-    for name, why in verdicts.items():
-        res.images.append(ImageVerdict(name, 0, False, f"target not detected: {why}"))
     meta = {
         "route": "target",
         "target": target,
@@ -149,4 +164,27 @@ def calibrate_detections(
         "pixel_pitch_um": list(cam.pixel_pitch_um),
         "pixel_pitch_assumed": assumed,
     }
+    return [cam], np.asarray(object_points_m, float), images, verdicts, meta
+
+
+def calibrate_detections(
+    detections: Sequence[Any],
+    object_points_m: np.ndarray,
+    *,
+    target: dict[str, Any],
+    pixel_pitch_um: float | tuple[float, float] | None = None,
+    focal_mm: float | None = None,
+    options: SelfCalibrationOptions | None = None,
+    camera_name: str = "camera",
+    progress=None,
+) -> CalibrationRun:
+    """Self-calibration from per-image detections of a planar target (see :func:`prepare_detections`)."""
+    cams, pts, images, verdicts, meta = prepare_detections(detections, object_points_m, target=target,
+                                                           pixel_pitch_um=pixel_pitch_um, focal_mm=focal_mm,
+                                                           camera_name=camera_name)
+    res = calibrate(cams, pts, images, options=options, progress=progress)
+    from .selfcal import ImageVerdict
+
+    for name, why in verdicts.items():  # images where detection failed get their verdict too
+        res.images.append(ImageVerdict(name, 0, False, f"target not detected: {why}"))
     return CalibrationRun(res, meta, verdicts)

@@ -146,11 +146,12 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from ..calibration.outputs import flush, write_outputs
+    from ..calibration.outputs import flush
+    from ..calibration.pipeline import calibration_steps, observations_dict
     from ..calibration.selfcal import SelfCalibrationOptions
     from ..calibration.testfield_csv import read_control_csv, read_measurements_csv
-    from ..calibration.workflow import calibrate_detections, calibrate_testfield
-    from ..pipeline import FolderProject, MemoryProject
+    from ..calibration.workflow import prepare_detections, prepare_testfield
+    from ..pipeline import FolderProject, MemoryProject, run_steps
 
     console = Console(soft_wrap=True)
     if output.exists() and not output.is_dir():
@@ -167,18 +168,12 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
         if pixel_pitch_um <= 0 or focal_mm <= 0:
             raise typer.BadParameter(f"--pixel-pitch-um {pixel_pitch_um} / --focal-mm {focal_mm}: expected positive numbers")
         size = _pair(image_size, "--image-size")
-        opt = SelfCalibrationOptions(k45=k45, affinity=affinity)
         ctl = read_control_csv(control)
         meas = read_measurements_csv(measurements)
-        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                      console=console, transient=True) as prog:
-            task = prog.add_task("resection", total=len(meas.images()))
-
-            def cb(stage, done, total):
-                prog.update(task, description=stage, completed=done if stage == "resection" else total, total=max(total, 1))
-
-            run = calibrate_testfield(ctl, meas, image_size=size, pixel_pitch_um=pixel_pitch_um, focal_mm=focal_mm,
-                                      options=opt, camera_name=name, progress=cb)
+        cams, pts, pstd, ims, meta = prepare_testfield(ctl, meas, image_size=size, pixel_pitch_um=pixel_pitch_um,
+                                                       focal_mm=focal_mm, camera_name=name)
+        obs = observations_dict(cams, pts, ims, point_std=pstd, point_ids=ctl.ids, meta=meta)
+        n_images = len(ims)
     else:
         if not images:
             raise typer.BadParameter("no IMAGES given (or use --control/--measurements for a 3D test field)")
@@ -231,48 +226,55 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
         prog_desc = {"kind": kind, "description": desc, "pattern": [cols, rows], "spacing_mm": spacing_mm,
                      "asymmetric": bool(asymmetric) if kind == "circles" else None,
                      "detector": "interim cv2.findCirclesGrid" if interim else f"{detect.__module__}.{detect.__name__}"}
-        opt = SelfCalibrationOptions(k45=k45, affinity=affinity)
-        run = calibrate_detections(dets, spec.object_points() * 1e-3, target=prog_desc, pixel_pitch_um=pixel_pitch_um,
-                                   focal_mm=focal_mm, options=opt, camera_name=name)
-    res = run.result
-    if not res.outcome.success:
-        Console(stderr=True, soft_wrap=True).print(f"[bold red]calibration failed:[/] {res.outcome.termination.value}: {res.outcome.reason}; "
-                                   f"nothing was written to {output}", highlight=False)
-        return None
+        cams, pts, ims, not_detected, meta = prepare_detections(dets, spec.object_points() * 1e-3, target=prog_desc,
+                                                                pixel_pitch_um=pixel_pitch_um, focal_mm=focal_mm,
+                                                                camera_name=name)
+        obs = observations_dict(cams, pts, ims, not_detected=not_detected, meta=meta)
+        n_images = len(dets)
+    opt = SelfCalibrationOptions(k45=k45, affinity=affinity)
     mem = MemoryProject()
-    summary = write_outputs(mem, run)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=console, transient=True) as prog:
+        task = prog.add_task("resection", total=max(n_images, 1))
+
+        def cb(stage, done, total):
+            prog.update(task, description=stage, completed=done if stage == "resection" else n_images)
+
+        reports = run_steps(mem, calibration_steps(obs, opt, progress=cb))
+    failed = [r for r in reports if not r.ok]
+    if failed:
+        Console(stderr=True, soft_wrap=True).print(f"[bold red]calibration failed[/] in step {failed[0].name!r}: {failed[0].error}; "
+                                                   f"nothing was written to {output}", highlight=False)
+        return None
     keys = flush(mem, FolderProject(output))
-    _summary(console, run, output, keys, summary)
-    return run
+    _summary(console, mem.read_json("calibration.json"), output, keys)
+    return reports
 
 
-def _summary(console, run, output, keys, summary) -> None:
+def _summary(console, cal: dict, output, keys) -> None:
+    """One screen: parameters with σ and t-test, σx σy, warnings, rejected images, files written."""
     from rich.table import Table
 
-    from ..calibration import _model
-
-    r = run.result
-    n_img = len(r.images)
-    console.print(f"[bold]calibration[/] {r.outcome.termination.value}: {len(r.images_used)}/{n_img} images used, "
-                  f"RMS {r.rms_px:.3f} px, σ0 {r.sigma0:.3f}, redundancy {r.dof}", highlight=False)
-    for cc in r.cameras:
-        t = Table(title=f"{cc.name} {cc.image_size[0]}x{cc.image_size[1]}, pitch {cc.pixel_pitch_um[0]:g} µm"
-                  + (" (assumed)" if run.meta.get("pixel_pitch_assumed") else ""), show_edge=False)
+    n_img = len(cal["per_image"])
+    console.print(f"[bold]calibration[/] {cal['termination']}: {len(cal['images_used'])}/{n_img} images used, "
+                  f"RMS {cal['rms_px']:.3f} px, σ0 {cal['sigma0']:.3f}, redundancy {cal['dof']}", highlight=False)
+    assumed = cal["run"].get("pixel_pitch_assumed")
+    for cam in cal["cameras"]:
+        w, h = cam["image_size"]
+        t = Table(title=f"{cam['name']} {w}x{h}, pitch {cam['pixel_pitch_um'][0]:g} µm" + (" (assumed)" if assumed else ""),
+                  show_edge=False)
         for col in ("parameter", "value", "std", "unit", "t", "signif."):
             t.add_column(col, justify="right")
-        tests = {x.name: x for x in cc.tests}
-        for i, n in enumerate(_model.PARAM_NAMES):
-            if cc.free[i]:
-                x = tests.get(n)
-                t.add_row(n, f"{cc.params[i]:.6g}", f"{cc.std[i]:.2g}", _model.PARAM_UNITS[i],
-                          "" if x is None else f"{x.t:.1f}", "" if x is None else ("yes" if x.significant else "no"))
+        for n, p in cam["parameters"].items():
+            if p["estimated"]:
+                t.add_row(n, f"{p['value']:.6g}", f"{p['std']:.2g}", p["unit"], "" if "t" not in p else f"{p['t']:.1f}",
+                          "" if "significant" not in p else ("yes" if p["significant"] else "no"))
         console.print(t)
-        sx, sy = cc.sigma_xy_px
-        ux, uy = cc.sigma_xy_um
-        console.print(f"σx {sx:.3f} px ({ux:.2f} µm), σy {sy:.3f} px ({uy:.2f} µm)", highlight=False)
-        for a, b, rho in cc.correlation_warnings:
-            console.print(f"[yellow]warning:[/] |ρ({a}, {b})| = {abs(rho):.3f} > 0.9", highlight=False)
-    rej = r.images_rejected
+        console.print(f"σx {cam['sigma_x_px']:.3f} px ({cam['sigma_x_um']:.2f} µm), σy {cam['sigma_y_px']:.3f} px "
+                      f"({cam['sigma_y_um']:.2f} µm)", highlight=False)
+        for wv in cam["correlation_warnings"]:
+            console.print(f"[yellow]warning:[/] |ρ({wv['a']}, {wv['b']})| = {abs(wv['rho']):.3f} > 0.9", highlight=False)
+    rej = cal["images_rejected"]
     if rej:
         console.print(f"[yellow]{len(rej)} image(s) rejected[/]:", highlight=False)
         for k, (nm, why) in enumerate(rej.items()):
@@ -280,9 +282,9 @@ def _summary(console, run, output, keys, summary) -> None:
                 console.print(f"  ... and {len(rej) - 5} more (see calibration.json)")
                 break
             console.print(f"  {nm}: {why}", highlight=False)
-    if r.blunders:
-        console.print(f"{len(r.blunders)} observation(s) rejected as blunders ({r.snooping_test})", highlight=False)
-    for cam, info in summary["exports"].items():
+    if cal["blunders"]:
+        console.print(f"{len(cal['blunders'])} observation(s) rejected as blunders ({cal['blunder_test']})", highlight=False)
+    for info in cal.get("exports", {}).values():
         o = info.get("opencv", {})
         if o.get("max_residual_px") is not None:
             console.print(f"OpenCV/COLMAP export: conversion max residual {o['max_residual_px']:.3f} px", highlight=False)
