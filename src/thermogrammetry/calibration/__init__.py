@@ -7,6 +7,10 @@ Public entry points (imported lazily so that ``import thermogrammetry.calibratio
   :mod:`thermogrammetry.calibration.selfcal`;
 - :func:`parse_control_csv` / :func:`parse_measurements_csv` — the 3D test-field CSV formats, in
   :mod:`thermogrammetry.calibration.testfield_csv`;
+- :func:`prepare_testfield` / :func:`prepare_detections` (checks and inputs) and
+  :func:`calibrate_testfield` / :func:`calibrate_detections`, in :mod:`thermogrammetry.calibration.workflow`;
+- :func:`calibration_steps` — the calibrate workflow as pipeline steps, in
+  :mod:`thermogrammetry.calibration.pipeline`;
 - :func:`write_outputs` — camera.json, calibration.json, report.html and exports into a project
   store, in :mod:`thermogrammetry.calibration.outputs`;
 - target detection (``detect*.py``) is written by the detection engineer.
@@ -26,6 +30,12 @@ _LAZY = {
     "read_control_csv": "testfield_csv",
     "read_measurements_csv": "testfield_csv",
     "write_outputs": "outputs",
+    "prepare_testfield": "workflow",
+    "prepare_detections": "workflow",
+    "calibrate_testfield": "workflow",
+    "calibrate_detections": "workflow",
+    "calibration_steps": "pipeline",
+    "observations_dict": "pipeline",
 }
 
 __all__ = sorted(_LAZY)
