@@ -12,6 +12,7 @@ targets    calibration targets (circle grids, chessboards) rendered by supersamp
 surfaces   radiometrically exact rendering of a flat surface (temperature, emissivity, angle).
 terrain    DSM with buildings, temperature and emissivity fields, heightfield ray casting.
 survey     UAV survey: flight lines, thermal frames / video, GNSS, GCPs, ground truth in a project.
+facade     facade mesh (OBJ) with a temperature field, thermal + RGB cameras on a rig.
 """
 
 from __future__ import annotations
@@ -40,6 +41,10 @@ _LAZY = {
     "make_terrain": "terrain",
     "SurveyConfig": "survey",
     "make_survey": "survey",
+    "write_survey": "survey",
+    "FacadeConfig": "facade",
+    "make_facade": "facade",
+    "write_facade": "facade",
 }
 
 __all__ = sorted(_LAZY)
