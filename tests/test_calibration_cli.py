@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -224,8 +223,7 @@ def test_cli_chessboard_route_on_synthetic_views(tmp_path, capsys):
     sq = 0.1
     d = tmp_path / "views"
     d.mkdir()
-    board = np.zeros((7 * 40, 8 * 40), np.uint8)  # 8x7 squares -> 7x6 inner? use 7x6 squares -> 6x5 inner corners
-    board = np.zeros((6 * 40, 7 * 40), np.uint8)
+    board = np.zeros((6 * 40, 7 * 40), np.uint8)  # 7x6 squares -> 6x5 inner corners
     for r in range(6):
         for c in range(7):
             if (r + c) % 2 == 0:

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-import pytest
 
 from conftest import data_path
+
 from thermogrammetry.calibration.selfcal import CameraSetup, ImageMeasurements, SelfCalibrationOptions, calibrate
 
 

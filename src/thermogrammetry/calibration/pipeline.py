@@ -15,7 +15,6 @@ Two steps share nothing in memory (``thermogrammetry.pipeline``):
 
 from __future__ import annotations
 
-from dataclasses import asdict
 from typing import Any, Sequence
 
 import numpy as np

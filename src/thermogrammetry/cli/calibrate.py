@@ -15,7 +15,6 @@ it was. Bad input exits with status 2 and a message naming the file (and row).
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 from typing import List, Optional
 
