@@ -63,6 +63,7 @@ class FacadeConfig:
     rgb_size: tuple[int, int] = (960, 640)
     rgb_focal_px: float = 900.0
     rig_baseline_m: float = 0.08
+    plaster_emissivity: float = 0.93  # normal emissivity of the wall; 0.9600 = pure Fresnel with n = 1.5
     sky_k: float = 250.0
     air_k: float = 278.15
     relative_humidity: float = 0.7
@@ -246,6 +247,8 @@ def render_facade_thermal(scene: FacadeScene, station: int, *, sensor: bool = Tr
     theta = np.arccos(cos_t)
     eps = np.ones(len(d))
     for m, (en, n_idx) in _MATERIALS.items():
+        if m in ("plaster", "reveal"):
+            en = c.plaster_emissivity
         sel = mat == m
         if np.any(sel):
             f = fresnel_emissivity(theta[sel], n_idx)
