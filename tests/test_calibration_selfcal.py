@@ -283,3 +283,27 @@ def test_weighted_control_points(field):
     err_after = np.sqrt(np.mean((r.solution.points - T.points) ** 2))
     assert err_after < 0.98 * err_before, (err_after, err_before)
     assert err_after > 0.5 * err_before  # and not implausibly better
+
+
+def test_engine_stopping_early_is_caught(field):
+    """If the engine stops away from a minimum (here: 2 iterations from a perturbed start), the
+    Gauss-Newton check finds it and the dense LM finishes; the outcome says so."""
+    from thermogrammetry.calibration.bundle import BundleProblem, CameraBlock, solve_bundle
+
+    T = field.truth
+    free = np.zeros(12, bool)
+    free[[_model.PARAM_NAMES.index(n) for n in STAGE2]] = True
+    p0 = T.params.copy()
+    p0[0] += 0.3  # 0.3 mm off in c: ~8 σ
+    cb = CameraBlock(p0, free, T.image_size, (0.025, 0.025))
+    prob = BundleProblem([cb], T.R.copy(), T.t.copy(), T.points, np.zeros(field.obs_image.size, int), field.obs_image,
+                         field.obs_point, field.xy_px, np.ones_like(field.xy_px))
+    early = solve_bundle(prob, max_iterations=2, engine="adjustment")
+    full = solve_bundle(prob, engine="dense")
+    assert early.outcome.success
+    assert "continued with the dense LM" in early.outcome.reason
+    assert early.layout["gn_step_sigma_at_engine_solution"] > 1e-3
+    assert abs(early.cameras[0].params[0] - full.cameras[0].params[0]) < 1e-3 * full.camera_std[0][0]
+    # and a converged engine run passes the check without the dense LM
+    done = solve_bundle(prob, engine="adjustment")
+    assert done.layout["engine"] == "adjustment" and done.layout["gn_step_sigma_at_engine_solution"] < 1e-3
