@@ -310,3 +310,16 @@ def test_cli_circle_grid_route_recovers_distorted_camera(tmp_path, capsys):
     assert abs(p["K1"]["value"] + 8e-3) < max(4 * p["K1"]["std"], 4e-4)
     assert cal["sigma_x_px"] < 0.05 and cal["sigma_y_px"] < 0.05
     assert cal["run"]["target"]["kind"] == "circles" and "detect_circle_grid" in cal["run"]["target"]["detector"]
+
+
+def test_cli_failed_adjustment_writes_nothing(csv_files, tmp_path, capsys):
+    """Valid files, but every image has too few points: the adjustment fails as a value, the CLI
+    reports the step and the reasons, exits 1, and OUT is not created."""
+    bad = tmp_path / "few.csv"
+    bad.write_text("image,id,x,y\nimg1,T01,100,100\nimg1,T02,120,100\nimg2,T03,50,60\n")
+    out = tmp_path / "OUT"
+    rc, err = _run_bad(["calibrate", "--control", str(csv_files / "control.csv"), "--measurements", str(bad),
+                        "--image-size", "320x240", "--pixel-pitch-um", "25", "--focal-mm", "18", "-o", str(out)], capsys)
+    assert rc == 1
+    assert "calibration failed in step 'selfcal'" in err and "img1: only 2 measured points" in err
+    assert not out.exists()

@@ -85,7 +85,8 @@ def _camera_block(cc: CameraCalibration) -> dict[str, Any]:
         "sigma_y_um": _f(cc.sigma_xy_um[1]),
         "rms_px": _f(cc.rms_px),
         "n_observations": cc.n_observations,
-        "significance_test": {"alpha": None if not cc.tests else None, "critical_t": _f(cc.tests[0].critical) if cc.tests else None},
+        "significance_test": {"test": "two-sided Student t, H0: parameter = 0",
+                              "critical_t": _f(cc.tests[0].critical) if cc.tests else None},
         "correlation_warnings": [{"a": a, "b": b, "rho": _f(r)} for a, b, r in cc.correlation_warnings],
         "correlation": {"names": names, "matrix": [[_f(x) for x in row] for row in rho]},
     }
