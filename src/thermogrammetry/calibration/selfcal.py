@@ -268,7 +268,8 @@ class ImageVerdict:
     rms_px: float = float("nan")
     R: np.ndarray | None = None  # cam_from_world
     t: np.ndarray | None = None
-    pose_std: np.ndarray | None = None  # (6,) rotation (rad), translation (m)
+    pose_std: np.ndarray | None = None  # (6,) rotation increment (rad) and position (m): the projection
+    # centre with the engine (its convention), the translation t with the dense LM
 
 
 @dataclass
