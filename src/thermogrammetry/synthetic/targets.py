@@ -43,6 +43,7 @@ from .sensor import SensorEffects, apply_sensor_effects
 __all__ = [
     "CircleGridTarget",
     "ChessboardTarget",
+    "CodedCheckerboardTarget",
     "TargetTemperatures",
     "RenderedTarget",
     "render_target_image",
@@ -204,6 +205,128 @@ class ChessboardTarget:
 
     def outline_points(self, n: int = 4) -> np.ndarray:
         """Inner corners and their neighbours half a square away (visibility check)."""
+        c = self.object_points()
+        h = 0.5 * self.square_m
+        d = np.array([[h, 0, 0], [-h, 0, 0], [0, h, 0], [0, -h, 0]], dtype=np.float64)
+        return (c[:, None, :] + d[None]).reshape(-1, 3)
+
+
+@dataclass(frozen=True)
+class CodedCheckerboardTarget:
+    """Checkerboard with an ArUco marker on its central corner (MRT coded target, Schramm et al. 2021).
+
+    Same layout as :class:`thermogrammetry.calibration.detect_common.CodedCheckerboardSpec` (metres
+    here): origin at the top-left inner corner, ``object_points()`` = all inner corners row-major
+    (including those hidden by the marker area; :meth:`valid_ids` lists the usable ones);
+    ``hidden_squares``² squares around the central corner are blank (bright) and carry the marker of
+    side ``marker_m`` (black border + ``marker_bits``² bits of ``extendDictionary(dictionary_size,
+    marker_bits, seed 0)``, id ``marker_id``). ``top_left_square`` is the colour of the square diagonally
+    outside corner 0. *Bright* parts (light squares, blank area, white bits, border) take the
+    ``feature_k`` temperature, *dark* parts (dark squares, black marker cells) ``board_k`` — the board
+    as a heated print whose dark ink absorbs less (swap the temperatures for the opposite polarity).
+    Every edge is analytic, so corners are exact.
+    """
+
+    inner_columns: int = 11
+    inner_rows: int = 9
+    square_m: float = 0.0505
+    marker_m: float = 0.1615
+    hidden_squares: int = 4
+    marker_bits: int = 3
+    marker_id: int = 0
+    dictionary_size: int = 1
+    top_left_square: str = "dark"
+    margin_m: float | None = None
+
+    def __post_init__(self):
+        for n in ("inner_columns", "inner_rows"):
+            v = _pos_int(getattr(self, n), f"CodedCheckerboardTarget.{n}")
+            if v % 2 == 0:
+                raise ConfigError(f"CodedCheckerboardTarget.{n}={v}: expected an odd number (the marker sits on the central corner)")
+        object.__setattr__(self, "square_m", _pos_float(self.square_m, "CodedCheckerboardTarget.square_m"))
+        object.__setattr__(self, "marker_m", _pos_float(self.marker_m, "CodedCheckerboardTarget.marker_m"))
+        if self.marker_m > self.hidden_squares * self.square_m:
+            raise ConfigError(f"CodedCheckerboardTarget.marker_m={self.marker_m}: larger than the blank area "
+                              f"({self.hidden_squares} x {self.square_m} m)")
+        if self.top_left_square not in ("dark", "bright"):
+            raise ConfigError(f"CodedCheckerboardTarget.top_left_square={self.top_left_square!r}: expected 'dark' or 'bright'")
+        m = self.square_m if self.margin_m is None else _pos_float(self.margin_m, "CodedCheckerboardTarget.margin_m")
+        object.__setattr__(self, "margin_m", m)
+
+    @property
+    def pattern_size(self) -> tuple[int, int]:
+        return (self.inner_columns, self.inner_rows)
+
+    @property
+    def centre(self) -> np.ndarray:
+        return np.array([(self.inner_columns - 1) / 2 * self.square_m, (self.inner_rows - 1) / 2 * self.square_m])
+
+    def object_points(self) -> np.ndarray:
+        i, j = np.meshgrid(np.arange(self.inner_rows), np.arange(self.inner_columns), indexing="ij")
+        s = self.square_m
+        return np.stack([j.ravel() * s, i.ravel() * s, np.zeros(i.size)], axis=1).astype(np.float64)
+
+    def _square_dark(self, a, b) -> np.ndarray:
+        """Square (a, b) = the square whose lower-right corner is inner corner (a, b) − 1 (a, b >= 0);
+        dark unless blanked by the marker area (blank squares count as bright)."""
+        s = self.square_m
+        xc = (np.asarray(a) - 0.5) * s
+        yc = (np.asarray(b) - 0.5) * s
+        half = self.hidden_squares / 2 * s
+        blank = (np.abs(xc - self.centre[0]) < half) & (np.abs(yc - self.centre[1]) < half)
+        dark = (np.mod(np.asarray(a) + np.asarray(b), 2) == 0) == (self.top_left_square == "dark")
+        return dark & ~blank
+
+    def valid_ids(self) -> np.ndarray:
+        """Corners that are true saddles (their four squares alternate once the blank area is bright),
+        the definition of ``CodedCheckerboardSpec.valid_ids``."""
+        r, c = np.mgrid[0:self.inner_rows, 0:self.inner_columns]
+        r, c = r.ravel(), c.ravel()
+        tl, tr = self._square_dark(c, r), self._square_dark(c + 1, r)
+        bl, br = self._square_dark(c, r + 1), self._square_dark(c + 1, r + 1)
+        return np.flatnonzero((tl == br) & (tr == bl) & (tl != tr))
+
+    def marker_bits_matrix(self) -> np.ndarray:
+        """(bits+2, bits+2) uint8, 1 = white cell, including the black border."""
+        import cv2
+
+        d = cv2.aruco.extendDictionary(int(self.dictionary_size), int(self.marker_bits), cv2.aruco.Dictionary(), 0)
+        n = self.marker_bits + 2
+        img = cv2.aruco.generateImageMarker(d, int(self.marker_id), n, borderBits=1)
+        return (img > 127).astype(np.uint8)
+
+    def extent(self) -> tuple[float, float, float, float]:
+        s, m = self.square_m, self.margin_m
+        return (-s - m, self.inner_columns * s + m, -s - m, self.inner_rows * s + m)
+
+    def classify(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """FEATURE = bright, BOARD = dark, SURROUND outside the board (see the class docstring)."""
+        s = self.square_m
+        xmin, xmax, ymin, ymax = self.extent()
+        lab = np.where((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax), FEATURE, SURROUND).astype(np.int8)
+        with np.errstate(invalid="ignore"):
+            a = np.floor(x / s) + 1
+            b = np.floor(y / s) + 1
+            squares = (a >= 0) & (a <= self.inner_columns) & (b >= 0) & (b <= self.inner_rows)
+            tl_dark = self.top_left_square == "dark"
+            dark = squares & ((np.mod(a + b, 2) == 0) == tl_dark)
+            cx, cy = self.centre
+            half = self.hidden_squares / 2 * s
+            blank = (np.abs(x - cx) < half) & (np.abs(y - cy) < half)
+            dark &= ~blank
+            bits = self.marker_bits_matrix()
+            n = bits.shape[0]
+            cell = self.marker_m / n
+            u = np.floor((x - (cx - self.marker_m / 2)) / cell)
+            v = np.floor((y - (cy - self.marker_m / 2)) / cell)
+            inm = (u >= 0) & (u < n) & (v >= 0) & (v < n)
+            ui = np.where(inm, u, 0).astype(np.intp)
+            vi = np.where(inm, v, 0).astype(np.intp)
+            dark |= inm & (bits[vi, ui] == 0)
+        lab[dark & np.isfinite(x)] = BOARD
+        return lab
+
+    def outline_points(self, n: int = 4) -> np.ndarray:
         c = self.object_points()
         h = 0.5 * self.square_m
         d = np.array([[h, 0, 0], [-h, 0, 0], [0, h, 0], [0, -h, 0]], dtype=np.float64)
@@ -375,4 +498,8 @@ def render_target_image(
     with np.errstate(invalid="ignore"):
         inside = rim_front & (rim_xy[:, 0] >= -0.5) & (rim_xy[:, 0] <= w - 0.5) & (rim_xy[:, 1] >= -0.5) & (rim_xy[:, 1] <= h - 0.5)
     visible = front & inside.reshape(len(pts), -1).all(axis=1)
+    if hasattr(target, "valid_ids"):
+        usable = np.zeros(len(pts), dtype=bool)
+        usable[target.valid_ids()] = True
+        visible &= usable
     return RenderedTarget(image, xy, pts, visible, camera, pose, target, signal)
