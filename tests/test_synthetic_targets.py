@@ -205,3 +205,15 @@ def test_coded_checkerboard_matches_detector_spec_and_is_detected():
     err = np.linalg.norm(np.asarray(d.points_px) - r.points_px[ids], axis=1)
     # saddle refinement on ~20 px squares with 0.6 px PSF and barrel distortion: measured RMS 0.10 px
     assert np.sqrt(np.mean(err**2)) < 0.2 and err.max() < 0.4
+
+
+def test_ray_cache_distinguishes_cameras_that_print_alike():
+    """Cameras whose repr is identical (params differing beyond the printed digits) get their own rays."""
+    from thermogrammetry.synthetic._render import iter_sample_rays
+
+    a = tg.Camera("opencv", (8, 6), dict(fx=10, fy=10, cx=3.5, cy=2.5, k1=0.1))
+    b = tg.Camera("opencv", (8, 6), dict(fx=10.0000001, fy=10, cx=3.5, cy=2.5, k1=0.1))
+    ra = np.concatenate([r for _, r in iter_sample_rays(a, 2)])
+    rb = np.concatenate([r for _, r in iter_sample_rays(b, 2)])
+    # x/fx changes by ~1e-8 relative: rays at x ~ -0.4 differ by ~4e-9
+    assert np.abs(ra - rb).max() > 1e-9

@@ -26,6 +26,14 @@ def as_pose(pose):
     return Pose(np.asarray(R, float), np.asarray(t, float))
 
 
+def camera_key(camera) -> tuple:
+    """Exact identity of a camera model for caches: model, size, parameter bytes, pixel pitch."""
+    params = getattr(camera, "params", None)
+    pb = np.asarray(params, dtype=np.float64).tobytes() if params is not None else repr(camera).encode()
+    return (str(getattr(camera, "model", type(camera).__name__)), camera_size(camera), pb,
+            repr(getattr(camera, "pixel_pitch_um", None)))
+
+
 def camera_size(camera) -> tuple[int, int]:
     w, h = camera.image_size
     return int(w), int(h)
@@ -47,7 +55,7 @@ def iter_sample_rays(camera, supersample: int, *, max_samples: int = 2_000_000) 
     distortion is exactly the model's). OpenCV pixel origin: pixel (col, row) covers [col ± 0.5] × [row ± 0.5].
     """
     w, h = camera_size(camera)
-    key = (repr(camera), w, h, int(supersample))
+    key = (camera_key(camera), int(supersample))
     cached = _RAY_CACHE.get(key)
     if cached is not None:
         for r0, r1, rays in cached:
@@ -89,7 +97,7 @@ _LATTICE_CACHE: dict = {}
 
 def _lattice(camera):
     """Exact rays at pixel centres on the grid x = −1..w, y = −1..h (one pixel beyond the border)."""
-    key = (repr(camera), camera_size(camera))
+    key = camera_key(camera)
     hit = _LATTICE_CACHE.get(key)
     if hit is not None:
         return hit
