@@ -215,7 +215,7 @@ class BALSolverOptions:
     min_lm_diagonal: float = 1e-6
     max_lm_diagonal: float = 1e32
     num_threads: int = 2
-    max_pairs_per_chunk: int = 12000
+    max_pairs_per_chunk: int = 6000
 
     def __post_init__(self):
         from thermogrammetry.errors import ConfigError
@@ -306,8 +306,8 @@ class _Structure:
         J = pperm[J]
         key = ci[I] * ncam + ci[J]
         korder = np.lexsort((I, key))
-        self.I = I[korder]
-        self.J = J[korder]
+        self.I = I[korder].astype(np.int32 if M < 2**31 else np.int64)
+        self.J = J[korder].astype(self.I.dtype)
         key = key[korder]
         del I, J, korder
         ukeys, kstart = np.unique(key, return_index=True)
@@ -326,7 +326,13 @@ class _Structure:
                 e += 1
             ps = int(kstart[s])
             chunks.append(
-                (ps, int(kstart[e]), [(int(kstart[k]) - ps, int(kstart[k + 1]) - ps, int(kc1[k]), int(kc2[k])) for k in range(s, e)])
+                (
+                    ps,
+                    int(kstart[e]),
+                    [(int(kstart[k]) - ps, int(kstart[k + 1]) - ps) for k in range(s, e)],
+                    kc1[s:e].copy(),
+                    kc2[s:e].copy(),
+                )
             )
             s = e
         self.chunks = chunks
@@ -436,15 +442,20 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
     need_jac = True
     nc9 = 9 * ncam
     diag3 = ([0, 1, 2], [0, 1, 2])
+    # work buffers reused across iterations (steady memory, no allocator churn)
+    Jc_buf = np.empty((M, 2, 9))
+    Jp_buf = np.empty((M, 2, 3))
+    WT = np.empty((M, 3, 9))
+    YT = np.empty((M, 3, 9))
 
     while True:
         tt = time.perf_counter()
         if need_jac:
-            WT = V = gp = None  # release the previous linearisation before building the next
+            V = gp = None  # release the previous linearisation before building the next
             Q, (r, A, Jk) = residuals(R, t, intr, X, True)
             tt = _tick("jac_eval", tt)
             # camera Jacobian (M, 2, 9): [d/dw (left perturbation), d/dt, d/d(f,k1,k2)]
-            Jc = np.empty((M, 2, 9))
+            Jc = Jc_buf
             q0, q1, q2 = Q[:, 0:1], Q[:, 1:2], Q[:, 2:3]
             a0, a1, a2 = A[:, :, 0], A[:, :, 1], A[:, :, 2]
             Jc[:, :, 0] = q1 * a2 - q2 * a1  # -A [Q]x, row-wise cross(Q, A_a)
@@ -453,7 +464,7 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
             Jc[:, :, 3:6] = A
             Jc[:, :, 6:9] = Jk
             del Jk, Q
-            Jp = np.empty((M, 2, 3))
+            Jp = Jp_buf
             for c in cams_used:
                 s_, e_ = cb[c], cb[c + 1]
                 np.matmul(A[s_:e_].reshape(-1, 3), R[c], out=Jp[s_:e_].reshape(-1, 3))
@@ -474,7 +485,7 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
             JpT = Jp.transpose(0, 2, 1)
             V = np.asarray(Pm @ np.einsum("mai,maj->mij", Jp, Jp).reshape(M, 9)).reshape(nseen, 3, 3)
             gp = np.asarray(Pm @ np.einsum("mka,mk->ma", Jp, r))
-            WT = JpT @ Jc  # (M, 3, 9) = (Jc^T Jp)^T per observation
+            np.matmul(JpT, Jc, out=WT)  # (M, 3, 9) = (Jc^T Jp)^T per observation
             del Jc, Jcf, Jp, JpT
             gmax = max(float(np.max(np.abs(gc))), float(np.max(np.abs(gp))) if nseen else 0.0)
             if gmax <= opt.gradient_tolerance:
@@ -492,7 +503,7 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
         Vd = V.copy()
         Vd[:, diag3[0], diag3[1]] += lam * dV
         Vinv, okv = _sym3_inv(Vd)
-        YT = np.empty_like(WT)  # (M, 3, 9): V^-1 W^T per observation, built in slabs
+        # YT (M, 3, 9): V^-1 W^T per observation, built in slabs into the work buffer
         for s_ in range(0, M, 16384):
             np.matmul(np.take(Vinv, slot[s_ : s_ + 16384], axis=0), WT[s_ : s_ + 16384], out=YT[s_ : s_ + 16384])
         YTf = YT.reshape(M, 27)
@@ -507,25 +518,33 @@ def _solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
             Sm[9 * c : 9 * c + 9, 9 * c : 9 * c + 9] = blk
 
         def do_chunk(ch):
-            ps, pe, keys = ch
+            ps, pe, keys, kc1, kc2 = ch
             Yg = np.take(YTf, st.I[ps:pe], axis=0)
             Wg = np.take(WTf, st.J[ps:pe], axis=0)
             # sum over shared points of W_i V^-1 W_j^T = sum (V^-1 W_i^T)^T W_j^T
-            return [(c1, c2, Yg[a:b].reshape(-1, 9).T @ Wg[a:b].reshape(-1, 9)) for a, b, c1, c2 in keys]
+            blocks = np.empty((len(keys), 9, 9))
+            for k, (a, b) in enumerate(keys):
+                np.matmul(Yg[a:b].reshape(-1, 9).T, Wg[a:b].reshape(-1, 9), out=blocks[k])
+            return kc1, kc2, blocks
 
         if pool is not None and len(st.chunks) > 1:
             results = pool.map(do_chunk, st.chunks)
         else:
             results = map(do_chunk, st.chunks)
-        for blocks in results:
-            for c1, c2, blk in blocks:
-                Sm[9 * c1 : 9 * c1 + 9, 9 * c2 : 9 * c2 + 9] -= blk
-                Sm[9 * c2 : 9 * c2 + 9, 9 * c1 : 9 * c1 + 9] -= blk.T
+        S4 = Sm.reshape(ncam, 9, ncam, 9)
+        for kc1, kc2, blocks in results:
+            # every camera pair (c1 < c2) occurs in exactly one chunk: plain assignment
+            off = kc1 != kc2
+            S4[kc1[off], :, kc2[off], :] = -blocks[off]
+            S4[kc2[off], :, kc1[off], :] = -blocks[off].transpose(0, 2, 1)
+            for k in np.nonzero(~off)[0]:  # the same camera twice on one point (duplicates)
+                c = kc1[k]
+                Sm[9 * c : 9 * c + 9, 9 * c : 9 * c + 9] -= blocks[k] + blocks[k].T
         Sm[np.arange(nc9), np.arange(nc9)] += lam * dU.reshape(-1)
         tt = _tick("S", tt)
         # rhs: -g_c + sum_obs (V^-1 W^T)^T g_p
         y = np.einsum("mkc,mk->mc", YT, np.take(gp, slot, axis=0))
-        del YT, YTf
+        del YTf
         yb = np.zeros((ncam, 9))
         for c in cams_used:
             yb[c] = y[cb[c] : cb[c + 1]].sum(axis=0)
