@@ -201,6 +201,22 @@ def test_thermal_video_is_lossless_16bit_with_timestamps():
     assert [r["image"] for r in rows] == [f.name for f in sc.frames]
 
 
+def test_tie_points_are_exact_and_seen_at_least_twice(scene):
+    from thermogrammetry.synthetic.survey import tie_points
+
+    pts, obs = tie_points(scene, 200)
+    assert len(pts) > 50
+    names = [o[1] for o in obs]
+    assert min(names.count(n) for n in pts) >= 2
+    poses = {f.name: f.pose for f in scene.frames}
+    for im, nm, x, y in obs[::7]:
+        xy = scene.camera.project(poses[im].transform(pts[nm][None]))[0]
+        assert np.allclose(xy, [x, y], atol=1e-9)
+    # the points lie on the DSM surface
+    P = scene.terrain.to_local(np.array(list(pts.values())))
+    assert np.abs(P[:, 2] - scene.terrain.height_at(P[:, 0], P[:, 1])).max() < 1e-9
+
+
 def test_bad_survey_configuration():
     with pytest.raises(ConfigError, match="unknown"):
         SurveyConfig.from_dict({"flight_hieght_m": 10})

@@ -31,6 +31,7 @@ Files written by :func:`write_survey` under ``prefix`` (default ``survey``):
 ``truth/temperature.tif``         true surface temperature (float32 K), texture grid
 ``truth/emissivity.tif``          normal emissivity (float32), texture grid
 ``truth/points.csv``              all markers with type (gcp/check)
+``truth/tie_points.csv``          optional: random surface points + ``truth/tie_observations.csv`` (exact)
 ``scene.json``                    configuration, CRS, origin, materials, counts, frame list
 ================================  ================================================================
 
@@ -57,7 +58,10 @@ from .radiance import FlirCurve, fresnel_emissivity
 from .sensor import SensorEffects, apply_sensor_effects
 from .terrain import HeightfieldCaster, Terrain, TerrainConfig, add_square_markers, make_terrain
 
-__all__ = ["SurveyConfig", "SurveyScene", "FramePlan", "make_survey", "render_frame", "render_frames", "write_survey"]
+__all__ = [
+    "SurveyConfig", "SurveyScene", "FramePlan", "make_survey", "render_frame", "render_frames", "write_survey",
+    "marker_observations", "tie_points",
+]
 
 
 @dataclass(frozen=True)
@@ -454,17 +458,47 @@ def render_frames(scene: SurveyScene, indices=None, *, threads: int = 2, on_fram
             yield i, img
 
 
+def tie_points(scene: SurveyScene, n: int, *, seed: int = 0, min_views: int = 2) -> tuple[dict[str, np.ndarray], list]:
+    """Random surface points (true 3D, CRS coordinates) and their exact, unoccluded image observations.
+
+    Points are drawn uniformly over the terrain (away from the border by 2 m); those seen in fewer than
+    ``min_views`` frames are dropped. Returns ``({name: (3,)}, [(image, name, x_px, y_px), ...])`` --
+    the correspondences a feature matcher would ideally find, for testing orientation without matching.
+    """
+    ter = scene.terrain
+    rng = np.random.default_rng([scene.config.seed, 0x71E, int(seed)])
+    xy = np.c_[rng.uniform(2.0, ter.width_m - 2.0, n), rng.uniform(2.0, ter.height_m - 2.0, n)]
+    P = ter.to_world(np.c_[xy, ter.height_at(xy[:, 0], xy[:, 1])])
+    names = [f"TP{i:05d}" for i in range(n)]
+    obs = _observations(scene, names, P)
+    count: dict[str, int] = {}
+    for _, nm, _, _ in obs:
+        count[nm] = count.get(nm, 0) + 1
+    keep = {nm for nm, c in count.items() if c >= min_views}
+    pts = {nm: P[i] for i, nm in enumerate(names) if nm in keep}
+    return pts, [o for o in obs if o[1] in keep]
+
+
 def marker_observations(scene: SurveyScene) -> list[tuple[str, str, float, float]]:
     """(image, marker, x_px, y_px) for every marker visible (inside the image, not occluded) in every frame."""
     names = list(scene.gcps) + list(scene.checks)
     if not names:
         return []
     P = np.array([scene.gcps.get(k, scene.checks.get(k)) for k in names])
+    return _observations(scene, names, P)
+
+
+def _observations(scene: SurveyScene, names: list, P: np.ndarray) -> list[tuple[str, str, float, float]]:
     w, h = scene.camera.image_size
+    K = scene.camera.K
+    fov_x = 1.3 * (w / 2 + abs(K[0, 2] - (w - 1) / 2)) / K[0, 0]
+    fov_y = 1.3 * (h / 2 + abs(K[1, 2] - (h - 1) / 2)) / K[1, 1]
     out = []
     for fr in scene.frames:
         pc = fr.pose.transform(P)
-        front = pc[:, 2] > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # inside 1.3x the field of view: a distortion polynomial can fold far-away points back in
+            front = (pc[:, 2] > 0) & (np.abs(pc[:, 0] / pc[:, 2]) < fov_x) & (np.abs(pc[:, 1] / pc[:, 2]) < fov_y)
         if not front.any():
             continue
         xy = np.full((len(P), 2), np.nan)
@@ -561,14 +595,16 @@ VIDEO_MAPPING = (0.01, 150.0)  # (scale K/code, offset K): codes 1..65535 cover 
 
 
 def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads: int = 2, write_jpeg: bool = False,
-                 on_frame: Callable | None = None, mode: str = "process", write_video: bool | None = None) -> dict:
+                 on_frame: Callable | None = None, mode: str = "process", write_video: bool | None = None,
+                 n_tie_points: int = 0) -> dict:
     """Render all frames and write images + ground truth through ``project`` (see module docstring).
 
     ``write_video`` (default: when ``config.video_fps`` is set) also writes ``video/thermal.mkv``: the
     frames in flight order as lossless 16-bit FFV1 (``gray16le``), presentation time = exposure time,
     temperature = ``code * 0.01 + 150.0`` K (container metadata ``THERMOGRAMMETRY_SCALE``,
     ``THERMOGRAMMETRY_OFFSET``, ``THERMOGRAMMETRY_UNIT``; code 0 = no data), and ``video/frames.csv``
-    (frame, pts, time_s, image).
+    (frame, pts, time_s, image). ``n_tie_points`` > 0 also writes ``truth/tie_points.csv`` and
+    ``truth/tie_observations.csv`` (:func:`tie_points`: exact correspondences of random surface points).
 
     Returns a small summary dict (counts, seconds spent rendering).
     """
@@ -626,6 +662,12 @@ def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads
     obs = marker_observations(scene)
     project.write_text(f"{p}gcp_observations.csv", _csv_text(["image", "name", "x_px", "y_px"],
                                                              [[a, b, f"{x:.4f}", f"{y:.4f}"] for a, b, x, y in obs]))
+    if n_tie_points:
+        tp, tobs = tie_points(scene, int(n_tie_points))
+        project.write_text(f"{p}truth/tie_points.csv", _csv_text(["name", "easting", "northing", "height"],
+                                                                 [[k, *(f"{c:.4f}" for c in v)] for k, v in tp.items()]))
+        project.write_text(f"{p}truth/tie_observations.csv", _csv_text(["image", "name", "x_px", "y_px"],
+                                                                       [[a, b, f"{x:.4f}", f"{y:.4f}"] for a, b, x, y in tobs]))
     project.write_text(f"{p}truth/points.csv", _csv_text(
         ["name", "type", "easting", "northing", "height"],
         [[k, "gcp", *(f"{c:.4f}" for c in v)] for k, v in scene.gcps.items()]
