@@ -1,0 +1,138 @@
+"""Benchmark: thermal target detection vs OpenCV's plain detectors on the real data sets.
+
+Prints, for each image set, how many views each method finds and the time per image:
+
+* thermal_chessboard (6x5 inner corners, 100 mm): masked ("Thermal images cropped") and unmasked
+  ("Thermal Images") views -- ours (:func:`detect_chessboard`) vs ``cv2.findChessboardCorners``
+  on the image as stored (OpenCV plain) and vs ``findChessboardCornersSB`` (EXHAUSTIVE|ACCURACY);
+* ir_coded_checkerboard (11x9 corners with an ArUco marker): ours
+  (:func:`detect_coded_checkerboard`) vs ``findChessboardCornersSB`` 5x5 and 7x7 on the image or
+  its inverse, as in the data set's SOURCE.md check.
+
+Writes nothing. Usage::
+
+    python benchmarks/detect_chessboard.py [--data ../shared/data] [--quick]
+
+``--quick`` skips the SB columns (the slow reference).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from thermogrammetry.calibration.detect import (
+    ChessboardSpec,
+    CodedCheckerboardSpec,
+    detect_chessboard,
+    detect_coded_checkerboard,
+)
+from thermogrammetry.calibration.detect_io import read_image
+
+ROOT = Path(__file__).resolve().parents[1]
+SB = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+
+
+def _timed(fn):
+    t0 = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t0
+
+
+def run_chessboard(folder: Path, quick: bool):
+    spec = ChessboardSpec(6, 5, 100.0)
+    files = sorted(folder.glob("*.jpg"))
+    stats = {"ours": [0, 0.0], "opencv plain": [0, 0.0], "opencv SB": [0, 0.0]}
+    missed = []
+    for f in files:
+        img = read_image(f)
+        gray = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        d, t = _timed(lambda: detect_chessboard(img, spec, f.stem))
+        stats["ours"][0] += d.found
+        stats["ours"][1] += t
+        if not d.found:
+            missed.append(f"{f.stem}: {d.reason}")
+        (ok, _), t = _timed(lambda: cv2.findChessboardCorners(gray, spec.pattern_size))
+        stats["opencv plain"][0] += bool(ok)
+        stats["opencv plain"][1] += t
+        if not quick:
+            (ok, _), t = _timed(lambda: cv2.findChessboardCornersSB(gray, spec.pattern_size, flags=SB))
+            stats["opencv SB"][0] += bool(ok)
+            stats["opencv SB"][1] += t
+    return len(files), stats, missed
+
+
+def run_coded(folder: Path, quick: bool):
+    spec = CodedCheckerboardSpec()
+    files = sorted(folder.glob("*.png"))
+    stats = {"ours": [0, 0.0], "opencv SB 5x5/7x7 (+inv)": [0, 0.0]}
+    n_corners = []
+    missed = []
+    for f in files:
+        img = read_image(f)
+        d, t = _timed(lambda: detect_coded_checkerboard(img, spec, f.stem))
+        stats["ours"][0] += d.found
+        stats["ours"][1] += t
+        n_corners.append(d.n_points)
+        if not d.found:
+            missed.append(f"{f.stem}: {d.reason}")
+        if not quick:
+            def sb():
+                for im in (img, 255 - img):
+                    for pat in ((5, 5), (7, 7)):
+                        if cv2.findChessboardCornersSB(im, pat, flags=SB)[0]:
+                            return True
+                return False
+
+            ok, t = _timed(sb)
+            stats["opencv SB 5x5/7x7 (+inv)"][0] += ok
+            stats["opencv SB 5x5/7x7 (+inv)"][1] += t
+    return len(files), stats, missed, np.array(n_corners)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", default=os.environ.get("THERMOGRAMMETRY_DATA", str(ROOT.parent / "shared" / "data")))
+    ap.add_argument("--quick", action="store_true", help="skip the slow OpenCV SB reference columns")
+    args = ap.parse_args(argv)
+    data = Path(args.data)
+    cb = data / "thermal_chessboard" / "Thermal camera calibration"
+    coded = data / "ir_coded_checkerboard" / "imageDataset"
+    if not cb.is_dir() and not coded.is_dir():
+        print(f"no data under {data}", file=sys.stderr)
+        return 1
+    print(f"{'image set':34s} {'method':26s} {'found':>9s} {'ms/image':>9s}")
+    print("-" * 82)
+    for label, sub in (("chessboard 6x5, masked", "Thermal images cropped"), ("chessboard 6x5, unmasked", "Thermal Images")):
+        if not (cb / sub).is_dir():
+            continue
+        n, stats, missed = run_chessboard(cb / sub, args.quick)
+        for m, (k, t) in stats.items():
+            if m == "opencv SB" and args.quick:
+                continue
+            print(f"{label:34s} {m:26s} {k:4d}/{n:<4d} {1000 * t / max(n, 1):9.1f}")
+        for line in missed:
+            print(f"    not found: {line}")
+    if coded.is_dir():
+        n, stats, missed, nc = run_coded(coded, args.quick)
+        for m, (k, t) in stats.items():
+            if m.startswith("opencv") and args.quick:
+                continue
+            print(f"{'coded checkerboard 11x9 + ArUco':34s} {m:26s} {k:4d}/{n:<4d} {1000 * t / max(n, 1):9.1f}")
+        found = nc[nc > 0]
+        if found.size:
+            print(f"    corners identified per found view: min {found.min()}, median {np.median(found):.0f}, "
+                  f"max {found.max()} (of {CodedCheckerboardSpec().valid_ids().size} usable)")
+        for line in missed:
+            print(f"    not found: {line}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
