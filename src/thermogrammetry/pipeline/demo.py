@@ -388,7 +388,7 @@ def _section_survey(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
     sec = "survey"
     t0 = time.perf_counter()
     scene = make_survey(_demo_survey_config(opt.seed))
-    summary = write_survey(project, scene, prefix="survey", threads=opt.threads, write_jpeg=True)
+    summary = write_survey(project, scene, prefix="survey", threads=opt.threads, write_jpeg=True, n_tie_points=400)
     t_make = time.perf_counter() - t0
     rows = [DemoRow(sec, f"scene + {summary['frames']} frames 320x256 rendered and written", t_make, None, "s", kind="info",
                     note=f"{summary['gcp']} GCP, {summary['check']} check points, {summary['marker_observations']} marker observations")]
