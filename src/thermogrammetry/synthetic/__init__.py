@@ -23,6 +23,7 @@ _LAZY = {
     # targets
     "CircleGridTarget": "targets",
     "ChessboardTarget": "targets",
+    "CodedCheckerboardTarget": "targets",
     "TargetTemperatures": "targets",
     "RenderedTarget": "targets",
     "render_target_image": "targets",
