@@ -149,7 +149,7 @@ class SurveyConfig:
         return Camera("opencv", (w, h), params, pixel_pitch_um=self.pixel_pitch_um, name="synthetic-thermal")
 
 
-@dataclass
+@dataclass(eq=False)
 class FramePlan:
     """One exposure: name, flight line, time, true pose (cam_from_world, world = CRS coordinates)."""
 
@@ -376,7 +376,8 @@ def render_frame(scene: SurveyScene, frame: FramePlan | int, *, with_truth: bool
     tau = atmospheric_transmission(dist / 2.0, cfg.air_k, cfg.relative_humidity) ** 2
     signal[hit] = tau * (eps * scene.curve.signal(temp) + (1 - eps) * sig_sky) + (1 - tau) * sig_air
     sig_img = signal.reshape(h, w, ss2).mean(axis=2)
-    rng = np.random.default_rng([cfg.seed, 0xF0, int(scene.frames.index(fr)) if fr in scene.frames else 0])
+    k = next((i for i, f in enumerate(scene.frames) if f is fr), 0)
+    rng = np.random.default_rng([cfg.seed, 0xF0, k])
     effects = cfg.sensor if sensor else SensorEffects()
     out = {"image_k": apply_sensor_effects(sig_img, scene.curve, effects, rng)}
     if with_truth:
