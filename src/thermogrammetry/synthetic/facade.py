@@ -229,7 +229,7 @@ def render_facade_thermal(scene: FacadeScene, station: int, *, sensor: bool = Tr
     cam = scene.thermal
     w, h = cam.image_size
     ss2 = c.supersample**2
-    d = _sample_rays(cam, c.supersample) @ pose.R
+    d = np.einsum("...i,ij->...j", _sample_rays(cam, c.supersample), pose.R)
     C = pose.center
     tri, t, pts, nrm = _cast_mesh(scene, C, d)
     hit = tri >= 0
@@ -278,7 +278,7 @@ def render_facade_rgb(scene: FacadeScene, station: int) -> np.ndarray:
     name, pose, _ = scene.stations[station]
     cam = scene.rgb
     w, h = cam.image_size
-    d = _sample_rays(cam, 1) @ pose.R
+    d = np.einsum("...i,ij->...j", _sample_rays(cam, 1), pose.R)
     tri, t, pts, nrm = _cast_mesh(scene, pose.center, d)
     mats = np.array(scene.face_material, dtype=object)
     hit = tri >= 0

@@ -87,7 +87,7 @@ class RenderedSurface:
 
 
 def _hit(rays_cam, pose, surface):
-    d = rays_cam @ pose.R  # world directions (R^T d)
+    d = np.einsum("...i,ij->...j", rays_cam, pose.R)  # world directions (R^T d)
     C = pose.center
     n = surface.normal
     dn = d @ n

@@ -351,7 +351,7 @@ def render_frame(scene: SurveyScene, frame: FramePlan | int, *, with_truth: bool
     rays = scene.rays_cam()
     R = fr.pose.R
     C = ter.to_local(fr.pose.center)
-    d = rays @ R
+    d = np.einsum("...i,ij->...j", rays, R)  # R^T d per ray; einsum avoids BLAS threads for (N,3)@(3,3)
     pts, hit = _cast(scene, C, d)
     n = len(d)
     sig_sky = float(scene.curve.signal(cfg.sky_k))

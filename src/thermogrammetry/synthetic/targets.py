@@ -432,7 +432,7 @@ def render_target_signal(camera, pose, target, temperatures=None, *, supersample
     out = np.empty((h, w), dtype=np.float64)
     R, C = pose.R, pose.center
     for rows, rays in iter_sample_rays(camera, supersample):
-        d = rays @ R  # world (target) directions: R^T d for each ray
+        d = np.einsum("...i,ij->...j", rays, R)  # world (target) directions: R^T d for each ray
         with np.errstate(divide="ignore", invalid="ignore"):
             lam = -C[2] / d[..., 2]
             ok = np.isfinite(lam) & (lam > 0) & np.all(np.isfinite(rays), axis=-1)
