@@ -282,7 +282,7 @@ def test_cli_circle_grid_route_recovers_distorted_camera(tmp_path, capsys):
     d.mkdir()
     centre = np.array([0.15, 0.075, 0.0])
     n = 0
-    while n < 4:
+    while n < 5:
         az, el = np.deg2rad(rng.uniform(-35, 35)), np.deg2rad(rng.uniform(-30, 30))
         C = centre + rng.uniform(0.7, 0.85) * np.array([np.sin(az) * np.cos(el), np.sin(el), -np.cos(az) * np.cos(el)])
         R, t = look_at_pose(C, centre + rng.normal(0, 0.02, 3), rng.choice([0, 90, 180, 270]) + rng.normal(0, 10), up=(0, -1, 0))
@@ -299,7 +299,10 @@ def test_cli_circle_grid_route_recovers_distorted_camera(tmp_path, capsys):
     text = capsys.readouterr()
     assert rc == 0, text.err + text.out
     cal = json.loads((out / "calibration.json").read_text())
-    assert len(cal["images_used"]) == 4
+    # the detector may miss an oblique 160x120 view; such an image gets a verdict, not a silent drop
+    assert len(cal["images_used"]) >= 4
+    assert len(cal["images_used"]) + len(cal["images_rejected"]) == 5
+    assert all(why.startswith("target not detected") for why in cal["images_rejected"].values())
     p = cal["parameters"]
     # Tolerances: the reported σ is tiny here (σ0 ~ 0.01 px from rendered centres), so a residual
     # detection bias of ~0.01 px can reach several σ; we allow 4 σ or an engineering bound
