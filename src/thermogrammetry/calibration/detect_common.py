@@ -36,9 +36,9 @@ __all__ = [
 # --------------------------------------------------------------------------------------------------
 # result type
 # --------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Detection:
-    """The verdict of one image.
+    """The verdict of one image (compared by identity: it holds arrays).
 
     Attributes
     ----------
