@@ -22,7 +22,7 @@ def demo(
     directory: Path = typer.Argument(Path("thermogrammetry-demo"), help="Output folder (created if missing)."),
     sections: Optional[str] = typer.Option(None, "--sections", help="Comma-separated section names to run (default: all)."),
     seed: int = typer.Option(0, "--seed", help="Seed offset of every synthetic scene."),
-    threads: int = typer.Option(2, "--threads", min=1, help="Threads for rendering."),
+    threads: int = typer.Option(2, "--threads", min=1, help="Parallel render workers (forked processes)."),
     list_sections: bool = typer.Option(False, "--list", help="List the sections and exit."),
 ) -> None:
     """Run the synthetic end-to-end demo and report achieved accuracy against the truth."""
