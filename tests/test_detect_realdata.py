@@ -108,14 +108,15 @@ def test_coded_checkerboard_found_and_identified(coded_detections):
     spec = CodedCheckerboardSpec()
     valid = set(spec.valid_ids().tolist())
     counts = np.array([d.n_points for d in dets if d.found])
-    assert np.median(counts) >= 50  # measured median 64 of 76 usable corners
+    assert np.median(counts) >= 50  # measured median 61.5 of 76 usable corners
     for d in dets:
         if d.found:
             assert set(d.object_ids.tolist()) <= valid
             assert np.all(np.diff(d.object_ids) > 0)
     rms, K, dist, _ = _calibrate(dets, spec, (382, 288))
-    # measured 0.37 px over ~3700 corners; one misidentified corner (50 mm off) would cost pixels
-    assert 0.15 < rms < 0.6
+    # measured 0.33 px over ~3580 corners (max residual 1.4 px); one misidentified corner (50 mm off)
+    # would cost pixels
+    assert 0.15 < rms < 0.5
     assert 330 < K[0, 0] < 420  # 382 px wide sensor, ~54 deg field of view
 
 

@@ -90,8 +90,10 @@ def _apply_h(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
 
 def _local_outliers(accepted: dict, obj: np.ndarray, cols: int, square_mm: float, tol_frac: float) -> list:
     """Ids whose leave-one-out prediction from a local homography (accepted corners within two
-    squares, at least 6) misses them by more than ``max(tol_frac * square_px, 0.75 px)``; only the
-    worst of a neighbourhood is reported per pass so a bad corner does not condemn good ones."""
+    squares -- three where the neighbourhood is sparse -- at least 6) misses them by more than
+    ``max(tol_frac * square_px, 0.75 px)``, plus corners with fewer than 6 such neighbours (nothing
+    to check them against). Only the worst of a neighbourhood is reported per pass, so a bad corner
+    does not condemn good ones."""
     ids = np.array(sorted(accepted), dtype=np.int64)
     if ids.size < 7:
         return []
@@ -99,10 +101,15 @@ def _local_outliers(accepted: dict, obj: np.ndarray, cols: int, square_mm: float
     c, r = ids % cols, ids // cols
     err = np.full(ids.size, np.nan)
     lim = np.full(ids.size, np.inf)
+    isolated = []
     for k in range(ids.size):
-        near = (np.maximum(np.abs(c - c[k]), np.abs(r - r[k])) <= 2)
-        near[k] = False
+        cheb = np.maximum(np.abs(c - c[k]), np.abs(r - r[k]))
+        cheb[k] = 99
+        near = cheb <= 2
         if near.sum() < 6:
+            near = cheb <= 3  # sparse neighbourhood (board edge, occlusion): look a little further
+        if near.sum() < 6:
+            isolated.append(int(ids[k]))  # nothing to check it against: not trusted
             continue
         H = _fit_h(obj[ids[near]], pts[near])
         if H is None:
@@ -112,7 +119,7 @@ def _local_outliers(accepted: dict, obj: np.ndarray, cols: int, square_mm: float
         err[k] = np.linalg.norm(pred - pts[k])
         lim[k] = max(tol_frac * sq, 0.75)
     ratio = np.where(np.isfinite(err), err / lim, 0.0)
-    out = []
+    out = list(isolated)
     for k in np.argsort(-ratio):
         if ratio[k] <= 1:
             break
@@ -125,7 +132,7 @@ def _local_outliers(accepted: dict, obj: np.ndarray, cols: int, square_mm: float
 
 def detect_coded_checkerboard(image, spec: CodedCheckerboardSpec | None = None, image_id: str = "", *,
                               min_corners: int = 12, max_shift_frac: float = 0.3,
-                              min_contrast_frac: float = 0.25, local_tol_frac: float = 0.08) -> Detection:
+                              min_contrast_frac: float = 0.25, local_tol_frac: float = 0.06) -> Detection:
     """Find the coded checkerboard and identify its visible corners.
 
     Parameters
@@ -234,7 +241,7 @@ def detect_coded_checkerboard(image, spec: CodedCheckerboardSpec | None = None, 
     # (within 2 squares); a corner pulled onto the board's outline by the refinement does not.
     # Distortion is nearly projective over 2 squares, so the threshold can be tight.
     n_before = len(accepted)
-    for _ in range(3):
+    for _ in range(6):
         bad = _local_outliers(accepted, obj, cols, s, local_tol_frac)
         if not bad:
             break
