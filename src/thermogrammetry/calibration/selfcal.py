@@ -689,12 +689,16 @@ def calibrate(
             inact = ~active & np.isin(obs_img, list({k for k in obs_img[sel]}))
             prob, isel, _ = build(cam_p, free_masks, active | inact)
             res_all, ok_all = residuals(prob)
+            # re-admit everything that is not grossly wrong under the full model (|v| < 10 σ); the
+            # stage-2 data snooping below then tests them properly (w with redundancy numbers).
+            # A threshold at the critical value itself would keep out valid corner points whose
+            # raw |v| exceeds it only because their redundancy is low.
             w = np.abs(res_all) / (obs_sig[isel] * (sol.sigma0 if not use_apriori else 1.0))
-            back = isel[(np.max(w, axis=1) < crit) & ok_all & inact[isel]]
+            back = isel[(np.max(w, axis=1) < 10.0) & ok_all & inact[isel]]
             if back.size:
                 active[back] = True
                 readm = {(images[obs_img[g]].name, int(obs_pt[g])) for g in back}
-                blunders[:] = [b for b in blunders if not (b["stage"] == "stage1" and (b["image"], b["point"]) in readm)]
+                blunders[:] = [b for b in blunders if (b["image"], b["point"]) not in readm]
                 sol, sel, pose_keys = snoop(cam_p, free_masks, crit, use_apriori, "stage2")
     if not sol.outcome.success:
         return _empty_result(verdicts, sol.outcome.termination, "stage 2: " + sol.outcome.reason, stage1=stage1)
