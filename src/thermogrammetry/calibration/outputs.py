@@ -329,7 +329,7 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
         s1 = r.stage1
         out.append(f"<p>Stage 1 (nominal c = {', '.join(f'{c:.4f}' for c in s1.get('c_mm', []))} mm, principal point at the centre, "
                    f"no distortion): RMS {s1.get('rms_px', float('nan')):.3f} px, {s1.get('n_blunders', 0)} gross errors removed "
-                   "(re-admitted after stage 2 when consistent).</p>")
+                   "(re-admitted for stage 2 when below 10 σ under the full model and re-tested there).</p>")
     figs_all = {}
     for ci, cc in enumerate(r.cameras):
         out.append(f"<h2>Camera {ci + 1}: {e(cc.name)} ({cc.image_size[0]}×{cc.image_size[1]} px, pitch {cc.pixel_pitch_um[0]:g} µm)</h2>")

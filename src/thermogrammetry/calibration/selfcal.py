@@ -7,7 +7,9 @@ Strategy of seed 001 (Yastikli & Guler 2013, §3), extended as issue 6 asks:
    ``cv2.solvePnP``). Gross blunders are eliminated here. Because uncorrected distortion inflates the
    residuals at this stage (seed 001's camera has up to ~20 px of distortion in the corners), the
    test uses the a-posteriori σ0 and a conservative critical value (``stage1_critical``, default 5),
-   so that only gross errors go.
+   so that only gross errors go. After stage 2 has converged, every stage-1 reject within 10 σ of
+   the full model is re-admitted and re-tested by the stage-2 data snooping (otherwise valid
+   corner points, the most informative on distortion, would stay out).
 2. **Stage 2** — x0, y0, c, K1–K3, P1, P2 free (K4, K5 and B1, B2 on request, seed 003). Data
    snooping (Baarda 1968) with the a-priori σ of the measurements when every measurement carries
    one, otherwise Pope's τ test with the a-posteriori σ0; critical value 3.29 (α0 = 0.1 %,
