@@ -224,6 +224,7 @@ def _section_calibration_target(project: ProjectStore, opt: DemoOptions) -> list
     from ..calibration.detect_common import CircleGridSpec
     from ..calibration.workflow import calibrate_detections
     from ..geometry import Pose
+    from ..io.tiff import encode_temperature_tiff
     from ..synthetic.targets import CircleGridTarget, render_target_image
     from ..synthetic.testfield import FLIR_A320_IMAGE_SIZE, FLIR_A320_PIXEL_PITCH_UM, flir_a320_table2_params
 
@@ -245,14 +246,18 @@ def _section_calibration_target(project: ProjectStore, opt: DemoOptions) -> list
         pose = Pose.look_at(C, look, up=np.array([np.sin(roll), -np.cos(roll), 0.0]))
         r = render_target_image(cam, pose, tgt, supersample=4, psf_sigma_px=0.6, netd_k=0.05, fpn_k=0.03, vignetting=0.03,
                                 seed=opt.seed * 100 + k, temperatures=(303.15, 296.15, 295.15))
-        project.write_array(f"calibration-target/images/V{k:02d}_k.npy", r.image_k)
+        project.write_bytes(f"calibration-target/images/V{k:02d}.tif", encode_temperature_tiff(r.image_k)[0])
         d = detect(r.image_k, spec, f"V{k:02d}")
         dets.append(d)
         if d.found:
             det_err.append(np.linalg.norm(np.asarray(d.points_px) - r.points_px[np.asarray(d.object_ids)], axis=1))
     n_found = sum(1 for d in dets if d.found)
+    from ..calibration.selfcal import SelfCalibrationOptions
+
+    # the options `thermogrammetry calibrate --target circles` passes (k45/affinity off by default)
     run = calibrate_detections(dets, tgt.object_points(), target={"kind": "circles", "description": "asymmetric 4x11, 50 mm"},
-                               pixel_pitch_um=FLIR_A320_PIXEL_PITCH_UM, focal_mm=18.0)
+                               pixel_pitch_um=FLIR_A320_PIXEL_PITCH_UM, focal_mm=18.0,
+                               options=SelfCalibrationOptions(k45=False, affinity=False))
     res = run.result
     e = np.concatenate(det_err) if det_err else np.array([np.nan])
     rows = [
