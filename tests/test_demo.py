@@ -81,7 +81,7 @@ def test_closerange_and_testfield_sections_end_to_end():
     res = run_demo(p, DemoOptions(sections=("calibration-testfield", "closerange")))
     assert res.ok, [(r.check, r.value, r.bound) for r in res.rows if not r.passed]
     assert {r.section for r in res.rows} == {"calibration-testfield", "closerange"}
-    assert len(res.rows) == 6
+    assert len(res.rows) == 7
     for k in ("closerange/points.csv", "closerange/report.html", "calibration-testfield/control.csv", "report.html",
               "demo/closerange.json", "reports/closerange.json"):
         assert p.exists(k), k
