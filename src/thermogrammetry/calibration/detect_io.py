@@ -49,6 +49,8 @@ def read_image(path) -> np.ndarray:
         except Exception as exc:
             raise CorruptFileError(f"{p}: cannot read TIFF: {exc}") from None
         arr = np.asarray(arr)
+        if arr.size == 0 or arr.ndim < 2:
+            raise CorruptFileError(f"{p}: the TIFF holds no image data (got an array of shape {arr.shape})")
         if arr.ndim == 3 and arr.shape[0] in (1, 3, 4) and arr.shape[2] not in (1, 3, 4):
             arr = np.moveaxis(arr, 0, -1)  # planar (C, H, W) → (H, W, C)
         return arr
