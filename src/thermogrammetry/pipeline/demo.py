@@ -305,7 +305,8 @@ def _section_calibration_testfield(project: ProjectStore, opt: DemoOptions) -> l
         DemoRow(sec, f"camera parameters: max |estimate - truth| / sigma over {len(z)} free ({worst[0]})", float(abs(worst[1])), 4.0,
                 "sigma", note=", ".join(f"{k} {v:+.1f}" for k, v in z)),
         DemoRow(sec, "image residual sigma vs injected 0.4 px (relative error)", float(abs(0.5 * (sx + sy) / 0.4 - 1.0)), 0.1, "",
-                note=f"sigma_x {sx:.3f} px, sigma_y {sy:.3f} px; {cc.n_observations} observations"),
+                note=f"sigma_x {sx:.3f} px, sigma_y {sy:.3f} px; {cc.n_observations} observations (the estimate's own "
+                     f"relative sigma is ~{1 / np.sqrt(2 * max(cc.n_observations, 1)):.3f}, the bound allows ~5 of it)"),
     ]
 
 
