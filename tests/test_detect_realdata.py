@@ -140,3 +140,14 @@ def test_chessboard_on_downscaled_views(chessboard_detections):
          for s, f in zip(dets, full) if s.found and f.found]
     assert max(x.max() for x in d) < 3.0
     assert np.median([np.sqrt(np.mean(x**2)) for x in d]) < 0.5
+
+
+def test_chessboard_colour_rule_decides_the_order(chessboard_detections):
+    """corner0_square="bright" must give exactly the reversed order of the default "dark" on the real
+    board (6x5: the two diagonal corner squares differ in colour) -- the colour, not the geometric
+    tie-break, decides."""
+    names, images, dets = chessboard_detections["masked"]
+    for k in range(0, 47, 12):
+        bright = detect_many([images[k]], ChessboardSpec(6, 5, 100.0, corner0_square="bright"), [names[k]])[0]
+        assert bright.found and dets[k].found
+        np.testing.assert_allclose(bright.points_px, dets[k].points_px[::-1], atol=1e-9)
