@@ -111,6 +111,12 @@ def test_coded_spec_matches_parameters_yaml_and_hides_marker_corners():
     np.testing.assert_allclose(spec.marker_corners_mm()[0], [252.5 - 80.75, 202.0 - 80.75])
     with pytest.raises(ConfigError, match="missing key"):
         CodedCheckerboardSpec.from_parameters({"gridSize": 50.5})
+    # the repository's A4 target uses OpenCV's predefined DICT_4X4_1000
+    a4 = CodedCheckerboardSpec.from_parameters({**params, "aruco_dict": "aruco.DICT_4X4_1000", "gridMaxHeight": 7,
+                                                "gridMaxWidth": 9, "aruCoHiddenSize": 2})
+    assert a4.predefined_dictionary == "DICT_4X4_1000" and a4.marker_bits == 4 and a4.top_left_square == "dark"
+    with pytest.raises(ConfigError, match="DICT_9X9"):
+        CodedCheckerboardSpec(predefined_dictionary="DICT_9X9")
 
 
 @pytest.mark.parametrize(

@@ -39,6 +39,8 @@ __all__ = ["detect_coded_checkerboard", "detect_marker"]
 
 
 def _dictionary(spec: CodedCheckerboardSpec):
+    if spec.predefined_dictionary:
+        return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, spec.predefined_dictionary))
     # cv2.aruco.custom_dictionary(n, bits) of OpenCV < 4.7 is extendDictionary(n, bits, Dictionary(), 0)
     return cv2.aruco.extendDictionary(int(spec.dictionary_size), int(spec.marker_bits), cv2.aruco.Dictionary(), 0)
 

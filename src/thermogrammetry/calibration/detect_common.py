@@ -240,6 +240,9 @@ class CodedCheckerboardSpec:
         Id in the dictionary.
     dictionary_size : int
         Markers in the custom dictionary (``extendDictionary(dictionary_size, marker_bits, seed 0)``).
+    predefined_dictionary : str
+        Name of a predefined ``cv2.aruco`` dictionary (e.g. "DICT_4X4_1000") to use instead of the
+        custom one; "" (default) for the custom dictionary.
     top_left_square : {"dark", "bright"}
         Colour of the board square diagonally outside corner 0 (top-left), in the printed artwork.
         The MRT target: bottom-left square white with 9 corner rows → top-left square black.
@@ -254,6 +257,7 @@ class CodedCheckerboardSpec:
     marker_id: int = 0
     dictionary_size: int = 1
     top_left_square: str = "dark"
+    predefined_dictionary: str = ""
 
     def __post_init__(self):
         for n in ("inner_columns", "inner_rows"):
@@ -269,6 +273,11 @@ class CodedCheckerboardSpec:
             raise ConfigError(f"marker_id: expected 0 <= id < {self.dictionary_size}, got {self.marker_id!r}")
         if self.top_left_square not in ("dark", "bright"):
             raise ConfigError(f"top_left_square: expected 'dark' or 'bright', got {self.top_left_square!r}")
+        if self.predefined_dictionary and not (
+            self.predefined_dictionary.startswith("DICT_") and hasattr(cv2.aruco, self.predefined_dictionary)
+        ):
+            raise ConfigError(f"predefined_dictionary: {self.predefined_dictionary!r} is not a cv2.aruco dictionary "
+                              "(expected e.g. 'DICT_4X4_1000', or '' for the custom one)")
 
     @classmethod
     def from_parameters(cls, params: dict) -> "CodedCheckerboardSpec":
@@ -283,6 +292,9 @@ class CodedCheckerboardSpec:
         if not d.startswith("DICT_") or "X" not in d:
             raise ConfigError(f"aruco_dict: expected 'aruco.DICT_<b>X<b>_<n>', got {params['aruco_dict']!r}")
         bits, n = d[5:].split("X", 1)[0], d.rsplit("_", 1)[1]
+        # the MRT code builds DICT_3X3_1 as custom_dictionary(1, 3); other names are OpenCV's
+        # predefined dictionaries (aruco.Dictionary_get)
+        predefined = "" if d == "DICT_3X3_1" or not hasattr(cv2.aruco, d) else d
         rows = int(params["gridMaxHeight"])
         bl = str(params["bottomLeftField"]).lower()
         if bl not in ("white", "black"):
@@ -298,6 +310,7 @@ class CodedCheckerboardSpec:
             marker_mm=float(params["arucoSize"]),
             hidden_squares=int(params["aruCoHiddenSize"]),
             marker_bits=int(bits),
+            predefined_dictionary=predefined,
             dictionary_size=int(n),
             top_left_square="dark" if tl_dark else "bright",
         )
