@@ -103,9 +103,9 @@ class SolverOptions:
     """
 
     max_iterations: int = 100
-    function_tolerance: float = 1e-12
+    function_tolerance: float = 1e-10
     gradient_tolerance: float = 1e-12
-    parameter_tolerance: float = 1e-12
+    parameter_tolerance: float = 1e-10
     initial_trust_region_radius: float = 1e4
     loss: Loss = Loss.TRIVIAL
     loss_scale: float = 3.0
@@ -518,10 +518,12 @@ class _Normal:
         self.B = (Jcw.T @ self.Jp).tocsr() if lay.nc else sp.csr_matrix((0, 3 * npf))
         self.dU = np.clip(np.diag(self.U), 1e-6, 1e32) if lay.nc else np.zeros(0)
         self.dV = np.clip(np.diagonal(self.V, axis1=1, axis2=2), 1e-6, 1e32)
+        self._Bc = None
         self.grad_max = max(float(np.max(np.abs(self.gc))) if lay.nc else 0.0, float(np.max(np.abs(gp))) if npf else 0.0)
 
-    def schur(self, lam):
-        """Reduced matrix, its rhs and V^-1 blocks for damping lam (0 = undamped)."""
+    def schur(self, lam, want_H=False):
+        """Reduced matrix, its rhs and V^-1 blocks for damping lam (0 = undamped); the sparse
+        ``H = W V^-1`` too when ``want_H``."""
         npf = self.lay.npf
         Vd = self.V.copy()
         if lam:
@@ -536,16 +538,47 @@ class _Normal:
             Vinv, ok = np.zeros((0, 3, 3)), True
         if not ok:
             return None
-        Vsp = sp.bsr_matrix((Vinv, np.arange(npf), np.arange(npf + 1)), shape=(3 * npf, 3 * npf)).tocsr()
         S = self.U.copy()
-        if lam and self.lay.nc:
+        nc = self.lay.nc
+        if lam and nc:
             S[np.diag_indices_from(S)] += lam * self.dU
-        H = (self.B @ Vsp).tocsr() if self.lay.nc else None
         rhs = -self.gc.copy()
-        if self.lay.nc and npf:
-            S -= (H @ self.B.T).toarray()
-            rhs += H @ self.gp.ravel()
+        H = None
+        if nc and npf:
+            if want_H or nc * nc * 3 * npf > 5e9:
+                Vsp = sp.bsr_matrix((Vinv, np.arange(npf), np.arange(npf + 1)), shape=(3 * npf, 3 * npf)).tocsr()
+                H = (self.B @ Vsp).tocsr()
+                S -= (H @ self.B.T).toarray()
+                rhs += H @ self.gp.ravel()
+            else:
+                # dense slabs of points: S -= (B_k V_k^-1) B_k^T with BLAS (small reduced systems)
+                if self._Bc is None:
+                    self._Bc = self.B.tocsc()
+                k = max(1, int(4e6 // (3 * nc)))
+                gp = self.gp.ravel()
+                for a in range(0, npf, k):
+                    b = min(npf, a + k)
+                    Bd = self._Bc[:, 3 * a : 3 * b].toarray()
+                    Hd = np.einsum("cpi,pij->cpj", Bd.reshape(nc, b - a, 3), Vinv[a:b]).reshape(nc, -1)
+                    S -= Hd @ Bd.T
+                    rhs += Hd @ gp[3 * a : 3 * b]
         return S, rhs, Vinv, H
+
+    def solve_with(self, cf, Vinv, gc, gp, rhs=None):
+        """Solve the (damped) normal equations for gradient (gc, gp) with a factored reduced
+        matrix; returns the full step (camera side, then points)."""
+        nc, npf = self.lay.nc, self.lay.npf
+        if rhs is None:
+            rhs = -gc
+            if nc and npf:
+                rhs = rhs + self.B @ np.einsum("nij,nj->ni", Vinv, gp).ravel()
+        dc = np.zeros(0) if isinstance(cf[0], str) else scipy.linalg.cho_solve(cf, rhs, check_finite=False)
+        if not npf:
+            return dc
+        rp = -gp
+        if nc:
+            rp = rp - (self.B.T @ dc).reshape(npf, 3)
+        return np.concatenate([dc, np.einsum("nij,nj->ni", Vinv, rp).ravel()])
 
     def back(self, dc, Vinv):
         npf = self.lay.npf
@@ -555,6 +588,18 @@ class _Normal:
         if self.lay.nc:
             rp = rp - (self.B.T @ dc).reshape(npf, 3)
         return np.einsum("nij,nj->ni", Vinv, rp).ravel()
+
+
+def _cho_factor(S):
+    if S.shape[0] == 0:
+        return ("empty",)
+    try:
+        cf = scipy.linalg.cho_factor(S, check_finite=False)
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    if not np.all(np.isfinite(cf[0])):
+        return None
+    return cf
 
 
 def _cho_solve(S, rhs):
@@ -595,13 +640,25 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
         ok = sch is not None
         if ok:
             S, rhs, Vinv, _ = sch
-            dc, ok = _cho_solve(S, rhs)
+            cf = _cho_factor(S)
+            ok = cf is not None
         if ok:
-            dp = ne.back(dc, Vinv)
-            g = np.concatenate([ne.gc, ne.gp.ravel()])
-            d = np.concatenate([dc, dp])
             D = np.concatenate([ne.dU, ne.dV.ravel()])
+            g = np.concatenate([ne.gc, ne.gp.ravel()])
+            d = ne.solve_with(cf, Vinv, ne.gc, ne.gp, rhs)
+            # one step of iterative refinement against the exact operator J^T J + lam D: forming
+            # S = U - W V^-1 W^T cancels digits when parameters are nearly dependent
+            Jd = ne.Jc @ d[: lay.nc] + ne.Jp @ d[lay.nc :] if lay.nc else ne.Jp @ d
+            Ad = np.concatenate([ne.Jc.T @ Jd, ne.Jp.T @ Jd]) + lam * D * d
+            res = -g - Ad
+            if np.all(np.isfinite(res)) and np.linalg.norm(res) > 1e-14 * np.linalg.norm(g):
+                d = d + ne.solve_with(cf, Vinv, -res[: lay.nc], -res[lay.nc :].reshape(-1, 3))
+            ok = bool(np.all(np.isfinite(d)))
+        if ok:
+            dc, dp = d[: lay.nc], d[lay.nc :]
             model = 0.5 * (-(g @ d) + lam * float(D @ (d * d)))
+            if 0 <= model <= opt.function_tolerance * cost:
+                return st, cost0, cost, it, Termination.CONVERGED, "predicted decrease below the function tolerance"
             xn = np.sqrt(sum(float(p @ p) for p in st.cam_params) + float(np.sum(st.t**2)) + float(np.sum(st.X**2)))
             dn = float(np.sqrt(d @ d))
             if dn <= opt.parameter_tolerance * (xn + opt.parameter_tolerance):
@@ -788,7 +845,7 @@ def _precision(pb, lay, st, data, opt, active, warnings):
         out["chi2"] = dict(statistic=stat, dof=int(red), lower=float(lo), upper=float(hi), passed=bool(lo <= stat <= hi))
     if not opt.compute_covariance:
         return out
-    sch = ne.schur(0.0)
+    sch = ne.schur(0.0, want_H=True)
     if sch is None:
         return (Termination.RANK_DEFICIENT, "a free point's normal block is singular (too few or parallel rays)")
     S, _, Vinv, H = sch
@@ -927,9 +984,10 @@ def _precision(pb, lay, st, data, opt, active, warnings):
                 u = ne.Jc
                 if npf:
                     u = (u - ne.Jp @ H.T).tocsr()
-                for s in range(0, m, 20000):
-                    blk = u[s : s + 20000].toarray()
-                    h[s : s + 20000] = np.einsum("ij,ij->i", blk @ Q, blk)
+                step = max(1, int(2e6 // max(nc, 1)))
+                for s in range(0, m, step):
+                    blk = u[s : s + step].toarray()
+                    h[s : s + step] = np.einsum("ij,ij->i", blk @ Q, blk)
             if npf:
                 jpw = jp * w[:, None]
                 rows = np.nonzero(has)[0]
