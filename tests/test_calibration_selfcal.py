@@ -307,3 +307,43 @@ def test_engine_stopping_early_is_caught(field):
     # and a converged engine run passes the check without the dense LM
     done = solve_bundle(prob, engine="adjustment")
     assert done.layout["engine"] == "adjustment" and done.layout["gn_step_sigma_at_engine_solution"] < 1e-3
+
+
+def _monte_carlo_table(n: int, staged: bool, solver: str) -> None:  # pragma: no cover - manual report
+    """Print the Monte-Carlo table of the seed-001 case (see ``__main__`` below)."""
+    field = make_testfield(np.random.default_rng(2024), noise_px=NOISE_PX)
+    T = field.truth
+    idx = [_model.PARAM_NAMES.index(p) for p in STAGE2]
+    xy_all = resample_noise(field, np.random.default_rng(99), n)
+    est, rep, s0, sx, sy = [], [], [], [], []
+    for k in range(n):
+        cams, ims = _inputs(field, xy_all[k])
+        if staged:
+            r = calibrate(cams, T.points, ims, options=SelfCalibrationOptions(solver=solver))
+        else:
+            r = calibrate(cams, T.points, ims, options=SelfCalibrationOptions(snooping=False, solver=solver),
+                          initial={0: T.params.copy()}, initial_poses=list(zip(T.R, T.t)))
+        c = r.cameras[0]
+        est.append(c.params[idx])
+        rep.append(c.std[idx])
+        s0.append(r.sigma0)
+        sx.append(c.sigma_xy_px[0])
+        sy.append(c.sigma_xy_px[1])
+    est, rep = np.array(est), np.array(rep)
+    sc = est.std(0, ddof=1)
+    rp = np.sqrt(np.mean(rep**2, 0))
+    print(f"solver={solver} staged={staged} n={n} observations={field.xy_px.shape[0]}")
+    print(f"{'param':6s} {'truth':>12s} {'MC mean':>12s} {'MC scatter':>11s} {'reported':>11s} {'ratio':>6s} {'bias z':>7s} {'|z|<3':>6s}")
+    for j, p in enumerate(STAGE2):
+        z = (est[:, j] - T.params[idx[j]]) / rep[:, j]
+        print(f"{p:6s} {T.params[idx[j]]:12.5g} {est[:, j].mean():12.5g} {sc[j]:11.3g} {rp[j]:11.3g} {rp[j] / sc[j]:6.3f} "
+              f"{(est[:, j].mean() - T.params[idx[j]]) / (sc[j] / np.sqrt(n)):7.2f} {np.mean(np.abs(z) < 3):6.3f}")
+    print(f"sigma0 {np.mean(s0):.4f}; sigma_x {np.mean(sx):.4f} px, sigma_y {np.mean(sy):.4f} px (injected {NOISE_PX})")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    # python tests/test_calibration_selfcal.py [N] [staged] [adjustment|dense]
+    import sys
+
+    args = sys.argv[1:]
+    _monte_carlo_table(int(args[0]) if args else 200, "staged" in args, "dense" if "dense" in args else "adjustment")
