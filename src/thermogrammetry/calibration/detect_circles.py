@@ -140,8 +140,8 @@ def order_grid_by_homography(points_px: np.ndarray, spec: CircleGridSpec, tol_fr
 
 
 def refine_circle_centres(gray: np.ndarray, centres_px: np.ndarray, radius_px: np.ndarray, window_px: np.ndarray,
-                          bright: bool, *, plane_background: np.ndarray | bool = True, iterations: int = 8,
-                          tol_px: float = 1e-3):
+                          bright: bool, *, plane_background: np.ndarray | bool = True,
+                          ring_px: np.ndarray | float = 2.0, iterations: int = 8, tol_px: float = 1e-3):
     """Sub-pixel disc centres by background-subtracted intensity-weighted moments.
 
     Parameters
@@ -156,8 +156,10 @@ def refine_circle_centres(gray: np.ndarray, centres_px: np.ndarray, radius_px: n
         Radius of the circular window; must hold the blurred disc and stay clear of the neighbours.
     bright : bool
         Discs brighter than the background.
+    ring_px : float or ndarray (N,)
+        Width of the background annulus outside the window.
     plane_background : bool or ndarray (N,) of bool
-        Background below each disc from a robust plane through the 2 px annulus around the window
+        Background below each disc from a robust plane through the annulus around the window
         (removes vignetting / uneven mask temperature gradients, which a constant would turn into
         a centroid shift: 0.053 → 0.025 px RMS on a 320x240 view with 3 % vignetting); False: the
         annulus median (less noise, and safe when a neighbour's blurred disc reaches the annulus).
@@ -172,9 +174,10 @@ def refine_circle_centres(gray: np.ndarray, centres_px: np.ndarray, radius_px: n
     ok = np.ones(len(c), bool)
     sign = 1.0 if bright else -1.0
     use_plane = np.broadcast_to(np.asarray(plane_background, bool), (len(c),))
+    ring_w = np.broadcast_to(np.asarray(ring_px, float), (len(c),))
     for k in range(len(c)):
         rw = float(window_px[k])
-        ro = rw + 2.0
+        ro = rw + float(ring_w[k])
         for _ in range(iterations):
             x0, y0 = c[k]
             xa, xb = int(np.floor(x0 - ro - 1)), int(np.ceil(x0 + ro + 1))
@@ -358,8 +361,10 @@ def _finish(gray, pts, spec, image_id, size, name, tried, bright, refine, perspe
         else:
             # plane background where the annulus (win .. win + 2) stays >= 3 px clear of the
             # neighbouring disc (its blurred edge would read as a gradient); the median elsewhere
-            plane = (nn_px - r_px) - (win + 2.0) >= 3.0
-            new, ok = refine_circle_centres(gray, pts, r_px, win, bright, plane_background=plane)
+            # the annulus as wide as the room allows (2-6 px; a wider one gives a steadier plane)
+            ring = np.clip((nn_px - r_px) - win - 3.0, 2.0, 6.0)
+            plane = (nn_px - r_px) - (win + ring) >= 3.0
+            new, ok = refine_circle_centres(gray, pts, r_px, win, bright, plane_background=plane, ring_px=ring)
             moved = np.linalg.norm(new - pts, axis=1) > 0.5 * r_px + 1.0
             keep = ok & ~moved
             pts = np.where(keep[:, None], new, pts)
