@@ -426,3 +426,38 @@ def test_distance_observation_fixes_the_scale_of_a_free_network(rng):
     assert np.isfinite(res.point_covariance[a]).all() and np.isfinite(res.point_covariance[5]).all()
     assert 0.85 < res.sigma0 < 1.15
     assert np.nansum(res.image_redundancy) <= res.redundancy + 1e-6
+
+
+def test_points_on_an_unknown_plane(rng):
+    cam, poses, X, xy = _truth()
+    # 15 tie points on a tilted plane n . X = d in front of the test field
+    n_true = np.array([0.1, 0.05, 1.0])
+    n_true /= np.linalg.norm(n_true)
+    d_true = 0.5
+    uv = rng.uniform(-0.8, 0.8, (15, 2))
+    Y = np.c_[uv, np.zeros(15)]
+    Y[:, 2] = (d_true - Y[:, :2] @ n_true[:2]) / n_true[2]
+    sig = 0.3
+    pb = BundleProblem()
+    ic = pb.add_camera(cam, fixed=True)
+    ctrl = pb.add_points(X, fixed=True)
+    ties = pb.add_points(Y + rng.normal(0, 0.01, Y.shape))
+    for p, x in zip(poses, xy):
+        v = pb.add_pose(Pose.from_center(p.R, p.center + 0.01))
+        y = cam.project(p.transform(Y))
+        pb.add_image_points(ic, v, ctrl, x + rng.normal(0, sig, x.shape), sigma_px=sig)
+        pb.add_image_points(ic, v, ties, y + rng.normal(0, sig, y.shape), sigma_px=sig)
+    k = pb.add_plane(ties, sigma_m=1e-4)  # flat to 0.1 mm
+    res = solve(pb, SolverOptions(compute_point_covariance=True))
+    assert res.termination is Termination.CONVERGED, res.reason
+    assert res.redundancy == 6 * 57 * 2 + 15 - (36 + 45 + 3)
+    n_est, d_est = res.problem.plane_n[k], res.problem.plane_d[k]
+    i = res.param_names.index("plane0.n1")
+    sd = res.std[i : i + 3]
+    ang = np.arccos(np.clip(abs(n_est @ n_true), -1, 1))
+    # normal within 4.5 sigma (two tangent components, radians) and offset within 4.5 sigma
+    assert ang < 4.5 * np.hypot(sd[0], sd[1]), (ang, sd)
+    assert abs(d_est - d_true) < 4.5 * sd[2]
+    # the tie points satisfy the plane to ~ the stated 0.1 mm
+    assert np.max(np.abs(res.points[ties] @ n_est - d_est)) < 5e-4
+    assert 0.85 < res.sigma0 < 1.15

@@ -35,6 +35,7 @@ points, staged freeing of parameters)::
 Other blocks and observations: ``pb.add_rig(relative_pose)`` + ``pb.add_rig_view(rig,
 master_view)`` (constant relative orientation, seed 002 eq. 4-5), ``pb.add_gnss(views, xyz,
 sigma_m, lever_arm_m)``, ``pb.add_distance(a, b, distance_m, sigma_m)`` (scale bars),
+``pb.add_plane(points, sigma_m)`` (points on a common, estimated plane),
 ``BundleProblem(gauge="inner")`` for a free network (inner constraints on the free points),
 ``SolverOptions(loss="huber", loss_scale=3)`` for robust estimation,
 ``SolverOptions(compute_point_covariance=True)``.

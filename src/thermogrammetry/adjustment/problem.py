@@ -18,7 +18,9 @@ A :class:`BundleProblem` collects
 - **points** (3D, metres), free or fixed;
 - **observations**: image points (px) with sigma per observation, per axis or per sensor;
   control-point coordinates (weighted, sigma in m); GNSS camera-centre priors with a lever arm
-  (antenna offset in the camera frame, m); pose priors are GNSS priors with zero lever arm.
+  (antenna offset in the camera frame, m); pose priors are GNSS priors with zero lever arm;
+  distances between points (scale bars); points on a common plane (a plane block: unit normal
+  with 2 degrees of freedom and offset, estimated or fixed).
 
 The **gauge** (datum) is either given by control/fixed parameters/priors
 (``Gauge.CONTROL``) or by inner constraints on the free points (``Gauge.INNER``, free network:
@@ -137,6 +139,10 @@ class BundleProblem:
         self._ctrl: list[tuple] = []  # (point idx (K,), xyz (K,3), sigma (K,3))
         self._gnss: list[tuple] = []  # (pose idx (K,), xyz (K,3), sigma (K,3), lever (K,3))
         self._dist: list[tuple] = []  # (point a (K,), point b (K,), distance (K,), sigma (K,))
+        self.plane_n: list[np.ndarray] = []  # unit normals
+        self.plane_d: list[float] = []  # offsets: n . X = d (m)
+        self.plane_fixed: list[bool] = []
+        self._plane_obs: list[tuple] = []  # (plane (K,), point (K,), sigma (K,))
 
     # ---------------------------------------------------------------- blocks
     def add_camera(self, camera, *, fixed=False, name: str | None = None) -> int:
@@ -311,6 +317,46 @@ class BundleProblem:
             raise InvalidInputError(f"distance_m: distances must be > 0, got {d.min()!r}")
         sig = _sigma(sigma_m, len(a), 1, "sigma_m")[:, 0]
         self._dist.append((a, b, d, sig))
+
+    def add_plane(self, points, sigma_m, *, normal=None, offset_m=None, fixed: bool = False) -> int:
+        """Points lying on a common plane ``n . X = d`` (facades, floors): one condition per point
+        with sigma ``sigma_m`` (m, scalar or (K,)) for the point-to-plane distance.
+
+        The plane is a parameter block (unit normal, 2 degrees of freedom, and offset) unless
+        ``fixed``; without ``normal``/``offset_m`` it starts as the least-squares plane through
+        the current coordinates of the points. Returns the plane index.
+        """
+        idx = self._check_indices(points, len(self.points), "points")
+        if normal is None or offset_m is None:
+            if len(idx) < 3:
+                raise InvalidInputError(f"points: a plane needs at least 3 points to start from, got {len(idx)}")
+            P = self.points[idx]
+            c = P.mean(axis=0)
+            _, sv, vt = np.linalg.svd(P - c)
+            if sv[1] < 1e-9 * max(sv[0], 1e-300):
+                raise InvalidInputError("points: collinear points do not define a plane; expected >= 3 non-collinear points")
+            n = vt[2]
+            d = float(n @ c)
+        else:
+            n = as_array(normal, "normal", shape=(3,))
+            nn = np.linalg.norm(n)
+            if nn == 0:
+                raise InvalidInputError("normal: zero vector; expected a plane normal")
+            n = n / nn
+            d = float(offset_m)
+        self.plane_n.append(n)
+        self.plane_d.append(d)
+        self.plane_fixed.append(bool(fixed))
+        k = len(self.plane_n) - 1
+        sig = _sigma(sigma_m, len(idx), 1, "sigma_m")[:, 0]
+        self._plane_obs.append((np.full(len(idx), k), idx, sig))
+        return k
+
+    def plane_observations(self):
+        if not self._plane_obs:
+            z = np.zeros(0, dtype=np.int64)
+            return z, z, np.zeros(0)
+        return tuple(np.concatenate([g[k] for g in self._plane_obs]) for k in range(3))
 
     def distance_observations(self):
         if not self._dist:

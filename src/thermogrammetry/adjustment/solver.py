@@ -249,6 +249,12 @@ class _Layout:
                 self.rig_col[r] = col
                 col += 6
                 names += [f"rig{r}.{a}" for a in ("wx", "wy", "wz", "tx", "ty", "tz")]
+        self.plane_col = np.full(len(pb.plane_n), -1, dtype=np.int64)
+        for k in range(len(pb.plane_n)):
+            if not pb.plane_fixed[k]:
+                self.plane_col[k] = col
+                col += 3
+                names += [f"plane{k}.{a}" for a in ("n1", "n2", "d")]
         # free points in distance observations are coupled: they join the camera side
         da, db, _, _ = pb.distance_observations()
         free = ~pb.point_fixed
@@ -278,6 +284,8 @@ class _State:
         self.t = np.array(pb.pose_t).reshape(-1, 3)
         self.rR = np.array(pb.rig_R).reshape(-1, 3, 3)
         self.rt = np.array(pb.rig_t).reshape(-1, 3)
+        self.pn = np.array(pb.plane_n, dtype=float).reshape(-1, 3)
+        self.pd = np.array(pb.plane_d, dtype=float).reshape(-1)
         self.X = pb.points.copy()
 
     def plus(self, lay: _Layout, dc: np.ndarray, dp: np.ndarray) -> "_State":
@@ -294,6 +302,13 @@ class _State:
             d = dc[lay.pose_col[fp][:, None] + np.arange(6)]
             s.R[fp] = rotation_matrices(d[:, :3]) @ self.R[fp]
             s.t[fp] = self.t[fp] + d[:, 3:]
+        s.pn, s.pd = self.pn.copy(), self.pd.copy()
+        fpl = np.nonzero(lay.plane_col >= 0)[0]
+        for k in fpl:
+            c = lay.plane_col[k]
+            n = self.pn[k] + _tangent_basis(self.pn[k]) @ dc[c : c + 2]
+            s.pn[k] = n / np.linalg.norm(n)
+            s.pd[k] = self.pd[k] + dc[c + 2]
         s.rR, s.rt = self.rR.copy(), self.rt.copy()
         fr = np.nonzero(lay.rig_col >= 0)[0]
         if len(fr):
@@ -313,6 +328,8 @@ class _State:
         pb.pose_t = [t.copy() for t in self.t]
         pb.rig_R = [r.copy() for r in self.rR]
         pb.rig_t = [t.copy() for t in self.rt]
+        pb.plane_n = [n.copy() for n in self.pn]
+        pb.plane_d = [float(d) for d in self.pd]
         pb.points = self.X.copy()
 
 
@@ -334,8 +351,9 @@ class _Data:
         self.c_pt, self.c_xyz, self.c_sig = pb.control_observations()
         self.g_pose, self.g_xyz, self.g_sig, self.g_lever = pb.gnss_observations()
         self.d_a, self.d_b, self.d_len, self.d_sig = pb.distance_observations()
+        self.pl_k, self.pl_pt, self.pl_sig = pb.plane_observations()
         self.K = len(a)
-        self.m = 2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose) + len(self.d_a)
+        self.m = 2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose) + len(self.d_a) + len(self.pl_k)
 
 
 def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
@@ -442,6 +460,23 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
             pc = lay.pose_col[data.g_pose]
             trip(row + 3 * np.arange(ng), 3, J, pc, pc >= 0)
         row += 3 * ng
+    npl = len(data.pl_k)
+    if npl:
+        rws = row + np.arange(npl)
+        n = st.pn[data.pl_k]
+        X = st.X[data.pl_pt]
+        r[rws] = (np.einsum("ki,ki->k", n, X) - st.pd[data.pl_k]) / data.pl_sig
+        if want_jac:
+            slot = lay.point_slot[data.pl_pt]
+            jp[rws] = n / data.pl_sig[:, None]
+            pslot[rws] = slot
+            pcol = lay.point_col[data.pl_pt]
+            trip(rws, 1, (n / data.pl_sig[:, None])[:, None, :], pcol, pcol >= 0)
+            Bt = np.stack([_tangent_basis(v) for v in st.pn])[data.pl_k] if len(st.pn) else np.zeros((0, 3, 2))
+            Jpl = np.concatenate([np.einsum("ki,kij->kj", X, Bt), -np.ones((npl, 1))], axis=1) / data.pl_sig[:, None]
+            plc = lay.plane_col[data.pl_k]
+            trip(rws, 1, Jpl[:, None, :], plc, plc >= 0)
+        row += npl
     nd = len(data.d_a)
     if nd:
         diff = st.X[data.d_a] - st.X[data.d_b]
@@ -590,6 +625,14 @@ class _Normal:
         return np.einsum("nij,nj->ni", Vinv, rp).ravel()
 
 
+def _tangent_basis(n):
+    """(3, 2) orthonormal basis of the plane orthogonal to the unit vector n (deterministic)."""
+    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(n, a)
+    u /= np.linalg.norm(u)
+    return np.stack([u, np.cross(n, u)], axis=1)
+
+
 def _cho_factor(S):
     if S.shape[0] == 0:
         return ("empty",)
@@ -709,6 +752,15 @@ def _gauge_basis(pb, lay, st):
         G[rows, 3:6] = -skew(Xp)
         G[rows, 6] = Xp
         E[rows] = G[rows]
+    for k in range(len(st.pn)):
+        c = lay.plane_col[k]
+        if c < 0:
+            continue
+        n, d = st.pn[k], st.pd[k]
+        Bt = _tangent_basis(n)
+        G[c : c + 2, 3:6] = -Bt.T @ skew(n)  # rotation dth: dn = dth x n
+        G[c + 2, 0:3] = n  # translation dX: dd = n . dX
+        G[c + 2, 6] = d  # scale: dd = s d
     if len(pb.distance_observations()[0]):  # observed distances define the scale
         G, E = G[:, :6], E[:, :6]
     return G, E
