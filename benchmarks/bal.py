@@ -3,7 +3,7 @@
 Usage::
 
     /work/venv/bin/python benchmarks/bal.py [--repeats 3] [--problems 49-7776 21-11315 16-22106]
-                                            [--data ../shared/data/bal] [--scipy-max-nfev 40]
+                                            [--data ../shared/data/bal] [--scipy-max-nfev 20]
 
 One invocation runs every solver on every problem from the same BAL start. Each solve runs in a
 fresh subprocess (``--worker``) so that its peak memory can be read from ``ru_maxrss``: the table
@@ -275,7 +275,7 @@ def main(argv=None) -> int:
     ap.add_argument("--solvers", nargs="*", default=["ours", "ceres", "scipy"])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--scipy-repeats", type=int, default=1)
-    ap.add_argument("--scipy-max-nfev", type=int, default=40)
+    ap.add_argument("--scipy-max-nfev", type=int, default=20)
     ap.add_argument("--worker", nargs=3, metavar=("SOLVER", "PATH", "OUT"))
     a = ap.parse_args(argv)
     if a.worker:
