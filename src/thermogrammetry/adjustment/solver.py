@@ -615,14 +615,6 @@ class _Normal:
             rp = rp - (self.B.T @ dc).reshape(npf, 3)
         return np.concatenate([dc, np.einsum("nij,nj->ni", Vinv, rp).ravel()])
 
-    def back(self, dc, Vinv):
-        npf = self.lay.npf
-        if not npf:
-            return np.zeros(0)
-        rp = -self.gp
-        if self.lay.nc:
-            rp = rp - (self.B.T @ dc).reshape(npf, 3)
-        return np.einsum("nij,nj->ni", Vinv, rp).ravel()
 
 
 def _tangent_basis(n):
@@ -643,17 +635,6 @@ def _cho_factor(S):
     if not np.all(np.isfinite(cf[0])):
         return None
     return cf
-
-
-def _cho_solve(S, rhs):
-    if S.shape[0] == 0:
-        return np.zeros(0), True
-    try:
-        cf = scipy.linalg.cho_factor(S, check_finite=False)
-        x = scipy.linalg.cho_solve(cf, rhs, check_finite=False)
-        return x, bool(np.all(np.isfinite(x)))
-    except (np.linalg.LinAlgError, ValueError):
-        return None, False
 
 
 def _lm(pb, lay, st, data, opt: SolverOptions):
