@@ -375,6 +375,12 @@ def test_canonical_grid_order_rules():
     np.testing.assert_allclose(back, grid)
     mirrored, _ = canonical_grid_order(grid[:, ::-1].copy())  # left-handed input
     np.testing.assert_allclose(mirrored, grid)
+    # square grids: the four right-handed quarter-turn orders compete; corner 0 nearest the top-left
+    yy, xx = np.mgrid[0:4, 0:4]
+    sq = np.stack([30 + 6.0 * xx + 0.5 * yy, 40 + 6.0 * yy - 0.5 * xx], axis=-1)
+    for given in (sq.transpose(1, 0, 2), np.rot90(sq), sq[::-1, ::-1]):
+        back, _ = canonical_grid_order(np.ascontiguousarray(given), allow_transpose=True)
+        np.testing.assert_allclose(back, sq)
 
 
 def test_detect_many_keeps_order_and_reports_every_image(chessboard_scene):
