@@ -461,3 +461,51 @@ def test_points_on_an_unknown_plane(rng):
     # the tie points satisfy the plane to ~ the stated 0.1 mm
     assert np.max(np.abs(res.points[ties] @ n_est - d_est)) < 5e-4
     assert 0.85 < res.sigma0 < 1.15
+
+
+def test_seed001_flir_a320_self_calibration_staged(rng):
+    """Seed 001 (Yastikli & Guler 2013): FLIR A320 (320 x 240, 25 um pixels) calibrated on a 3D
+    test field of 77 control points on three planes ~0.7 m apart; bundle first with c, x0, y0,
+    then with the additional parameters K1 K2 K3 P1 P2 (Table 2 values are the truth here)."""
+    truth = Camera(
+        "photogrammetric",
+        (320, 240),
+        dict(c_mm=17.2262, x0_mm=0.2883, y0_mm=-0.1995, K1=-30.6381e-4, K2=2599.4545e-7,
+             K3=-98791.5437e-10, P1=-22.6353e-5, P2=28.1114e-5),
+        pixel_pitch_um=25.0,
+    )
+    g = np.stack(np.meshgrid(np.linspace(-1.2, 1.2, 11), np.linspace(-0.9, 0.9, 7)), -1).reshape(-1, 2)
+    depth = np.array([0.0, 0.7, 1.4])[np.arange(77) % 3]
+    X = np.c_[g, depth]
+    views = []
+    for k, (a, roll) in enumerate(zip(np.linspace(0, 2 * np.pi, 8, endpoint=False), [0, 90, 180, 270] * 2)):
+        C = np.array([1.5 * np.cos(a), 1.2 * np.sin(a), 5.5])
+        P = Pose.look_at(C, [0, 0, 0.7], up=(0, 1, 0))
+        r = np.deg2rad(roll)
+        Rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
+        views.append(Pose(Rz @ P.R, Rz @ P.t))
+    sigma = 0.25  # px = 6 um, the precision level of seed 001 Table 4 (about 10 um)
+    pb = BundleProblem()
+    ic = pb.add_camera(truth.replace(c_mm=18.0, x0_mm=0.0, y0_mm=0.0, K1=0, K2=0, K3=0, P1=0, P2=0),
+                       fixed=["K1", "K2", "K3", "K4", "K5", "P1", "P2", "B1", "B2"])
+    pts = pb.add_points(X, fixed=True)
+    for P in views:
+        xy = truth.project(P.transform(X))
+        inside = np.all((xy > -0.5) & (xy < np.array([319.5, 239.5])), axis=1)
+        pb.add_image_points(ic, pb.add_pose(Pose.from_center(P.R, P.center + 0.05)), pts[inside],
+                            xy[inside] + rng.normal(0, sigma, (inside.sum(), 2)), sigma_px=sigma)
+    # no data snooping while the model still lacks the distortion: it would reject good points
+    r1 = solve(pb)
+    assert r1.termination is Termination.CONVERGED, r1.reason
+    pb2 = r1.problem
+    pb2.free_camera_params(ic, ["K1", "K2", "K3", "P1", "P2"])
+    r2 = solve(pb2, SolverOptions(data_snooping=True))
+    assert r2.termination is Termination.CONVERGED, r2.reason
+    # unmodelled Table-2 distortion leaves ~0.7 px RMS (2.8 sigma) after stage 1 (c, x0, y0 absorb part)
+    assert r1.sigma0 > 2 * r2.sigma0
+    assert 0.85 < r2.sigma0 < 1.15
+    est, sd = r2.cameras[ic], r2.camera_std[ic]
+    for name in ("c_mm", "x0_mm", "y0_mm", "K1", "K2", "K3", "P1", "P2"):
+        k = est.param_names.index(name)
+        assert abs(est.params[k] - truth.params[k]) < 4.5 * sd[k], (name, est.params[k], truth.params[k], sd[k])
+    assert r2.rejected.sum() <= 0.01 * len(r2.rejected)  # no blunders were injected

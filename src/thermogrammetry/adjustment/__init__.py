@@ -22,7 +22,8 @@ points, staged freeing of parameters)::
     for pose, (idx, xy) in zip(initial_poses, measurements):   # pose: geometry.Pose (cam_from_world)
         v = pb.add_pose(pose)
         pb.add_image_points(ic, v, targets[idx], xy, sigma_px=0.3)
-    res = solve(pb, SolverOptions(data_snooping=True))     # stage 1: c, x0, y0 + poses
+    res = solve(pb)                                         # stage 1: c, x0, y0 + poses
+    # (no data snooping while the model lacks the distortion: it would reject good points)
     pb2 = res.problem                                       # estimate as the next start
     pb2.free_camera_params(ic, ["K1", "K2", "K3", "P1", "P2"])   # stage 2: distortion
     res = solve(pb2, SolverOptions(data_snooping=True))
