@@ -73,7 +73,7 @@ def circle_scenes():
 
 @pytest.fixture(scope="module")
 def chessboard_scene():
-    """A heated 6x5 chessboard, 320x240, oblique; the top-left square (outside corner 0) is hot."""
+    """A heated 6x5 chessboard, 320x240, oblique; the square outside corner 0 is cool (dark)."""
     cam = _pinhole(320, 240, 330.0)
     tgt = ChessboardTarget(6, 5, 0.1)
     c = tgt.object_points().mean(axis=0)
@@ -321,7 +321,8 @@ def _rot90_points(p, w):
 
 def test_chessboard_corners_accurate_for_all_dtypes(chessboard_scene):
     r = chessboard_scene
-    spec = ChessboardSpec(6, 5, 100.0, corner0_square="bright")  # the renderer's top-left square is hot
+    # the renderer's square outside corner 0 is a cool "board" square (ChessboardTarget.classify)
+    spec = ChessboardSpec(6, 5, 100.0, corner0_square="dark")
     img = r.image_k.astype(np.float64)
     variants = {
         "float": r.image_k,
@@ -351,12 +352,21 @@ def test_chessboard_order_follows_the_board_not_the_image(chessboard_scene, quar
     for _ in range(quarter_turns):
         truth = _rot90_points(truth, img.shape[1])
         img = np.rot90(img).copy()
-    d = detect_chessboard(img, ChessboardSpec(6, 5, 100.0, corner0_square="bright"))
+    d = detect_chessboard(img, ChessboardSpec(6, 5, 100.0, corner0_square="dark"))
     assert d.found, d.reason
+    # the meaning of "dark": the square diagonally outside corner 0 is colder than its neighbours
+    p = d.points_px
+    dx, dy = p[1] - p[0], p[6] - p[0]
+
+    def value(xy):
+        return float(img[int(round(xy[1])), int(round(xy[0]))])
+
+    outside, beside = p[0] - 0.5 * (dx + dy), p[0] + 0.5 * (dx - dy)
+    assert value(outside) < value(beside) - 3.0  # 7 K between hot and cool squares
     # a wrong order would be off by at least one square (~23 px); 0.15 px is SB's accuracy band
     assert _rms(d.points_px - truth) < 0.15
     # inverted polarity (a board that appears cold): the same physical order with the other colour
-    inv = detect_chessboard(600.0 - img, ChessboardSpec(6, 5, 100.0, corner0_square="dark"))
+    inv = detect_chessboard(600.0 - img, ChessboardSpec(6, 5, 100.0, corner0_square="bright"))
     assert inv.found and _rms(inv.points_px - truth) < 0.15
     # with corner0_square="any" the image-geometric rule applies: of the two right-handed orders
     # (corner 0 at one end of the grid diagonal or the other) the one whose corner 0 has the
@@ -387,7 +397,7 @@ def test_detect_many_keeps_order_and_reports_every_image(chessboard_scene):
     r = chessboard_scene
     blank = np.full_like(r.image_k, 296.0) + np.random.default_rng(5).normal(0, 0.05, r.image_k.shape).astype(np.float32)
     seen = []
-    dets = detect_many([r.image_k, blank], ChessboardSpec(6, 5, 100.0, corner0_square="bright"), ["board", "wall"],
+    dets = detect_many([r.image_k, blank], ChessboardSpec(6, 5, 100.0, corner0_square="dark"), ["board", "wall"],
                        progress=lambda k, d: seen.append(k))
     assert [d.image_id for d in dets] == ["board", "wall"] and seen == [0, 1]
     assert dets[0].found and not dets[1].found

@@ -113,8 +113,9 @@ def _sample(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
 
 def _corner0_contrast(img: np.ndarray, grid: np.ndarray) -> float:
     """Brightness of the first inner square (corners [0,0],[0,1],[1,0],[1,1]) minus that of the last
-    one (at the opposite corner of the grid). Positive → the square diagonally outside corner 0 is dark
-    (it has the opposite colour of the first inner square)."""
+    one (at the opposite corner of the grid). Negative → the square diagonally outside corner 0 is
+    dark: it lies across corner 0 from the first inner square, and squares meeting diagonally at a
+    corner have the same colour."""
     first = grid[:2, :2].reshape(-1, 2).mean(axis=0)
     last = grid[-2:, -2:].reshape(-1, 2).mean(axis=0)
     v = _sample(img, np.array([first, last]))
@@ -161,7 +162,7 @@ def canonical_grid_order(grid: np.ndarray, image: np.ndarray | None = None, corn
         keep = []
         for c in cands:
             contrast = _corner0_contrast(image, flat[c])
-            if (contrast > 0) == want_dark:
+            if (contrast < 0) == want_dark:
                 keep.append(c)
         cands = keep or cands
     best = min(cands, key=lambda c: float(flat[c[0, 0]].sum()))
