@@ -29,13 +29,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
+from .._atomic import write_atomic_text
 from .._validate import as_points
 from ..errors import (
     ConfigError,
@@ -50,7 +49,7 @@ from ..errors import (
 from . import models as M
 from .models import PARAM_NAMES, PARAM_UNITS, REQUIRED_PARAMS, CameraModel
 
-__all__ = ["Camera", "FORMAT_NAME", "FORMAT_VERSION", "atomic_write_text"]
+__all__ = ["Camera", "FORMAT_NAME", "FORMAT_VERSION"]
 
 FORMAT_NAME = "thermogrammetry.camera"
 FORMAT_VERSION = 1
@@ -74,28 +73,6 @@ def _normalise_unit(text: str) -> str:
     if u.startswith("mm^-") or u.startswith("mm-"):
         return "mm^-" + u.split("-", 1)[1]
     return u
-
-
-def atomic_write_text(path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (temporary file in the same directory, then ``os.replace``)."""
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    except OSError as exc:
-        raise DataFileError(f"{path}: cannot write ({exc.strerror or exc})") from exc
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 def _as_float(value, what: str, error=ConfigError) -> float:
@@ -494,7 +471,7 @@ class Camera:
     def save(self, path) -> Path:
         """Write the versioned JSON file atomically; returns the path."""
         path = Path(path)
-        atomic_write_text(path, json.dumps(self.to_dict(), indent=2) + "\n")
+        write_atomic_text(path, json.dumps(self.to_dict(), indent=2) + "\n")
         return path
 
     @classmethod

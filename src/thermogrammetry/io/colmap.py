@@ -29,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera.camera import Camera, atomic_write_text
+from .._atomic import write_atomic_text
+from ..camera.camera import Camera
 from ..camera.models import CameraModel
 from ..errors import CorruptFileError, DataFileError, InvalidInputError, UnknownModelError
 
@@ -166,7 +167,7 @@ def write_colmap_cameras(path, cameras: Mapping[int, Camera] | Sequence[Camera])
               "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
               f"# Number of cameras: {len(lines)}\n")
     path = Path(path)
-    atomic_write_text(path, header + "".join(line + "\n" for line in lines))
+    write_atomic_text(path, header + "".join(line + "\n" for line in lines))
     return path
 
 
@@ -280,7 +281,7 @@ def write_colmap_images(path, images: Mapping[int, ColmapImage] | Sequence[Colma
             raise InvalidInputError(f"image {im.image_id}: {len(xy)} 2D points but {len(ids)} point3d_ids")
         out.append(" ".join(f"{x!r} {y!r} {int(i)}" for (x, y), i in zip(xy.tolist(), ids.tolist())))
     path = Path(path)
-    atomic_write_text(path, "\n".join(out) + "\n")
+    write_atomic_text(path, "\n".join(out) + "\n")
     return path
 
 
@@ -340,5 +341,5 @@ def write_colmap_points3d(path, points: ColmapPoints3D) -> Path:
         tr = " ".join(f"{int(a)} {int(b_)}" for a, b_ in np.asarray(points.tracks[i]).reshape(-1, 2))
         out.append(f"{int(points.ids[i])} {x} {y} {z} {r} {g} {b} {float(points.error[i])!r} {tr}".rstrip())
     path = Path(path)
-    atomic_write_text(path, "\n".join(out) + "\n")
+    write_atomic_text(path, "\n".join(out) + "\n")
     return path

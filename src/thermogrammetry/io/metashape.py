@@ -54,7 +54,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera.camera import Camera, atomic_write_text
+from .._atomic import write_atomic_text
+from ..camera.camera import Camera
 from ..camera.models import CameraModel
 from ..errors import (
     CorruptFileError,
@@ -386,7 +387,7 @@ def write_metashape_xml(path, calib: MetashapeCalibration) -> Path:
     ET.indent(root, space="  ")
     text = '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
     path = Path(path)
-    atomic_write_text(path, text)
+    write_atomic_text(path, text)
     return path
 
 

@@ -23,9 +23,7 @@ References
 from __future__ import annotations
 
 import io
-import os
 import struct
-import tempfile
 import xml.etree.ElementTree as ET
 import zlib
 from fractions import Fraction
@@ -35,6 +33,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from .._atomic import write_atomic
 from ..errors import CorruptFileError, InvalidInputError, UnsupportedFormatError
 from ..radiometry.encoding import (
     Encoding,
@@ -50,31 +49,12 @@ from ..radiometry.encoding import (
 from .exif import parse_xmp, read_exif
 from .thermal import Geotag, ReadOptions, ThermalImage, ThermalMetadata, register_reader
 
-__all__ = ["write_temperature_tiff", "encode_temperature_tiff", "read_gdal_metadata", "atomic_write_bytes"]
+__all__ = ["write_temperature_tiff", "encode_temperature_tiff", "read_gdal_metadata"]
 
 # TIFF field types
 _BYTE, _ASCII, _SHORT, _LONG, _RATIONAL, _UNDEFINED, _DOUBLE = 1, 2, 3, 4, 5, 7, 12
 _TYPE_FMT = {_BYTE: "B", _ASCII: "s", _SHORT: "H", _LONG: "I", _RATIONAL: "II", _UNDEFINED: "B", _DOUBLE: "d"}
 _TYPE_SIZE = {_BYTE: 1, _ASCII: 1, _SHORT: 2, _LONG: 4, _RATIONAL: 8, _UNDEFINED: 1, _DOUBLE: 8}
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (temp file in the same directory + ``os.replace``)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, p)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 def _rational(x: float, den_limit: int = 1_000_000) -> tuple[int, int]:
@@ -323,7 +303,7 @@ def write_temperature_tiff(
     The :class:`Uint16Mapping` used (None for float32).
     """
     data, used = encode_temperature_tiff(temperature_k, unit=unit, encoding=encoding, metadata=metadata, mapping=mapping)
-    atomic_write_bytes(path, data)
+    write_atomic(path, data)
     return used
 
 

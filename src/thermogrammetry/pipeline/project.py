@@ -13,40 +13,16 @@ from __future__ import annotations
 import io
 import json
 import os
-import tempfile
 from abc import ABC, abstractmethod
 from pathlib import Path, PurePosixPath
 from typing import Any, Iterator
 
 import numpy as np
 
+from .._atomic import write_atomic
 from ..errors import DataFileError, InvalidInputError
 
 __all__ = ["ProjectStore", "FolderProject", "MemoryProject", "write_atomic"]
-
-
-def write_atomic(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically: a temp file beside it, fsync, then rename.
-
-    A reader never sees a half-written file; on failure the temp file is removed and the
-    previous content of ``path`` (if any) is untouched.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    return path
 
 
 def _check_key(key: str) -> str:
