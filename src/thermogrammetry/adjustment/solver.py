@@ -765,9 +765,35 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None) -> Adjus
         return _solve(problem, opt)
 
 
+def _world_offset(pb: BundleProblem) -> np.ndarray:
+    """A local origin for the solve: mean of the projection centres and points (georeferenced
+    coordinates of ~1e6 m would otherwise couple rotations and translations numerically)."""
+    parts = [np.asarray(pb.points).reshape(-1, 3)]
+    if pb.pose_R:
+        R = np.array(pb.pose_R)
+        t = np.array(pb.pose_t)
+        parts.append(-np.einsum("kji,kj->ki", R, t))
+    allp = np.concatenate(parts)
+    allp = allp[np.all(np.isfinite(allp), axis=1)]
+    return allp.mean(axis=0) if len(allp) else np.zeros(3)
+
+
+def _shift_world(pb: BundleProblem, s: np.ndarray) -> None:
+    """Translate the world frame in place: X -> X + s (poses, points, control, GNSS, planes)."""
+    if not np.any(s):
+        return
+    pb.points = pb.points + s
+    pb.pose_t = [t - R @ s for R, t in zip(pb.pose_R, pb.pose_t)]
+    pb._ctrl = [(i, xyz + s, sig) for i, xyz, sig in pb._ctrl]
+    pb._gnss = [(v, xyz + s, sig, lev) for v, xyz, sig, lev in pb._gnss]
+    pb.plane_d = [float(d + n @ s) for n, d in zip(pb.plane_n, pb.plane_d)]
+
+
 def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
     t0 = time.perf_counter()
     pb = problem.copy()
+    origin = _world_offset(pb)
+    _shift_world(pb, -origin)
     lay = _Layout(pb)
     K_all = len(pb.image_observations().point)
     active = np.ones(K_all, dtype=bool)
@@ -778,6 +804,7 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
 
     def result(term, reason, it, c0, c1, **kw):
         st.write_to(pb)
+        _shift_world(pb, origin)
         return AdjustmentResult(term, reason, it, c0, c1, pb, warnings=warnings, time_s=time.perf_counter() - t0, **kw)
 
     data = _Data(pb, active)
