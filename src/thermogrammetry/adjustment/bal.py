@@ -51,8 +51,8 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from thermogrammetry.results import Termination
-from thermogrammetry.adjustment._so3 import axis_angles, rotation_matrices
+from ..results import Termination
+from ._so3 import axis_angles, rotation_matrices
 
 __all__ = [
     "BALSolverOptions",
@@ -161,7 +161,7 @@ def bal_project_jacobian(cameras: np.ndarray, points: np.ndarray):
     ths = np.where(small, 1.0, th)
     a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
     b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / ths**3)
-    from thermogrammetry.adjustment._so3 import skew
+    from ._so3 import skew
 
     K = skew(rv)
     Jl = np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
@@ -218,7 +218,7 @@ class BALSolverOptions:
     max_pairs_per_chunk: int = 6000
 
     def __post_init__(self):
-        from thermogrammetry.errors import ConfigError
+        from ..errors import ConfigError
 
         if self.max_iterations < 0:
             raise ConfigError(f"max_iterations={self.max_iterations!r}; expected an integer >= 0")
@@ -359,14 +359,35 @@ def _sym3_inv(V):
 
 
 def solve_bal(problem, options: BALSolverOptions | None = None) -> BALResult:
-    from thermogrammetry.adjustment._threads import blas_single_thread
+    """Minimise the BAL reprojection cost by Levenberg-Marquardt with the Schur complement.
+
+    Parameters
+    ----------
+    problem : thermogrammetry.io.bal.BALProblem
+        Initial state; it is not modified.
+    options : BALSolverOptions, optional
+        Stopping rules and threads (defaults: Ceres Solver's defaults, 2 threads).
+
+    Returns
+    -------
+    BALResult
+        ``.initial_cost``, ``.final_cost`` (plain BAL cost, px^2), ``.iterations``,
+        ``.termination``, ``.reason``, ``.problem`` (final state). Never raises for numerical
+        trouble: no observations give ``TOO_FEW_OBSERVATIONS``, a non-finite initial cost
+        ``NUMERICAL_FAILURE``, running out of iterations ``MAX_ITERATIONS``.
+
+    Notes
+    -----
+    See the module docstring for the algorithm, the damping strategy and the stopping rules.
+    """
+    from ._threads import blas_single_thread
 
     # BLAS calls inside are small; OpenBLAS's own threads only spin against ours on few cores.
     with blas_single_thread(), np.errstate(all="ignore"):
         return _solve_bal(problem, options)
 
 
-_TIMERS: dict = {}
+_TIMERS: dict = {}  # internal profiling: accumulated wall time per solver phase (s)
 
 
 def _tick(name, t):
