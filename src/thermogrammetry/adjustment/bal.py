@@ -15,11 +15,14 @@ grows by ``1 / max(1/3, 1 - (2 rho - 1)^3)``; a rejected step divides it by a fa
 doubles on every consecutive rejection (Nielsen 1999).
 
 The linear system is reduced to the cameras by the Schur complement on the 3x3 point blocks
-(Triggs et al. 2000, sec. 6.1): ``S = U - W V^-1 W^T``. Observations are sorted by point, so
-point blocks are contiguous segments (``np.add.reduceat``); camera blocks are reduced with one
-BLAS product per camera over a camera-sorted copy; ``S`` is assembled directly from the pairs of
-observations that share a point, grouped by camera pair, one BLAS product per camera pair
-(no ``np.add.at``). ``S`` is small (9 x number of cameras) and solved by dense Cholesky.
+(Triggs et al. 2000, sec. 6.1): ``S = U - W V^-1 W^T``. Observations are stored camera-major, so
+camera blocks are contiguous slices (one BLAS product per camera, no copies) and the sums over a
+point's observations (``V``, ``g_p``, back-substitution) are one sparse 0/1 matrix product.
+``S`` is assembled directly: diagonal blocks per camera, off-diagonal blocks from the pairs of
+observations that share a point, grouped by camera pair (one BLAS product per pair, chunks in
+worker threads -- numpy and BLAS release the GIL), scattered with one vectorised assignment
+per chunk (no ``np.add.at``). ``S`` is small (9 x number of cameras) and solved by dense
+Cholesky. BLAS runs single-threaded inside the solve; work buffers are reused across iterations.
 Rotations are updated on the manifold, ``R <- exp([dw]x) R``; the result is returned in BAL's
 axis-angle form.
 
