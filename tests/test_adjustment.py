@@ -537,3 +537,23 @@ def test_georeferenced_coordinates_are_solved_in_a_local_frame(rng):
     np.testing.assert_allclose(b.pose_std, a.pose_std, rtol=1e-4)
     np.testing.assert_allclose([p.center - O for p in b.poses], [p.center for p in a.poses], atol=1e-6)
     assert abs(a.sigma0 - b.sigma0) < 1e-6
+
+
+def test_w_test_flags_a_wrong_control_coordinate(rng):
+    cam, poses, X, xy = _truth()
+    pb = BundleProblem()
+    ic = pb.add_camera(cam, fixed=True)
+    pts = pb.add_points(X + rng.normal(0, 0.002, X.shape))
+    ctrl = X + rng.normal(0, 0.001, X.shape)
+    ctrl[7, 2] += 0.05  # 50 sigma blunder in one height
+    pb.add_control(pts, ctrl, sigma_m=0.001)
+    for p, x in zip(poses, xy):
+        pb.add_image_points(ic, pb.add_pose(p), pts, x + rng.normal(0, 0.3, x.shape), sigma_px=0.3)
+    res = solve(pb)
+    assert res.termination is Termination.CONVERGED
+    w = np.abs(res.control_w)
+    assert np.unravel_index(np.nanargmax(w), w.shape) == (7, 2)
+    assert w[7, 2] > 3.29
+    # redundancy numbers lie in [0, 1]; all rows together sum to the redundancy
+    total = np.nansum(res.image_redundancy) + np.nansum(res.control_redundancy)
+    assert total == pytest.approx(res.redundancy, rel=1e-6)
