@@ -858,7 +858,10 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
             return result(out[0], out[1], total_it, cost0, cost)
         if not (opt.data_snooping and opt.compute_redundancy) or rounds >= opt.max_snooping_rounds:
             break
-        w = out["image_w"]
+        w = out.get("image_w")
+        if w is None:
+            warnings.append("data snooping skipped: no redundancy numbers (covariance not available)")
+            break
         k = scipy.stats.norm.ppf(1 - opt.snooping_alpha / 2)
         wmax = np.max(np.nan_to_num(np.abs(w), nan=0.0), axis=1) if len(w) else np.zeros(0)
         cand = np.nonzero(wmax > k)[0]
