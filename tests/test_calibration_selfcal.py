@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thermogrammetry.calibration import _model
+from thermogrammetry.calibration.bundle import PARAM_NAMES, project
 from thermogrammetry.calibration.bundle import rotation_exp
 from thermogrammetry.calibration.selfcal import (
     CameraSetup,
@@ -67,14 +67,14 @@ def test_staged_selfcalibration_recovers_table2(staged, field):
     r = staged
     assert r.outcome.success, r.outcome.reason
     cam = r.cameras[0]
-    truth = dict(zip(_model.PARAM_NAMES, field.truth.params))
+    truth = dict(zip(PARAM_NAMES, field.truth.params))
     for name in STAGE2:
-        i = _model.PARAM_NAMES.index(name)
+        i = PARAM_NAMES.index(name)
         z = (cam.params[i] - truth[name]) / cam.std[i]
         assert abs(z) < 3.0, f"{name}: {cam.params[i]:.6g} vs truth {truth[name]:.6g}, z = {z:.2f}"
     # not estimated: stay exactly at nominal zero and carry no std
     for name in ("K4", "K5", "B1", "B2"):
-        i = _model.PARAM_NAMES.index(name)
+        i = PARAM_NAMES.index(name)
         assert cam.params[i] == 0.0 and np.isnan(cam.std[i])
     # Table 4: σx, σy equal the injected noise within 10 % (px and µm)
     sx, sy = cam.sigma_xy_px
@@ -135,7 +135,7 @@ def test_reported_sigma_matches_monte_carlo(field):
     xy_all = resample_noise(field, rng, n)
     opt = SelfCalibrationOptions(snooping=False, solver="dense")
     est, rep, s0 = [], [], []
-    idx = [_model.PARAM_NAMES.index(p) for p in STAGE2]
+    idx = [PARAM_NAMES.index(p) for p in STAGE2]
     poses = list(zip(T.R, T.t))
     for k in range(n):
         cams, ims = _inputs(field, xy_all[k])
@@ -162,7 +162,7 @@ def test_k45_and_affinity_on_request(field):
     assert r.outcome.success
     cam = r.cameras[0]
     for name in ("K4", "K5", "B1", "B2"):
-        i = _model.PARAM_NAMES.index(name)
+        i = PARAM_NAMES.index(name)
         assert cam.free[i] and np.isfinite(cam.std[i]) and cam.std[i] > 0
         # truth is 0: the estimate must be compatible with it
         assert abs(cam.params[i]) < 3.5 * cam.std[i]
@@ -204,7 +204,7 @@ def test_rig_relative_orientation(field):
         R2 = R_rel @ T.R[f]
         t2 = R_rel @ T.t[f] + t_rel
         Xc = T.points @ R2.T + t2
-        xy, _, _, ok = _model.project(Xc, p2, size2, (pitch2 * 1e-3,) * 2, jacobians=False)
+        xy, _, _, ok = project(Xc, p2, size2, (pitch2 * 1e-3,) * 2, jacobians=False)
         vis = ok & (xy[:, 0] > 0) & (xy[:, 0] < size2[0] - 1) & (xy[:, 1] > 0) & (xy[:, 1] < size2[1] - 1)
         idx = np.nonzero(vis)[0]
         ims.append(ImageMeasurements(n + "_rgb", 1, idx, xy[idx] + rng.normal(0, 0.3, (idx.size, 2)), frame=n))
@@ -242,7 +242,8 @@ def test_engine_and_dense_solver_agree(field):
 
 
 def test_model_matches_camera_package():
-    """Our correction-form projection equals thermogrammetry.Camera('photogrammetric')."""
+    """The calibration's projection adapter (pixel pitch in mm, validity mask) equals
+    thermogrammetry.Camera('photogrammetric') (pitch in µm), values and Jacobians."""
     from thermogrammetry.camera import Camera
 
     from thermogrammetry.synthetic.testfield import flir_a320_table2_params
@@ -252,7 +253,7 @@ def test_model_matches_camera_package():
     cam = Camera("photogrammetric", (320, 240), p, pixel_pitch_um=25.0)
     rng = np.random.default_rng(3)
     X = np.column_stack([rng.uniform(-0.9, 0.9, 200), rng.uniform(-0.7, 0.7, 200), rng.uniform(5, 8, 200)])
-    ours, _, J, ok = _model.project(X, np.array([p[k] for k in _model.PARAM_NAMES]), (320, 240), (0.025, 0.025))
+    ours, _, J, ok = project(X, np.array([p[k] for k in PARAM_NAMES]), (320, 240), (0.025, 0.025))
     assert ok.all()
     theirs = cam.project(X)
     assert np.max(np.abs(ours - theirs)) < 1e-8
@@ -272,7 +273,7 @@ def test_weighted_control_points(field):
     assert r.outcome.success, r.outcome.reason
     cam = r.cameras[0]
     for name in STAGE2:
-        i = _model.PARAM_NAMES.index(name)
+        i = PARAM_NAMES.index(name)
         assert abs(cam.params[i] - T.params[i]) < 3.0 * cam.std[i], name
     assert 0.9 * NOISE_PX < cam.sigma_xy_px[0] < 1.1 * NOISE_PX
     # the images add information to the 1 mm control: each target is seen in ~15 images with 0.4 px
@@ -292,7 +293,7 @@ def test_engine_stopping_early_is_caught(field):
 
     T = field.truth
     free = np.zeros(12, bool)
-    free[[_model.PARAM_NAMES.index(n) for n in STAGE2]] = True
+    free[[PARAM_NAMES.index(n) for n in STAGE2]] = True
     p0 = T.params.copy()
     p0[0] += 0.3  # 0.3 mm off in c: ~8 σ
     cb = CameraBlock(p0, free, T.image_size, (0.025, 0.025))
@@ -313,7 +314,7 @@ def _monte_carlo_table(n: int, staged: bool, solver: str) -> None:  # pragma: no
     """Print the Monte-Carlo table of the seed-001 case (see ``__main__`` below)."""
     field = make_testfield(np.random.default_rng(2024), noise_px=NOISE_PX)
     T = field.truth
-    idx = [_model.PARAM_NAMES.index(p) for p in STAGE2]
+    idx = [PARAM_NAMES.index(p) for p in STAGE2]
     xy_all = resample_noise(field, np.random.default_rng(99), n)
     est, rep, s0, sx, sy = [], [], [], [], []
     for k in range(n):

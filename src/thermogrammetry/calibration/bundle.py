@@ -17,7 +17,7 @@ Observations are measured pixel coordinates (OpenCV convention) of object points
 in a pose (``cam_from_world``), optionally through a rig offset (``cam_from_reference``)::
 
     Xc = R_rig (R_pose X + t_pose) + t_rig
-    xy = project_correction_form(Xc; camera parameters)          (see ``_model.py``)
+    xy = project_correction_form(Xc; camera parameters)   (thermogrammetry.camera.models, see :func:`project`)
 
 Unknowns: the free intrinsic parameters of every camera, 6 per free pose (rotation increment δ with
 ``R ← exp([δ]×) R``, translation t), 6 per free rig offset, 3 per free object point (with an optional
@@ -42,15 +42,78 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..camera import models as _cm
 from ..results import Outcome, Termination
-from . import _model
 
-__all__ = ["CameraBlock", "BundleProblem", "BundleSolution", "solve_bundle", "residuals", "rotation_exp"]
+__all__ = ["PARAM_NAMES", "PARAM_UNITS", "N_PARAMS", "project", "CameraBlock", "BundleProblem", "BundleSolution",
+           "solve_bundle", "residuals", "rotation_exp"]
+
+# The calibration uses the camera package's correction-form model as is (same parameter order).
+_PHOTO = _cm.CameraModel.PHOTOGRAMMETRIC
+PARAM_NAMES: tuple[str, ...] = _cm.PARAM_NAMES[_PHOTO]
+PARAM_UNITS: tuple[str, ...] = tuple(_cm.PARAM_UNITS[_PHOTO][n] for n in PARAM_NAMES)
+N_PARAMS = len(PARAM_NAMES)
 
 try:  # small dense problems run much faster on one BLAS thread than on contended cores
     from threadpoolctl import threadpool_limits as _threadpool_limits
 except ImportError:  # pragma: no cover - optional
     _threadpool_limits = None
+
+
+def project(points_cam: np.ndarray, params: np.ndarray, image_size, pitch_mm, *, jacobians: bool = True):
+    """Measured pixel coordinates of camera-frame points with the correction-form model, with Jacobians.
+
+    A thin adapter over :func:`thermogrammetry.camera.models.photogrammetric_project_jacobian`
+    (the model of ``docs/conventions.md``; Brown 1971, Fraser 1997): it takes the pixel pitch in mm
+    as stored in :class:`CameraBlock` and adds the validity mask the bundle needs.
+
+    Parameters
+    ----------
+    points_cam : (N, 3) float
+        Points in the camera frame (x right, y down, z forward), metres.
+    params : (12,) float
+        Layout :data:`PARAM_NAMES` (``thermogrammetry.camera.models.PARAM_NAMES["photogrammetric"]``).
+    image_size : (w, h)
+        Pixels.
+    pitch_mm : (px, py)
+        Pixel pitch in mm.
+    jacobians : bool
+        Also return the Jacobians.
+
+    Returns
+    -------
+    xy_px : (N, 2)
+        OpenCV pixel coordinates of the measured (distorted) image points; NaN where not ``ok``.
+    J_point : (N, 2, 3) or None
+        d xy_px / d points_cam (zero where not ``ok``).
+    J_params : (N, 2, 12) or None
+        d xy_px / d params.
+    ok : (N,) bool
+        In front of the camera and the model's Newton solve converged (main sheet).
+
+    References
+    ----------
+    Brown, D.C., 1971. Close-range camera calibration. Photogramm. Eng. 37(8), 855–866.
+    Fraser, C.S., 1997. Digital camera self-calibration. ISPRS J. Photogramm. Remote Sens. 52, 149–159.
+    """
+    X = np.asarray(points_cam, dtype=float)
+    n = X.shape[0]
+    pitch_um = (float(pitch_mm[0]) * 1e3, float(pitch_mm[1]) * 1e3)
+    front = X[:, 2] > 1e-12
+    xy = np.full((n, 2), np.nan)
+    J_point = np.zeros((n, 2, 3)) if jacobians else None
+    J_params = np.zeros((n, 2, N_PARAMS)) if jacobians else None
+    if np.any(front):
+        if jacobians:
+            xy[front], J_point[front], J_params[front] = _cm.photogrammetric_project_jacobian(
+                params, X[front], image_size, pitch_um)
+        else:
+            xy[front] = _cm.photogrammetric_project(params, X[front], image_size, pitch_um)
+    ok = front & np.all(np.isfinite(xy), axis=1)
+    if jacobians and not np.all(ok):
+        J_point[~ok] = 0.0
+        J_params[~ok] = 0.0
+    return xy, J_point, J_params, ok
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -81,7 +144,7 @@ def rotation_exp(w: np.ndarray) -> np.ndarray:
 class CameraBlock:
     """One camera (intrinsics) in a bundle: correction-form parameters and which of them are free."""
 
-    params: np.ndarray  # (12,) layout _model.PARAM_NAMES
+    params: np.ndarray  # (12,) layout PARAM_NAMES
     free: np.ndarray  # (12,) bool
     image_size: tuple[int, int]
     pitch_mm: tuple[float, float]
@@ -203,8 +266,7 @@ def _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True):
         sel = np.nonzero(problem.obs_camera == ci)[0]
         if sel.size == 0:
             continue
-        xyc, Jp3, Jpar, okc = _model.project(Xc[sel], cb.params, cb.image_size, cb.pitch_mm, jacobians=want_jac,
-                                             start_px=problem.obs_xy[sel])
+        xyc, Jp3, Jpar, okc = project(Xc[sel], cb.params, cb.image_size, cb.pitch_mm, jacobians=want_jac)
         xy[sel] = xyc
         ok[sel] = okc
         if want_jac:
@@ -428,8 +490,8 @@ def _fill_std(sol: BundleSolution, cov: np.ndarray) -> None:
     sol.camera_std = []
     sol.camera_cov = []
     for ci, cb in enumerate(sol.cameras):
-        std = np.full(_model.N_PARAMS, np.nan)
-        C = np.zeros((_model.N_PARAMS, _model.N_PARAMS))
+        std = np.full(N_PARAMS, np.nan)
+        C = np.zeros((N_PARAMS, N_PARAMS))
         cols = lay["cameras"][ci]
         fi = np.nonzero(cb.free)[0]
         if cols.size:
@@ -457,8 +519,8 @@ def _fail(problem, cams, R, t, rigR, rigt, pts, res, term, reason, lay):
     N = problem.obs_xy.shape[0]
     sol = BundleSolution(Outcome(term, reason), cams, R, t, rigR, rigt, pts, res, np.full((N, 2), np.nan), float("nan"), 0, 0,
                          np.zeros((0, 0)), lay)
-    sol.camera_std = [np.full(_model.N_PARAMS, np.nan) for _ in cams]
-    sol.camera_cov = [np.zeros((_model.N_PARAMS, _model.N_PARAMS)) for _ in cams]
+    sol.camera_std = [np.full(N_PARAMS, np.nan) for _ in cams]
+    sol.camera_cov = [np.zeros((N_PARAMS, N_PARAMS)) for _ in cams]
     sol.pose_std = np.full((R.shape[0], 6), np.nan)
     sol.rig_std = np.full((rigR.shape[0], 6), np.nan)
     sol._w = np.full((N, 2), np.nan)
@@ -474,10 +536,10 @@ def _solve_engine(problem: BundleProblem, max_iterations: int) -> BundleSolution
     lay = _layout(problem)
     pb = EngineProblem()
     for ci, cb in enumerate(problem.cameras):
-        cam = Camera(CameraModel.PHOTOGRAMMETRIC, cb.image_size, dict(zip(_model.PARAM_NAMES, map(float, cb.params))),
+        cam = Camera(CameraModel.PHOTOGRAMMETRIC, cb.image_size, dict(zip(PARAM_NAMES, map(float, cb.params))),
                      pixel_pitch_um=(cb.pitch_mm[0] * 1e3, cb.pitch_mm[1] * 1e3), name=cb.name)
-        fixed = [n for n, f in zip(_model.PARAM_NAMES, cb.free) if not f]
-        pb.add_camera(cam, fixed=fixed if len(fixed) < _model.N_PARAMS else True, name=f"cam{ci}")
+        fixed = [n for n, f in zip(PARAM_NAMES, cb.free) if not f]
+        pb.add_camera(cam, fixed=fixed if len(fixed) < N_PARAMS else True, name=f"cam{ci}")
     free_pts = lay["point"] >= 0
     pb.add_points(problem.points, fixed=False)
     pb.set_points_fixed(np.nonzero(~free_pts)[0], True) if np.any(~free_pts) else None
@@ -531,9 +593,9 @@ def _solve_engine(problem: BundleProblem, max_iterations: int) -> BundleSolution
     pos = {n: i for i, n in enumerate(names)}
     sol.camera_std, sol.camera_cov = [], []
     for ci, cb in enumerate(cams):
-        std = np.full(_model.N_PARAMS, np.nan)
-        C = np.zeros((_model.N_PARAMS, _model.N_PARAMS))
-        ix = [(k, pos.get(f"cam{ci}.{n}")) for k, n in enumerate(_model.PARAM_NAMES)]
+        std = np.full(N_PARAMS, np.nan)
+        C = np.zeros((N_PARAMS, N_PARAMS))
+        ix = [(k, pos.get(f"cam{ci}.{n}")) for k, n in enumerate(PARAM_NAMES)]
         ix = [(k, j) for k, j in ix if j is not None]
         if ix:
             ks = np.array([k for k, _ in ix])

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..pipeline import ProjectStore
-from . import _model
+from .bundle import PARAM_NAMES, PARAM_UNITS
 from .selfcal import CalibrationResult, CameraCalibration
 from .workflow import CalibrationRun
 
@@ -46,7 +46,7 @@ def camera_from_calibration(cc: CameraCalibration):
     """The calibrated camera as a :class:`thermogrammetry.Camera` (model ``photogrammetric``, with std)."""
     from ..camera import Camera, CameraModel
 
-    std = {n: float(s) for n, s in zip(_model.PARAM_NAMES, cc.std) if np.isfinite(s)}
+    std = {n: float(s) for n, s in zip(PARAM_NAMES, cc.std) if np.isfinite(s)}
     return Camera(CameraModel.PHOTOGRAMMETRIC, cc.image_size, cc.param_dict, pixel_pitch_um=cc.pixel_pitch_um,
                   param_std=std, name=cc.name)
 
@@ -65,7 +65,7 @@ def _f(v):
 def _camera_block(cc: CameraCalibration) -> dict[str, Any]:
     tests = {t.name: t for t in cc.tests}
     params = {}
-    for i, (n, u) in enumerate(zip(_model.PARAM_NAMES, _model.PARAM_UNITS)):
+    for i, (n, u) in enumerate(zip(PARAM_NAMES, PARAM_UNITS)):
         d = {"value": _f(cc.params[i]), "std": _f(cc.std[i]), "unit": u, "estimated": bool(cc.free[i])}
         if n in tests:
             d["t"] = _f(tests[n].t)
@@ -339,7 +339,7 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
         tests = {t.name: t for t in cc.tests}
         ppx = cc.parameters_px()
         pxmap = {"c_mm": "fx", "x0_mm": "cx", "y0_mm": "cy"}
-        for i, n in enumerate(_model.PARAM_NAMES):
+        for i, n in enumerate(PARAM_NAMES):
             if not cc.free[i]:
                 continue
             v, s, sc = _sci(cc.params[i], cc.std[i])

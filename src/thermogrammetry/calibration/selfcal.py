@@ -47,7 +47,7 @@ from scipy import stats
 
 from ..errors import ConfigError, InvalidInputError, TooFewPointsError
 from ..results import Outcome, Termination
-from . import _model
+from .bundle import N_PARAMS, PARAM_NAMES
 from .bundle import BundleProblem, BundleSolution, CameraBlock, residuals, solve_bundle
 
 __all__ = [
@@ -107,9 +107,9 @@ class SelfCalibrationOptions:
     def __post_init__(self):
         if self.solver not in ("adjustment", "dense"):
             raise ConfigError(f"solver = {self.solver!r}: expected 'adjustment' or 'dense'")
-        bad = [n for n in self.fixed if n not in _model.PARAM_NAMES]
+        bad = [n for n in self.fixed if n not in PARAM_NAMES]
         if bad:
-            raise ConfigError(f"fixed: unknown parameter(s) {bad}; expected names from {list(_model.PARAM_NAMES)}")
+            raise ConfigError(f"fixed: unknown parameter(s) {bad}; expected names from {list(PARAM_NAMES)}")
         if self.default_sigma_px <= 0:
             raise ConfigError(f"default_sigma_px = {self.default_sigma_px}: expected a positive number of pixels")
         if self.min_points_per_image < 4:
@@ -132,7 +132,7 @@ class SelfCalibrationOptions:
             names += ["K4", "K5"]
         if self.affinity:
             names += ["B1", "B2"]
-        return np.array([n in names and n not in self.fixed for n in _model.PARAM_NAMES])
+        return np.array([n in names and n not in self.fixed for n in PARAM_NAMES])
 
 
 @dataclass
@@ -159,9 +159,9 @@ class CameraSetup:
         if not (pp[0] > 0 and pp[1] > 0):
             raise InvalidInputError(f"camera {self.name!r}: pixel_pitch_um {self.pixel_pitch_um}: expected positive micrometres")
         self.pixel_pitch_um = pp
-        bad = set(self.nominal) - set(_model.PARAM_NAMES)
+        bad = set(self.nominal) - set(PARAM_NAMES)
         if bad:
-            raise ConfigError(f"camera {self.name!r}: unknown parameter(s) {sorted(bad)}; expected {list(_model.PARAM_NAMES)}")
+            raise ConfigError(f"camera {self.name!r}: unknown parameter(s) {sorted(bad)}; expected {list(PARAM_NAMES)}")
 
     @property
     def pitch_mm(self) -> tuple[float, float]:
@@ -213,11 +213,11 @@ class CameraCalibration:
 
     @property
     def param_dict(self) -> dict[str, float]:
-        return dict(zip(_model.PARAM_NAMES, map(float, self.params)))
+        return dict(zip(PARAM_NAMES, map(float, self.params)))
 
     @property
     def std_dict(self) -> dict[str, float]:
-        return dict(zip(_model.PARAM_NAMES, map(float, self.std)))
+        return dict(zip(PARAM_NAMES, map(float, self.std)))
 
     @property
     def sigma_xy_um(self) -> tuple[float, float]:
@@ -230,7 +230,7 @@ class CameraCalibration:
         s = np.sqrt(np.diag(C))
         with np.errstate(invalid="ignore", divide="ignore"):
             rho = C / s[:, None] / s[None, :]
-        return [_model.PARAM_NAMES[i] for i in idx], rho
+        return [PARAM_NAMES[i] for i in idx], rho
 
     def parameters_px(self) -> dict[str, tuple[float, float, str]]:
         """The parameters expressed in pixels: name -> (value, std, unit).
@@ -323,10 +323,10 @@ class CalibrationResult:
 
 # ----------------------------------------------------------------------------------------------
 def _nominal_vector(setup: CameraSetup, c_mm: float) -> np.ndarray:
-    p = np.zeros(_model.N_PARAMS)
+    p = np.zeros(N_PARAMS)
     for k, v in setup.nominal.items():
         if v is not None:
-            p[_model.PARAM_NAMES.index(k)] = float(v)
+            p[PARAM_NAMES.index(k)] = float(v)
     p[0] = c_mm
     return p
 
@@ -643,7 +643,7 @@ def calibrate(
         return sol, sel, pose_keys
 
     # ---- stage 1: nominal interior orientation, poses only --------------------------------
-    fixed_masks = [np.zeros(_model.N_PARAMS, dtype=bool) for _ in cameras]
+    fixed_masks = [np.zeros(N_PARAMS, dtype=bool) for _ in cameras]
     if rig_members:
         init_rig()
     stage1 = {}
@@ -745,7 +745,7 @@ def _assemble(sol, sel, pose_keys, cameras, images, verdicts, obs_img, obs_pt, o
         cov = sol.camera_cov[ci]
         tests = []
         for name in ADDITIONAL:
-            i = _model.PARAM_NAMES.index(name)
+            i = PARAM_NAMES.index(name)
             if cb.free[i]:
                 tv = abs(cb.params[i]) / std[i] if std[i] > 0 else float("inf")
                 tests.append(ParameterTest(name, float(cb.params[i]), float(std[i]), float(tv), tcrit, bool(tv > tcrit)))

@@ -31,7 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..calibration import _model
+from ..calibration.bundle import PARAM_NAMES, project
+from ..camera.models import photogrammetric_correction_jacobian
 
 __all__ = [
     "FLIR_A320_IMAGE_SIZE",
@@ -115,7 +116,7 @@ def look_at_pose(center: np.ndarray, target: np.ndarray, roll_deg: float = 0.0, 
 class TestFieldTruth:
     """Exact values behind a synthetic test-field calibration."""
 
-    params: np.ndarray  # (12,) correction-form parameters, layout calibration._model.PARAM_NAMES
+    params: np.ndarray  # (12,) correction-form parameters, layout calibration.bundle.PARAM_NAMES
     image_size: tuple[int, int]
     pixel_pitch_um: float
     point_ids: np.ndarray  # (77,) str
@@ -128,7 +129,7 @@ class TestFieldTruth:
 
     @property
     def param_dict(self) -> dict[str, float]:
-        return dict(zip(_model.PARAM_NAMES, map(float, self.params)))
+        return dict(zip(PARAM_NAMES, map(float, self.params)))
 
 
 @dataclass(frozen=True)
@@ -191,7 +192,7 @@ def make_testfield(
 
             raise ConfigError(f"unknown camera parameter(s) {sorted(unknown)}; expected names from {list(p)}")
         p.update(params)
-    pvec = np.array([p[k] for k in _model.PARAM_NAMES])
+    pvec = np.array([p[k] for k in PARAM_NAMES])
     ids, xyz = testfield_points()
     target = np.array([0.0, 0.7, 0.0])
     az = np.deg2rad(np.linspace(-35.0, 35.0, n_positions)) if n_positions > 1 else np.zeros(1)
@@ -212,11 +213,12 @@ def make_testfield(
     oi, op, xyt = [], [], []
     for f in range(R.shape[0]):
         Xc = xyz @ R[f].T + t[f]
-        xy, _, _, ok = _model.project(Xc, pvec, FLIR_A320_IMAGE_SIZE, pitch_mm, jacobians=False)
+        xy, _, _, ok = project(Xc, pvec, FLIR_A320_IMAGE_SIZE, pitch_mm, jacobians=False)
         xb = (xy[:, 0] - (w - 1) / 2) * pitch_mm[0] - pvec[1]
         yb = -(xy[:, 1] - (h - 1) / 2) * pitch_mm[1] - pvec[2]
-        D, _ = _model.correction_jacobians(xb, yb, pvec)
-        det = (1 + D[:, 0, 0]) * (1 + D[:, 1, 1]) - D[:, 0, 1] * D[:, 1, 0]
+        # Js = I + d(correction)/d(xb, yb): its determinant guards against the fold of the polynomial
+        _, Js, _ = photogrammetric_correction_jacobian(pvec, np.stack([xb, yb], axis=1))
+        det = Js[:, 0, 0] * Js[:, 1, 1] - Js[:, 0, 1] * Js[:, 1, 0]
         inside = (xy[:, 0] >= 1) & (xy[:, 0] <= w - 2) & (xy[:, 1] >= 1) & (xy[:, 1] <= h - 2)
         keep = ok & inside & (det > fold_guard)
         idx = np.nonzero(keep)[0]
