@@ -208,6 +208,16 @@ def _check_jacobians(cam: Camera, pts: np.ndarray) -> None:
     xy, Jp, Jt = cam.project_jacobian(pts)
     np.testing.assert_allclose(xy, cam.project(pts), atol=1e-12, rtol=0)
     assert Jp.shape == (len(pts), 2, 3) and Jt.shape == (len(pts), 2, len(cam.param_names))
+    # point-only path (triangulation/resection): same projection and point Jacobian, no J_params;
+    # both are the same arithmetic, so they agree to rounding (1e-12 relative)
+    xy1, Jp1, none = cam.project_jacobian(pts, params=False)
+    assert none is None
+    xy2, Jp2 = cam.project_point_jacobian(pts)
+    scale_p = np.abs(Jp).max()
+    for a, b in ((xy1, xy), (xy2, xy)):
+        np.testing.assert_allclose(a, b, atol=1e-12, rtol=0)
+    for J in (Jp1, Jp2):
+        assert J.shape == Jp.shape and np.abs(J - Jp).max() <= 1e-12 * scale_p
     p = cam.params
     for i, name in enumerate(cam.param_names):
         scale = np.abs(Jt[:, :, i]).max()

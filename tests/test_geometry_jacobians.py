@@ -76,3 +76,27 @@ def test_reprojection_jacobian(rng):
             return v[0], J[0]
 
         _fd_check(fun, X[n], _add, np.full(3, 1e-6))
+
+
+def test_collinearity_jacobian_fixed_interior_point_only_path(rng):
+    """Fixed interior orientation uses the cameras' point-only Jacobian (Camera and a bare K)."""
+    from thermogrammetry.geometry._camera import PinholeK
+
+    pose = Pose.look_at([1.0, -6.0, 2.0], [0.0, 0.0, 0.0])
+    X = rng.uniform(-1, 1, (15, 3))
+    K = np.array([[600.0, 0.0, 322.0], [0.0, 590.0, 238.0], [0.0, 0.0, 1.0]])
+    p = np.concatenate([rot.axis_angle_from_matrix(pose.R), pose.center])
+
+    def update(q, dq):
+        R = rot.matrix_from_axis_angle(q[:3]) @ rot.matrix_from_axis_angle(dq[:3])
+        return np.concatenate([rot.axis_angle_from_matrix(R), q[3:] + dq[3:]])
+
+    for cam in (CAM, PinholeK(K)):
+        xy = cam.project(pose.transform(X)) + rng.normal(0, 1, (15, 2))
+        _fd_check(lambda q, cam=cam: collinearity_residuals(q, cam, X, xy), p, update, np.full(6, 1e-6))
+    pk = PinholeK(K)
+    xy0, jp0, jk0 = pk.project_jacobian(pose.transform(X))
+    xy1, jp1, none = pk.project_jacobian(pose.transform(X), params=False)
+    assert none is None and jk0.shape == (15, 2, 4)
+    assert np.abs(jp1 - jp0).max() <= 1e-12 * np.abs(jp0).max()
+    assert np.abs(pk.project_point_jacobian(pose.transform(X))[1] - jp0).max() <= 1e-12 * np.abs(jp0).max()

@@ -317,10 +317,19 @@ class Camera:
         pts = as_points(points_cam, "points_cam", 3)
         return M.project(self._model, self._params, pts, **self._kw())
 
-    def project_jacobian(self, points_cam):
-        """``(xy (N,2), J_point (N,2,3), J_params (N,2,P))``, analytic."""
+    def project_jacobian(self, points_cam, params: bool = True):
+        """``(xy (N,2), J_point (N,2,3), J_params (N,2,P))``, analytic.
+
+        ``params=False`` computes only the point Jacobian and returns ``J_params`` as None
+        (cheaper: triangulation and resection with a fixed camera need no more).
+        """
         pts = as_points(points_cam, "points_cam", 3)
-        return M.project_jacobian(self._model, self._params, pts, **self._kw())
+        return M.project_jacobian(self._model, self._params, pts, wrt_params=bool(params), **self._kw())
+
+    def project_point_jacobian(self, points_cam):
+        """``(xy (N,2), J_point (N,2,3))``: projection and its Jacobian w.r.t. the point only."""
+        xy, jp, _ = self.project_jacobian(points_cam, params=False)
+        return xy, jp
 
     def unproject(self, xy_px) -> np.ndarray:
         """Undistorted rays (N, 3) with z = 1 through measured pixels (N, 2)."""

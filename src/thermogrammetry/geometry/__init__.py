@@ -5,8 +5,19 @@ x right / y down / z forward, OpenCV pixel origin, ω φ κ with M = R_κ R_φ R
 Every estimator returns a result object with an :class:`~thermogrammetry.results.Outcome`
 and its precision; bad input raises from :mod:`thermogrammetry.errors`.
 
-Note: the functions ``dlt`` and ``resection`` share their names with their modules; import
-result classes from the modules (``from thermogrammetry.geometry.dlt import DLTResult``).
+Name shadowing (kept on purpose: other code calls these public names)
+-------------------------------------------------------------------
+The functions :func:`dlt` and :func:`resection` are re-exported here under the same names as
+their submodules ``geometry/dlt.py`` and ``geometry/resection.py``, so after import the package
+attributes ``thermogrammetry.geometry.dlt`` / ``.resection`` are the *functions*, not the
+modules. Consequences:
+
+- ``from thermogrammetry.geometry import dlt`` and even
+  ``import thermogrammetry.geometry.dlt as m`` give the function;
+- to reach anything else in those modules use ``from thermogrammetry.geometry.dlt import
+  DLTResult`` (``from package.module import name`` resolves the module through
+  ``sys.modules``), or ``importlib.import_module("thermogrammetry.geometry.dlt")`` for the
+  module object.
 """
 
 from __future__ import annotations

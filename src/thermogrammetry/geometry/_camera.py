@@ -13,7 +13,7 @@ import numpy as np
 from .._validate import as_array
 from ..errors import InvalidInputError, ShapeError
 
-__all__ = ["PinholeK", "as_camera"]
+__all__ = ["PinholeK", "as_camera", "point_jacobian"]
 
 
 class PinholeK:
@@ -56,7 +56,8 @@ class PinholeK:
         K = self._K
         return np.stack([K[0, 0] * xn[:, 0] + K[0, 1] * xn[:, 1] + K[0, 2], K[1, 1] * xn[:, 1] + K[1, 2]], -1)
 
-    def project_jacobian(self, points_cam):
+    def project_jacobian(self, points_cam, params: bool = True):
+        """``(xy (N,2), J_point (N,2,3), J_params (N,2,4) or None when params=False)``."""
         X = np.asarray(points_cam, float)
         K = self._K
         z = X[:, 2]
@@ -70,12 +71,19 @@ class PinholeK:
         Jn[:, 1, 2] = -yn / z
         A = K[:2, :2]
         Jp = np.einsum("ij,njk->nik", A, Jn)
+        if not params:
+            return uv, Jp, None
         Jk = np.zeros((n, 2, 4))
         Jk[:, 0, 0] = xn
         Jk[:, 1, 1] = yn
         Jk[:, 0, 2] = 1.0
         Jk[:, 1, 3] = 1.0
         return uv, Jp, Jk
+
+    def project_point_jacobian(self, points_cam):
+        """``(xy (N,2), J_point (N,2,3))``."""
+        xy, jp, _ = self.project_jacobian(points_cam, params=False)
+        return xy, jp
 
     def undistort(self, xy_px) -> np.ndarray:
         return np.array(xy_px, float)
@@ -89,6 +97,16 @@ class PinholeK:
         yn = (xy[:, 1] - K[1, 2]) / K[1, 1]
         xn = (xy[:, 0] - K[0, 2] - K[0, 1] * yn) / K[0, 0]
         return np.stack([xn, yn, np.ones_like(xn)], -1)
+
+
+def point_jacobian(camera, points_cam):
+    """``(xy (N,2), J_point (N,2,3))`` of a Camera-like: the point-only path when the camera has
+    one (``project_point_jacobian``), else the full ``project_jacobian`` with the parameter part dropped."""
+    f = getattr(camera, "project_point_jacobian", None)
+    if f is not None:
+        return f(points_cam)
+    xy, jp, _ = camera.project_jacobian(points_cam)
+    return xy, jp
 
 
 def as_camera(camera, name: str = "camera"):

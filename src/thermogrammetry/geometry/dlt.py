@@ -372,7 +372,6 @@ class DLTResult:
         xi = Xh[:, :2] / Xh[:, 2:3]
         if not self.additional:
             return xi
-        names = tuple(self.additional)
         x0, y0 = self.K[0, 2], self.K[1, 2]
         x = xi.copy()
         for _ in range(iterations):

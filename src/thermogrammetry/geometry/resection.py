@@ -30,7 +30,7 @@ from ..adjustment.dense import DenseOptions, DenseResult, solve_dense
 from ..errors import InvalidInputError, ShapeError, TooFewPointsError
 from ..results import Outcome, Termination
 from . import rotations as rot
-from ._camera import as_camera
+from ._camera import as_camera, point_jacobian
 from .dlt import _COPLANAR_TOL, decompose_projection, dlt_linear
 from ._common import sigma_per_coordinate
 from .pose import Pose
@@ -183,7 +183,10 @@ def collinearity_residuals(params, camera, points_world, xy_px, interior_idx=())
     c = _camera_with(camera, iidx, params[6:])
     d = points_world - C
     Xc = d @ R.T
-    uv, Jp, Jk = c.project_jacobian(Xc)
+    if iidx.size:
+        uv, Jp, Jk = c.project_jacobian(Xc)
+    else:  # fixed interior orientation: the point Jacobian is all that is needed
+        uv, Jp = point_jacobian(c, Xc)
     n = points_world.shape[0]
     J = np.zeros((n, 2, 6 + iidx.size))
     J[:, :, 0:3] = Jp @ (-np.einsum("ij,njk->nik", R, rot.skew(d)))

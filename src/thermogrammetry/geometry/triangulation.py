@@ -30,7 +30,7 @@ from .._validate import as_array, check_finite
 from ..adjustment.dense import DenseOptions, solve_dense_batch
 from ..errors import ShapeError
 from ..results import Outcome, Termination
-from ._camera import as_camera
+from ._camera import as_camera, point_jacobian
 from ._common import sigma_per_coordinate
 from .pose import Pose
 
@@ -216,8 +216,13 @@ def reprojection_residuals(points_world, cameras, poses, xy_px, mask):
         if not np.any(ok):
             continue
         R, t = poses[v].R, poses[v].t
+        if ok.all():  # common case: no fancy indexing (copies) of the whole batch
+            uv, Jp = point_jacobian(cameras[v], points_world @ R.T + t)
+            Vr[:, v] = uv - xy_px[v]
+            J[:, v] = Jp @ R
+            continue
         Xc = points_world[ok] @ R.T + t
-        uv, Jp, _ = cameras[v].project_jacobian(Xc)
+        uv, Jp = point_jacobian(cameras[v], Xc)
         Vr[ok, v] = uv - xy_px[v, ok]
         J[ok, v] = Jp @ R
     return Vr.reshape(N, 2 * V), J.reshape(N, 2 * V, 3)
@@ -298,7 +303,6 @@ def triangulate(
     weights = np.where(m[..., None], 1.0 / sig**2, 0.0).transpose(1, 0, 2).reshape(N, 2 * V)
     Rs = np.stack([p.R for p in poses])
     ts = np.stack([p.t for p in poses])
-    xyT = np.transpose(xy, (1, 0, 2))  # (N, V, 2)
     mT = m.T
 
     def fun(Xb, idx):
