@@ -97,9 +97,9 @@ class BALProblem:
         f, k1, k2 : (C,) focal length (px) and BAL radial coefficients
         xy : (M, 2) image coordinates relative to the principal point, y down (px)
         """
-        from ..adjustment.bal import rotation_matrices
+        from ..geometry.rotations import matrix_from_axis_angle
 
-        R = rotation_matrices(self.cameras[:, :3])
+        R = matrix_from_axis_angle(self.cameras[:, :3])
         flip = np.array([1.0, -1.0, -1.0])
         return (
             R * flip[None, :, None],
