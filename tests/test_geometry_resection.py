@@ -118,3 +118,57 @@ def test_free_interior_photogrammetric_flir_a320(rng):
     # one seeded noisy run: every estimate within 4 σ (a-priori) of the truth
     assert np.all(np.abs(r.interior - truth) < 4 * r.interior_std_prior), (r.interior - truth) / r.interior_std_prior
     assert r.camera.params[0] == r.interior[0]  # the returned camera carries the estimate
+
+
+# --------------------------------------------------------------------------- planar flip ambiguity
+_OBLIQUE_CAM = Camera("opencv", (640, 480), dict(fx=800, fy=800, cx=320, cy=240, k1=-0.1, k2=0.02))
+
+
+def _nearly_coplanar_case(seed):
+    """n = 4 (even seed) or 5 points on a 10 m x 10 m field with 5 cm height scatter, viewed 40° off
+    nadir from 60 m (weak perspective: the mirrored pose fits almost as well); image noise 0.3 px."""
+    rng = np.random.default_rng(seed)
+    n = 4 + seed % 2
+    X = np.c_[rng.uniform(-5, 5, (n, 2)), rng.normal(0, 0.05, n)]
+    ang = np.radians(40)
+    C = np.array([0, -60 * np.sin(ang), 60 * np.cos(ang)])
+    pose = Pose.look_at(C, [0, 0, 0], up=(0, 0, 1))
+    xy = _OBLIQUE_CAM.project(pose.transform(X)) + rng.normal(0, 0.3, (n, 2))
+    return X, xy, C
+
+
+@pytest.mark.parametrize("seed", [0, 40, 81])
+def test_nearly_coplanar_picks_the_right_pose_when_the_mirror_fits_clearly_worse(seed):
+    # before the fix: SQPnP alone converged to the mirrored pose ~70-80 m away and reported success
+    X, xy, C = _nearly_coplanar_case(seed)
+    r = resection(_OBLIQUE_CAM, X, xy, sigma_px=0.3)
+    assert r.termination is Termination.CONVERGED and not r.ambiguous
+    # the true centre within 4 σ (a-priori σ from 0.3 px; 4σ on the norm of a 3-vector is generous)
+    assert np.linalg.norm(r.center - C) < 4 * np.linalg.norm(r.center_std_prior)
+    # the mirrored minimum was found, lies ~70-80 m away and fails the global test
+    assert len(r.alternatives) >= 1 and 60 < r.alternatives[0][2] < 100
+    assert r.alternatives[0][3] > 9.21  # vᵀPv > χ²_0.99(r ≥ 2)
+
+
+@pytest.mark.parametrize("seed", [4, 6, 69])
+def test_nearly_coplanar_ambiguous_pose_is_reported(seed):
+    # before the fix: success with the centre 77 / 77 / 80 m off (RMS 0.56 / 0.12 / 0.21 px)
+    X, xy, C = _nearly_coplanar_case(seed)
+    r = resection(_OBLIQUE_CAM, X, xy, sigma_px=0.3)
+    assert not r.success and r.ambiguous
+    assert r.termination is Termination.DEGENERATE and r.reason.startswith("ambiguous pose")
+    assert "flip ambiguity" in r.reason
+    # one of the two candidates is the true pose (within 4σ), the other the mirror 60-100 m away
+    cands = [r.center] + [a[0].center for a in r.alternatives]
+    d = sorted(np.linalg.norm(c - C) for c in cands)
+    assert d[0] < 4 * np.linalg.norm(r.center_std_prior) and 60 < d[1] < 100
+    # every candidate kept in front of the camera: all points have positive depth for the best pose
+    assert np.all(r.pose.transform(X)[:, 2] > 0)
+
+
+def test_well_spread_points_are_not_ambiguous(rng):
+    # 12 non-coplanar points (depth spread 2 m at 6 m): one clear minimum, CONVERGED
+    X = rng.uniform(-1, 1, (12, 3))
+    xy = CAM.project(POSE.transform(X)) + rng.normal(0, 0.3, (12, 2))
+    r = resection(CAM, X, xy, sigma_px=0.3)
+    assert r.success and not r.ambiguous

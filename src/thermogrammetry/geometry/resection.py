@@ -2,8 +2,15 @@
 unknown) interior orientation, with the covariance of the six parameters and of the projection centre.
 
 1. **Initial pose**: a linear DLT on the undistorted normalised rays (≥ 6 non-coplanar points;
-   Abdel-Aziz & Karara 1971) or OpenCV's SQPnP (coplanar or few points; Terzakis & Lourakis 2020),
-   or a pose given by the caller.
+   Abdel-Aziz & Karara 1971), or — for few, coplanar or nearly coplanar points — *every* start
+   of OpenCV's SQPnP (Terzakis & Lourakis 2020), both IPPE solutions on the best-fitting plane
+   (Collins & Bartoli 2014) and, for 4 points, P3P; or a pose given by the caller.
+   Each start is refined (step 2) and the refined pose with the smallest vᵀPv and all points in
+   front of the camera is kept. A (nearly) planar field seen under weak perspective has two
+   local minima, the second a reflection of the first (the "flip" ambiguity); when a distinct
+   second minimum also passes the global test (vᵀPv ≤ χ²₀.₉₉(r)·max(1, σ̂0²)), the result is
+   ``Termination.DEGENERATE`` with reason "ambiguous pose: ..." and both poses are reported
+   (``alternatives``) instead of a confident, possibly mirrored, estimate.
 2. **Least squares** on the collinearity equations in the image (the camera's full model, distortion
    included): parameters are a world-frame rotation increment δ (``R ← R·exp([δ]×)``) and the
    projection centre ``C``; optionally interior parameters of the camera (e.g. c, x0, y0).
@@ -14,6 +21,7 @@ References
 ----------
 Kraus, K. (2007). *Photogrammetry*, 2nd ed., §4.2 (spatial resection).
 Abdel-Aziz, Y. I., Karara, H. M. (1971). Direct linear transformation ... (seed 000 ref. [1]).
+Collins, T., Bartoli, A. (2014). Infinitesimal plane-based pose estimation. *IJCV* 109, 252–286 (IPPE).
 Terzakis, G., Lourakis, M. (2020). A consistently fast and globally optimal solution to the
 perspective-n-point problem. ECCV 2020 (SQPnP).
 """
@@ -68,9 +76,19 @@ class ResectionResult:
     residuals_px : ndarray (N, 2)
     rms_px, sigma0 : float
     init_method : str
-        ``"dlt"``, ``"sqpnp"`` or ``"given"``.
+        ``"dlt"``, ``"sqpnp"`` (minimal/planar starts) or ``"given"``.
     adjustment : DenseResult
     outcome : Outcome
+        ``Termination.DEGENERATE`` with a reason starting ``"ambiguous pose"`` when ``ambiguous``.
+    start : str
+        The start the returned estimate was refined from: ``"dlt"``, ``"sqpnp"``, ``"ippe"``,
+        ``"p3p"`` or ``"given"``.
+    ambiguous : bool
+        A distinct pose with all points in front fits the observations about as well (flip
+        ambiguity of (nearly) coplanar points; test in :func:`_alternatives`). The best pose is
+        still returned, but ``success`` is False.
+    alternatives : tuple of (Pose, rms_px, centre_distance_m, cost)
+        The other distinct refined local minima, best first.
     """
 
     pose: Pose
@@ -94,6 +112,9 @@ class ResectionResult:
     init_method: str
     adjustment: DenseResult
     outcome: Outcome
+    start: str = ""
+    ambiguous: bool = False
+    alternatives: tuple = ()
 
     @property
     def termination(self) -> Termination:
@@ -123,28 +144,138 @@ class ResectionResult:
         return np.sqrt(np.clip(np.diag(self.covariance_opk)[:3], 0, None))
 
 
-def _initial_pose(cam, X, x, method):
+# Control fields flatter than this (smallest / largest singular value of the centred points) also
+# get the planar starts (IPPE, SQPnP) next to the DLT: the DLT is ill-conditioned there and a
+# near-planar field has a second, mirrored pose that fits almost as well (see ``resection``).
+_FLAT_RATIO = 0.1
+# Ambiguity test level: a distinct alternative pose whose weighted squared residual sum passes the
+# global test at this level is as compatible with the observations as the best one.
+_AMBIGUITY_ALPHA = 0.01
+
+
+def _pose_from_cv(rvec, tvec, A, origin):
+    """World pose from an OpenCV pose of the points ``Xp = A (X − origin)`` (A orthonormal)."""
+    rv, tv = np.asarray(rvec, float).ravel(), np.asarray(tvec, float).ravel()
+    if not (np.all(np.isfinite(rv)) and np.all(np.isfinite(tv))):
+        return None
+    R = rot.matrix_from_axis_angle(rv) @ A
+    return Pose(R, tv - R @ origin)
+
+
+def _start_candidates(cam, X, x, method):
+    """Start poses ``[(Pose, name), ...]`` and the family name (``"dlt"`` or ``"sqpnp"``).
+
+    ``"dlt"``: the linear DLT (≥ 6 non-coplanar points). ``"sqpnp"`` (few, coplanar or nearly
+    coplanar points): SQPnP, both IPPE solutions of the points projected onto their best-fitting
+    plane (Collins & Bartoli 2014: a planar pose has two local minima, the second one a reflection
+    about a plane), and for exactly 4 points all P3P solutions. ``"auto"`` on a flat field
+    (``s3/s1 < _FLAT_RATIO``) with ≥ 6 points tries the DLT and the planar starts.
+    """
     rays = cam.unproject(x)
     xn = rays[:, :2] / rays[:, 2:3]
-    c = X - X.mean(0)
-    s = np.linalg.svd(c, compute_uv=False)
-    coplanar = s[2] / s[0] < _COPLANAR_TOL if s[0] > 0 else True
+    if not np.all(np.isfinite(xn)):
+        return [], "sqpnp"
+    origin = X.mean(0)
+    c = X - origin
+    _, sv, Vt = np.linalg.svd(c, full_matrices=False)
+    ratio = sv[2] / sv[0] if sv[0] > 0 else 0.0
+    coplanar = ratio < _COPLANAR_TOL
     if method == "auto":
         method = "dlt" if (X.shape[0] >= 6 and not coplanar) else "sqpnp"
+        planar_too = method == "dlt" and ratio < _FLAT_RATIO
+    else:
+        planar_too = False
+    cands = []
     if method == "dlt":
         P = dlt_linear(X, xn)
         _, R, C = decompose_projection(P)
-        return Pose.from_center(R, C), "dlt"
+        cands.append((Pose.from_center(R, C), "dlt"))
+        if not planar_too:
+            return cands, "dlt"
     import cv2
 
-    origin = X.mean(0)
-    ok, rvec, tvec = cv2.solvePnP((X - origin).astype(np.float64), xn.astype(np.float64), np.eye(3), None,
-                                  flags=cv2.SOLVEPNP_SQPNP)
-    if not ok:
-        return None, "sqpnp"
-    R = rot.matrix_from_axis_angle(rvec.ravel())
-    C = -R.T @ tvec.ravel() + origin
-    return Pose.from_center(R, C), "sqpnp"
+    xn64 = np.ascontiguousarray(xn, np.float64)
+    eye = np.eye(3)
+    ident = np.eye(3)
+    try:
+        n_sol, rvecs, tvecs, _ = cv2.solvePnPGeneric(np.ascontiguousarray(c), xn64, eye, None, flags=cv2.SOLVEPNP_SQPNP)
+        cands += [(_pose_from_cv(rv, tv, ident, origin), "sqpnp") for rv, tv in zip(rvecs[:n_sol], tvecs[:n_sol])]
+    except cv2.error:
+        pass
+    if X.shape[0] >= 4 and sv[1] > 1e-9 * sv[0]:
+        # IPPE works on exactly planar points: use the in-plane coordinates of the best-fitting plane
+        A = Vt if np.linalg.det(Vt) > 0 else Vt * np.array([1.0, 1.0, -1.0])[:, None]
+        plane = c @ A.T
+        plane[:, 2] = 0.0
+        try:
+            n_sol, rvecs, tvecs, _ = cv2.solvePnPGeneric(np.ascontiguousarray(plane), xn64, eye, None, flags=cv2.SOLVEPNP_IPPE)
+            cands += [(_pose_from_cv(rv, tv, A, origin), "ippe") for rv, tv in zip(rvecs[:n_sol], tvecs[:n_sol])]
+        except cv2.error:
+            pass
+    if X.shape[0] == 4:
+        try:
+            n_sol, rvecs, tvecs, _ = cv2.solvePnPGeneric(np.ascontiguousarray(c), xn64, eye, None, flags=cv2.SOLVEPNP_P3P)
+            cands += [(_pose_from_cv(rv, tv, ident, origin), "p3p") for rv, tv in zip(rvecs[:n_sol], tvecs[:n_sol])]
+        except cv2.error:
+            pass
+    good = [(p, nm) for p, nm in cands if p is not None]
+    return good, "dlt" if method == "dlt" else "sqpnp"
+
+
+def _flatness(X):
+    s = np.linalg.svd(X - X.mean(0), compute_uv=False)
+    return s[2] / s[0] if s[0] > 0 else 0.0
+
+
+def _alternatives(refined, best_i, X, adj):
+    """Distinct refined poses other than the best, and those that make the result ambiguous.
+
+    Distinct: projection centre more than ``max(3 σ_C, 1e-6 D)`` away from the best one (σ_C the
+    a-priori standard deviation of the best centre along the difference, D the mean distance to the
+    points), or the rotation differs by more than ``max(3 σ_rot, 1e-6)`` rad. Ambiguous: such a pose
+    has all points in front and its weighted squared residual sum passes the global test,
+    ``vᵀPv ≤ χ²_{1−α}(r) · max(1, σ̂0²)`` with σ̂0² of the best pose (``r`` = redundancy, at least 1;
+    α = ``_AMBIGUITY_ALPHA``): at the stated image precision — or at the precision the best pose
+    shows, when that is worse — the observations do not tell the two poses apart.
+
+    Returns ``([(Pose, rms_px, centre_distance_m, cost), ...] sorted by cost, ambiguous subset)``.
+    """
+    from scipy.stats import chi2
+
+    Cb = adj.x[3:6]
+    Rb = rot.matrix_from_axis_angle(adj.x[:3])
+    D = float(np.mean(np.linalg.norm(X - Cb, axis=1)))
+    covC = adj.covariance_prior[3:6, 3:6]
+    covR = adj.covariance_prior[:3, :3]
+    r = max(int(adj.redundancy), 1)
+    s02 = adj.cost / adj.redundancy if adj.redundancy > 0 else 0.0
+    limit = chi2.ppf(1 - _AMBIGUITY_ALPHA, r) * max(1.0, s02)
+    alts, amb = [], []
+    seen = [(Cb, Rb)]
+    for i, (behind, cost, _, a, Rc) in sorted(enumerate(refined), key=lambda t: t[1][1]):
+        if i == best_i or not np.isfinite(cost):
+            continue
+        Ca = a.x[3:6]
+        distinct = True
+        for Cs, Rs in seen:
+            dC = Ca - Cs
+            nC = float(np.linalg.norm(dC))
+            sC = float(np.sqrt(max(dC @ covC @ dC, 0.0))) / nC if nC > 0 and np.all(np.isfinite(covC)) else 0.0
+            dR = rot.axis_angle_from_matrix(Rs.T @ Rc)
+            nR = float(np.linalg.norm(dR))
+            sR = float(np.sqrt(max(dR @ covR @ dR, 0.0))) / nR if nR > 0 and np.all(np.isfinite(covR)) else 0.0
+            if nC <= max(3 * sC, 1e-6 * D) and nR <= max(3 * sR, 1e-6):
+                distinct = False
+                break
+        if not distinct:
+            continue
+        seen.append((Ca, Rc))
+        rms = float(np.sqrt(np.mean(a.residuals**2)))
+        entry = (Pose.from_center(Rc, Ca), rms, float(np.linalg.norm(Ca - Cb)), cost)
+        alts.append(entry)
+        if not behind and a.outcome.success and cost <= limit:
+            amb.append(entry)
+    return alts, amb
 
 
 def _camera_with(cam, iidx, values):
@@ -220,8 +351,10 @@ def resection(
     sigma_px : float or array_like (N,) or (N, 2)
         A-priori σ of an image coordinate (px).
     method : {"auto", "dlt", "sqpnp"}
-        Initialisation; ``"auto"``: DLT for ≥ 6 non-coplanar points, else SQPnP. Ignored when
-        ``initial_pose`` is given.
+        Initialisation; ``"auto"``: DLT for ≥ 6 non-coplanar points (plus the planar starts when the
+        field is flat, smallest/largest singular value < 0.1), else the minimal/planar starts
+        (SQPnP, IPPE ×2, P3P for 4 points), each refined, best kept. Ignored when ``initial_pose``
+        is given.
     initial_pose : Pose, optional
     free_interior : bool or sequence of str
         Estimate interior parameters too: ``True`` frees c, x0, y0 (``c_mm x0_mm y0_mm`` for the
@@ -267,22 +400,19 @@ def resection(
     if initial_pose is not None:
         if not isinstance(initial_pose, Pose):
             raise ShapeError(f"initial_pose: expected a Pose, got {type(initial_pose).__name__}")
-        pose0, init = initial_pose, "given"
+        cands, init = [(initial_pose, "given")], "given"
     else:
         if method == "dlt" and X.shape[0] < 6:
             raise TooFewPointsError(f"method='dlt' needs at least 6 control points, got {X.shape[0]}")
-        pose0, init = _initial_pose(cam, X, x, method)
-        if pose0 is None:
+        cands, init = _start_candidates(cam, X, x, method)
+        if not cands:
             nan6 = np.full((6, 6), np.nan)
             return ResectionResult(Pose.identity(), cam, np.nan, np.nan, np.nan, np.full(3, np.nan), nan6, nan6, nan6,
                                    nan6[:3, :3], nan6[:3, :3], inames, np.full(len(inames), np.nan),
                                    np.full(len(inames), np.nan), np.full(len(inames), np.nan),
                                    np.full(x.shape, np.nan), np.nan, np.nan, init, None,
-                                   Outcome(Termination.DEGENERATE, "SQPnP found no pose for these points"))
+                                   Outcome(Termination.DEGENERATE, "SQPnP/IPPE found no pose for these points"))
     p_int0 = np.asarray(cam.params, float)[iidx] if inames else np.zeros(0)
-
-    # parameter vector: rvec (3, absolute, updated multiplicatively), C (3), interior (k)
-    x0 = np.concatenate([rot.axis_angle_from_matrix(pose0.R), pose0.center, p_int0])
 
     def fun(p):
         return collinearity_residuals(p, cam, X, x, iidx)
@@ -292,8 +422,25 @@ def resection(
         return np.concatenate([rot.axis_angle_from_matrix(R), p[3:6] + dp[3:6], p[6:] + dp[6:]])
 
     names = ["dx_rot", "dy_rot", "dz_rot", "X0", "Y0", "Z0", *inames]
-    adj = solve_dense(fun, x0, weights=1.0 / sig.ravel() ** 2, update=update,
-                      param_names=names, options=options)
+    w = 1.0 / sig.ravel() ** 2
+    # refine every start (parameter vector: rvec (3, absolute, updated multiplicatively), C (3),
+    # interior (k)); candidates are ranked by vᵀPv, those with points behind the camera last
+    refined = []
+    for pose0, cname in cands:
+        x0 = np.concatenate([rot.axis_angle_from_matrix(pose0.R), pose0.center, p_int0])
+        a = solve_dense(fun, x0, weights=w, update=update, param_names=names, options=options)
+        Rc = rot.matrix_from_axis_angle(a.x[:3])
+        n_behind = int(np.sum((X - a.x[3:6]) @ Rc[2] <= 0))
+        cost = float(a.cost) if np.isfinite(a.cost) else np.inf
+        refined.append((n_behind > 0, cost, cname, a, Rc))
+    order = sorted(range(len(refined)), key=lambda i: (refined[i][0], refined[i][1], i))
+    # ties (same minimum reached from several starts) go to the first start in the list
+    best_i = order[0]
+    for i in order:
+        if refined[i][0] == refined[best_i][0] and refined[i][1] <= refined[best_i][1] * (1 + 1e-9) + 1e-18:
+            best_i = min(best_i, i)
+    _, cost_best, start_name, adj, _ = refined[best_i]
+    alternatives, ambiguous = _alternatives(refined, best_i, X, adj)
     R = rot.matrix_from_axis_angle(adj.x[:3])
     C = adj.x[3:6]
     pose = Pose.from_center(R, C)
@@ -314,6 +461,15 @@ def resection(
     if outcome.success and np.any(depth <= 0):
         outcome = Outcome(Termination.DEGENERATE,
                           f"{int(np.sum(depth <= 0))} of {X.shape[0]} control points lie behind the estimated camera")
+    elif outcome.success and ambiguous:
+        alt = ambiguous[0]
+        outcome = Outcome(
+            Termination.DEGENERATE,
+            f"ambiguous pose: flip ambiguity of {'nearly ' if _flatness(X) > _COPLANAR_TOL else ''}coplanar control "
+            f"points — a second pose with all points in front fits almost as well (RMS {alt[1]:.3g} px vs "
+            f"{float(np.sqrt(np.mean(adj.residuals**2))):.3g} px, centre {alt[2]:.3g} m away; both pass the "
+            f"global test at {100 * (1 - _AMBIGUITY_ALPHA):.0f} %). Best estimate returned; add control points "
+            f"off the plane or more points, or give initial_pose")
     res = adj.residuals.reshape(-1, 2)
     istd = np.sqrt(np.clip(np.diag(adj.covariance)[6:], 0, None))
     istd_p = np.sqrt(np.clip(np.diag(adj.covariance_prior)[6:], 0, None))
@@ -324,4 +480,5 @@ def resection(
         interior_names=inames, interior=adj.x[6:].copy(), interior_std=istd, interior_std_prior=istd_p,
         residuals_px=res, rms_px=float(np.sqrt(np.mean(res**2))), sigma0=float(adj.sigma0),
         init_method=init, adjustment=adj, outcome=outcome,
+        start=start_name, ambiguous=bool(ambiguous), alternatives=tuple(alternatives),
     )
