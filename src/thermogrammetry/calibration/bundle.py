@@ -1,4 +1,4 @@
-"""Small self-calibrating bundle adjustment (dense Levenberg–Marquardt) with precision.
+"""Small self-calibrating bundle adjustment with precision: the calibration's problem, solved by the project's engines.
 
 Everything the calibration needs from a solver goes through the single call :func:`solve_bundle`.
 It has two back ends that solve the same least-squares problem:
@@ -7,9 +7,12 @@ It has two back ends that solve the same least-squares problem:
   (:func:`thermogrammetry.adjustment.solve`, sparse LM + Schur with precision); the problem below is
   translated into its ``BundleProblem`` (cameras as :class:`thermogrammetry.Camera` model
   ``photogrammetric``, poses, rig blocks, fixed or weighted points) and the result translated back;
-* ``engine="dense"``: the dense Levenberg–Marquardt of this module, written before the engine
-  existed, kept as an independent cross-check (``tests/test_calibration_selfcal.py`` compares both)
-  and as the fallback when the engine cannot be imported.
+* ``engine="dense"``: the same problem as one dense weighted least-squares problem for
+  :func:`thermogrammetry.adjustment.dense.solve_dense` (Gauss–Newton/LM with covariance, σ0 and
+  redundancy numbers); the Jacobian is assembled here from the camera model's analytic Jacobians.
+  It is an independent cross-check of the engine's Schur route and of the translation to its
+  problem (``tests/test_calibration_selfcal.py`` compares both), and finishes the job when the
+  engine stops away from a minimum (see :func:`_verify_engine`).
 
 Model
 -----
@@ -350,15 +353,11 @@ def solve_bundle(problem: BundleProblem, *, max_iterations: int = 200, tolerance
                  engine: str = "adjustment") -> BundleSolution:
     """Solve the bundle; returns the estimate with precision.
 
-    ``engine``: ``"adjustment"`` (the project's engine) or ``"dense"`` (this module's LM).
+    ``engine``: ``"adjustment"`` (the project's sparse engine) or ``"dense"``
+    (:func:`thermogrammetry.adjustment.dense.solve_dense` on the dense Jacobian).
     Failure to converge or a singular normal matrix is reported through ``solution.outcome``
     (:class:`~thermogrammetry.results.Termination`), never raised.
     """
-    if engine == "adjustment":
-        try:
-            from ..adjustment import SolverOptions as _SO  # noqa: F401
-        except ImportError:  # pragma: no cover - engine absent: dense fallback
-            engine = "dense"
     if engine == "adjustment":
         sol = _solve_engine(problem, max_iterations)
         return _verify_engine(problem, sol, max_iterations, tolerance)
@@ -372,114 +371,103 @@ def solve_bundle(problem: BundleProblem, *, max_iterations: int = 200, tolerance
     return _solve_bundle(problem, max_iterations, tolerance)
 
 
+def _param_names(problem: BundleProblem, lay: dict) -> list[str]:
+    """Names of the unknowns in layout order (used in rank-deficiency messages)."""
+    names = [""] * lay["n"]
+    for ci, cb in enumerate(problem.cameras):
+        for j, k in zip(lay["cameras"][ci], np.nonzero(cb.free)[0]):
+            names[j] = f"cam{ci}.{PARAM_NAMES[k]}"
+    comp = ("wx", "wy", "wz", "tx", "ty", "tz")
+    for f in np.nonzero(lay["pose"] >= 0)[0]:
+        for k, c in enumerate(comp):
+            names[lay["pose"][f] + k] = f"pose{f}.{c}"
+    for g, i in enumerate(lay["rig"]):
+        for k, c in enumerate(comp):
+            names[i + k] = f"rig{g}.{c}"
+    for m in np.nonzero(lay["point"] >= 0)[0]:
+        for k, c in enumerate("XYZ"):
+            names[lay["point"][m] + k] = f"point{m}.{c}"
+    return names
+
+
 def _solve_bundle(problem: BundleProblem, max_iterations: int, tolerance: float) -> BundleSolution:
-    cams = [CameraBlock(np.asarray(c.params, float).copy(), np.asarray(c.free, bool).copy(), tuple(c.image_size), tuple(c.pitch_mm), c.name) for c in problem.cameras]
-    R = np.asarray(problem.R, float).copy()
-    t = np.asarray(problem.t, float).copy()
-    rigR = np.asarray(problem.rig_R, float).copy()
-    rigt = np.asarray(problem.rig_t, float).copy()
-    pts = np.asarray(problem.points, float).copy()
+    """The dense route: this problem handed to :func:`thermogrammetry.adjustment.dense.solve_dense`.
+
+    The unknown vector ``x`` (layout :func:`_layout`) accumulates the increments from the start
+    values: camera parameters, translations and points additively, rotations as ``R = exp([w]×) R0``.
+    The Jacobian of :func:`_evaluate` is taken with respect to a left rotation increment, so
+    ``update`` composes ``exp([δ]×) exp([w]×)`` and takes the rotation vector of the product.
+    Observations: the image coordinates (weights 1/σ²) and, for weighted object points, their
+    a-priori coordinates (weights 1/σ_X²); σ0 a priori = 1.
+    """
+    from ..adjustment.dense import DenseOptions, solve_dense
+    from ..geometry.rotations import axis_angle_from_matrix
+
+    cams0 = [CameraBlock(np.asarray(c.params, float).copy(), np.asarray(c.free, bool).copy(), tuple(c.image_size),
+                         tuple(c.pitch_mm), c.name) for c in problem.cameras]
+    R0 = np.asarray(problem.R, float).copy()
+    t0 = np.asarray(problem.t, float).copy()
+    rigR0 = np.asarray(problem.rig_R, float).copy()
+    rigt0 = np.asarray(problem.rig_t, float).copy()
+    pts0 = np.asarray(problem.points, float).copy()
     lay = _layout(problem)
     n = lay["n"]
-    sig = problem.obs_sigma
-    prior_pts = (problem.points if problem.point_prior is None else np.asarray(problem.point_prior, float)).copy()
+    sig = np.asarray(problem.obs_sigma, float)
+    Nobs = problem.obs_xy.shape[0]
+    prior_pts = (pts0 if problem.point_prior is None else np.asarray(problem.point_prior, float)).copy()
     fp = np.nonzero(lay["point"] >= 0)[0]
     pstd = np.asarray(problem.point_prior_std, float)[fp] if fp.size else np.zeros((0, 3))
+    pcols = (lay["point"][fp][:, None] + np.arange(3)[None, :]).ravel()
+    rot_starts = np.concatenate([lay["pose"][lay["pose"] >= 0], lay["rig"]]).astype(int)
+    rot_cols = (rot_starts[:, None] + np.arange(3)[None, :])
 
-    def full_system(cams, R, t, rigR, rigt, pts, want_jac=True):
-        res, ok, J = _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac)
-        e = (res / sig).ravel()
-        if want_jac:
-            J = J / sig.ravel()[:, None]
+    def state(x):
+        return _apply(problem, cams0, R0, t0, rigR0, rigt0, pts0, lay, x)
+
+    def fun(x):
+        cams, R, t, rigR, rigt, pts = state(x)
+        res, ok, J = _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True)
+        v = -res.ravel()  # misclosure f(x) - l = computed - observed
+        v[np.repeat(~ok, 2)] = np.nan  # behind a camera / beyond the model's range: step rejected
         if fp.size:
-            ep = ((prior_pts[fp] - pts[fp]) / pstd).ravel()
-            e = np.concatenate([e, ep])
-            if want_jac:
-                Jp = np.zeros((3 * fp.size, n))
-                cols = (lay["point"][fp][:, None] + np.arange(3)[None, :]).ravel()
-                Jp[np.arange(3 * fp.size), cols] = 1.0 / pstd.ravel()
-                J = np.vstack([J, Jp])
-        return e, ok, J, res
+            v = np.concatenate([v, (pts[fp] - prior_pts[fp]).ravel()])
+            Jp = np.zeros((3 * fp.size, n))
+            Jp[np.arange(3 * fp.size), pcols] = 1.0
+            J = np.vstack([J, Jp])
+        return v, J
 
-    e, ok, J, res = full_system(cams, R, t, rigR, rigt, pts)
-    nobs = e.size
-    dof = nobs - n
-    if dof <= 0:
-        return _fail(problem, cams, R, t, rigR, rigt, pts, res, Termination.TOO_FEW_OBSERVATIONS,
-                     f"{nobs} observations for {n} unknowns: redundancy {dof} <= 0", lay)
+    def update(x, dx):
+        x2 = x + dx
+        if rot_cols.size:
+            w = x[rot_cols]
+            x2[rot_cols] = axis_angle_from_matrix(rotation_exp(dx[rot_cols]) @ rotation_exp(w))
+        return x2
+
+    # the start must be valid: every observation in front of its camera and inside the model's range
+    res, ok, _ = _evaluate(problem, cams0, R0, t0, rigR0, rigt0, pts0, lay, want_jac=False)
+    nobs = 2 * Nobs + 3 * fp.size
+    if nobs - n <= 0:
+        return _fail(problem, cams0, R0, t0, rigR0, rigt0, pts0, res, Termination.TOO_FEW_OBSERVATIONS,
+                     f"{nobs} observations for {n} unknowns: redundancy {nobs - n} <= 0", lay)
     if not np.all(ok):
-        return _fail(problem, cams, R, t, rigR, rigt, pts, res, Termination.DEGENERATE,
+        return _fail(problem, cams0, R0, t0, rigR0, rigt0, pts0, res, Termination.DEGENERATE,
                      f"{np.count_nonzero(~ok)} observations project behind a camera or outside the model's range at the start", lay)
-    cost = float(e @ e)
+    weights = np.concatenate([1.0 / sig.ravel() ** 2, 1.0 / pstd.ravel() ** 2])
     # small initial damping: self-calibration normal matrices have tiny eigenvalues along the
-    # correlated K1-K3 directions, and a larger λ would turn Gauss-Newton into slow gradient steps
-    lam = 1e-9
-    it = 0
-    term = Termination.MAX_ITERATIONS
-    reason = f"no convergence in {max_iterations} iterations"
-    for it in range(1, max_iterations + 1):
-        Nm = J.T @ J
-        g = J.T @ e
-        d = np.sqrt(np.maximum(np.diag(Nm), 1e-300))
-        Ns = Nm / d[:, None] / d[None, :]
-        gs = g / d
-        improved = False
-        for _ in range(12):
-            A = Ns + lam * np.eye(n)
-            try:
-                step_s = np.linalg.solve(A, gs)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            # e = (obs - computed)/σ and J = d computed/dx / σ, so e(x+dx) ≈ e - J dx: N dx = Jᵀe
-            dx = step_s / d
-            cand = _apply(problem, cams, R, t, rigR, rigt, pts, lay, dx)
-            e2, ok2, _, _ = full_system(*cand, want_jac=False)
-            cost2 = float(e2 @ e2) if np.all(ok2) and np.all(np.isfinite(e2)) else np.inf
-            if cost2 <= cost:
-                improved = True
-                break
-            lam *= 10
-        if not improved:
-            term = Termination.CONVERGED if lam > 1e8 else Termination.NUMERICAL_FAILURE
-            reason = "no further decrease of the cost" if term is Termination.CONVERGED else "step rejected repeatedly"
-            break
-        cams, R, t, rigR, rigt, pts = cand
-        rel = (cost - cost2) / max(cost, 1e-300)
-        cost = cost2
-        lam = max(lam / 10, 1e-15)
-        e, ok, J, res = full_system(cams, R, t, rigR, rigt, pts)
-        # stop when the cost no longer decreases, or when the step is below 1e-6 of every
-        # parameter's conditional standard deviation (step_s is the step in units of 1/sqrt(N_ii))
-        if rel < tolerance:
-            term = Termination.CONVERGED
-            reason = f"relative cost decrease {rel:.1e} < {tolerance:.0e}"
-            break
-        if np.max(np.abs(step_s)) < 1e-6:
-            term = Termination.CONVERGED
-            reason = "step below 1e-6 standard deviations"
-            break
-    # precision at the solution
-    Nm = J.T @ J
-    d = np.sqrt(np.maximum(np.diag(Nm), 1e-300))
-    Ns = Nm / d[:, None] / d[None, :]
-    try:
-        ev = np.linalg.eigvalsh(Ns)
-        cond = ev[-1] / max(ev[0], 1e-300)
-        if ev[0] <= 1e-14 * ev[-1]:
-            return _fail(problem, cams, R, t, rigR, rigt, pts, res, Termination.RANK_DEFICIENT,
-                         f"normal matrix is singular (condition {cond:.1e}): the free parameters are not determined by this geometry", lay)
-        Q = np.linalg.inv(Ns) / d[:, None] / d[None, :]
-    except np.linalg.LinAlgError:
-        return _fail(problem, cams, R, t, rigR, rigt, pts, res, Termination.NUMERICAL_FAILURE, "normal matrix inversion failed", lay)
-    s02 = cost / dof
-    s0 = float(np.sqrt(s02))
-    h = ((J @ Q) * J).sum(axis=1)  # leverage of every (weighted) observation
-    Nobs = problem.obs_xy.shape[0]
-    rnum = np.clip(1.0 - h[: 2 * Nobs], 0.0, 1.0).reshape(Nobs, 2)
-    cov = s02 * Q
-    sol = BundleSolution(Outcome(term, reason), cams, R, t, rigR, rigt, pts, res, rnum, s0, dof, it, Q, lay)
-    _fill_std(sol, cov)
+    # correlated K1-K3 directions, and a larger λ would turn Gauss-Newton into slow gradient steps.
+    # decrease_tol 1e-15 of the cost (~2000 here) stops when the Gauss-Newton step is ~1e-6 σ.
+    opts = DenseOptions(max_iterations=max_iterations, initial_lambda=1e-9, cost_tol=tolerance, rank_tol=1e-14)
+    dr = solve_dense(fun, np.zeros(n), weights=weights, update=update, param_names=_param_names(problem, lay),
+                     options=opts)
+    cams, R, t, rigR, rigt, pts = state(dr.x)
+    res = -dr.residuals[: 2 * Nobs].reshape(Nobs, 2)
+    if not dr.success or not np.all(np.isfinite(dr.covariance)):
+        term = dr.termination if not dr.success else Termination.NUMERICAL_FAILURE
+        return _fail(problem, cams, R, t, rigR, rigt, pts, res, term, dr.reason, lay)
+    rnum = np.clip(dr.redundancy_numbers[: 2 * Nobs], 0.0, 1.0).reshape(Nobs, 2)
+    sol = BundleSolution(Outcome(dr.termination, dr.reason), cams, R, t, rigR, rigt, pts, res, rnum, float(dr.sigma0),
+                         int(dr.redundancy), int(dr.iterations), dr.cofactor, lay)
+    _fill_std(sol, dr.covariance)
     with np.errstate(divide="ignore", invalid="ignore"):
         sol._w = np.where(rnum > 1e-6, res / (sig * np.sqrt(rnum)), np.nan)
     return sol
@@ -651,7 +639,7 @@ def _gn_step_sigma(problem: BundleProblem) -> float:
 
 def _verify_engine(problem: BundleProblem, sol: BundleSolution, max_iterations: int, tolerance: float) -> BundleSolution:
     """Check the engine's estimate is a minimum of this module's objective (one Gauss-Newton step
-    below 1e-3 conditional σ); otherwise continue with the dense LM from there and say so.
+    below 1e-3 conditional σ); otherwise continue with the dense LM (``solve_dense``) from there and say so.
 
     A safety net that costs one Jacobian: if the engine stopped away from a stationary point of the
     objective (e.g. on a step-size tolerance in a flat valley), the dense LM finishes the job and the

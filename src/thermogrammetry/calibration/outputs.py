@@ -54,7 +54,7 @@ def camera_from_calibration(cc: CameraCalibration):
 def calibration_solver(r: CalibrationResult) -> str:
     if r.solution is not None and r.solution.layout.get("engine") == "adjustment":
         return "thermogrammetry.adjustment (sparse LM + Schur)"
-    return "dense Levenberg-Marquardt (thermogrammetry.calibration.bundle)"
+    return "thermogrammetry.adjustment.dense.solve_dense (dense Gauss-Newton/LM)"
 
 
 def _f(v):

@@ -24,7 +24,8 @@ the second camera's poses are the first camera's pose composed with a constant r
 ``cam2_from_cam1`` (estimated, with precision): the relative orientation of a thermal + RGB pair.
 
 The solve is one call, :func:`thermogrammetry.calibration.bundle.solve_bundle`: by default the
-project's adjustment engine (:mod:`thermogrammetry.adjustment`), or the dense LM kept as a cross-check.
+project's adjustment engine (:mod:`thermogrammetry.adjustment`), or the dense kernel
+:func:`thermogrammetry.adjustment.dense.solve_dense` on the same problem, kept as a cross-check.
 
 References
 ----------
@@ -47,8 +48,7 @@ from scipy import stats
 
 from ..errors import ConfigError, InvalidInputError, TooFewPointsError
 from ..results import Outcome, Termination
-from .bundle import N_PARAMS, PARAM_NAMES
-from .bundle import BundleProblem, BundleSolution, CameraBlock, residuals, solve_bundle
+from .bundle import N_PARAMS, PARAM_NAMES, BundleProblem, BundleSolution, CameraBlock, residuals, solve_bundle
 
 __all__ = [
     "SelfCalibrationOptions",
@@ -86,8 +86,8 @@ class SelfCalibrationOptions:
     max_image_rms_factor : after stage 2, an image whose RMS exceeds this factor times the median
         image RMS (and 1 px) is rejected and the solve repeated.
     snooping : disable to run the adjustment without blunder elimination (Monte-Carlo studies).
-    solver : ``"adjustment"`` (the project's engine, default) or ``"dense"`` (the independent dense
-        LM of :mod:`~thermogrammetry.calibration.bundle`).
+    solver : ``"adjustment"`` (the project's engine, default) or ``"dense"`` (the dense Jacobian of
+        :mod:`~thermogrammetry.calibration.bundle` solved by :func:`thermogrammetry.adjustment.dense.solve_dense`).
     """
 
     k45: bool = False
