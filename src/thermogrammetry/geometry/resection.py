@@ -222,6 +222,22 @@ def _start_candidates(cam, X, x, method):
     return good, "dlt" if method == "dlt" else "sqpnp"
 
 
+def _rodrigues(r):
+    """(3, 3) rotation from one Rodrigues vector: :func:`rotations.matrix_from_axis_angle` without
+    the input validation and batching (called in every iteration)."""
+    x, y, z = r
+    th2 = x * x + y * y + z * z
+    if th2 < 1e-8:
+        a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+        b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    else:
+        th = np.sqrt(th2)
+        a = np.sin(th) / th
+        b = (1.0 - np.cos(th)) / th2
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + a * K + b * (K @ K)
+
+
 def _flatness(X):
     s = np.linalg.svd(X - X.mean(0), compute_uv=False)
     return s[2] / s[0] if s[0] > 0 else 0.0
@@ -240,7 +256,9 @@ def _alternatives(refined, best_i, X, adj):
 
     Returns ``([(Pose, rms_px, centre_distance_m, cost), ...] sorted by cost, ambiguous subset)``.
     """
-    from scipy.stats import chi2
+    if len(refined) < 2:
+        return [], []
+    from scipy.stats import chi2  # only here: importing scipy.stats costs ~0.5 s
 
     Cb = adj.x[3:6]
     Rb = rot.matrix_from_axis_angle(adj.x[:3])
@@ -309,7 +327,7 @@ def collinearity_residuals(params, camera, points_world, xy_px, interior_idx=())
         ``∂X_cam/∂δ = −R [X − C]×``, ``∂X_cam/∂C = −R``.
     """
     iidx = np.asarray(interior_idx, int)
-    R = rot.matrix_from_axis_angle(params[:3])
+    R = _rodrigues(params[:3])
     C = params[3:6]
     c = _camera_with(camera, iidx, params[6:])
     d = points_world - C
@@ -320,8 +338,10 @@ def collinearity_residuals(params, camera, points_world, xy_px, interior_idx=())
         uv, Jp = point_jacobian(c, Xc)
     n = points_world.shape[0]
     J = np.zeros((n, 2, 6 + iidx.size))
-    J[:, :, 0:3] = Jp @ (-np.einsum("ij,njk->nik", R, rot.skew(d)))
-    J[:, :, 3:6] = Jp @ (-R)
+    A = Jp @ R  # ∂uv/∂X_world
+    # Jp·(−R[d]×) = −A[d]×, whose rows are −(a × d) = d × a
+    J[:, :, 0:3] = np.cross(d[:, None, :], A)
+    J[:, :, 3:6] = -A
     if iidx.size:
         J[:, :, 6:] = Jk[:, :, iidx]
     return (uv - xy_px).ravel(), J.reshape(2 * n, -1)
@@ -418,7 +438,7 @@ def resection(
         return collinearity_residuals(p, cam, X, x, iidx)
 
     def update(p, dp):
-        R = rot.matrix_from_axis_angle(p[:3]) @ rot.matrix_from_axis_angle(dp[:3])
+        R = _rodrigues(p[:3]) @ _rodrigues(dp[:3])
         return np.concatenate([rot.axis_angle_from_matrix(R), p[3:6] + dp[3:6], p[6:] + dp[6:]])
 
     names = ["dx_rot", "dy_rot", "dz_rot", "X0", "Y0", "Z0", *inames]
