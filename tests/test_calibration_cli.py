@@ -12,10 +12,10 @@ from thermogrammetry.calibration.testfield_csv import (
     check_measurement_ids,
     parse_control_csv,
     parse_measurements_csv,
-    read_control_csv,
 )
 from thermogrammetry.cli.main import main
 from thermogrammetry.errors import CorruptFileError, DataFileError, UnsupportedFormatError
+from thermogrammetry.io.testfield_csv import read_control_csv, read_measurements_csv
 from thermogrammetry.synthetic.testfield import make_testfield
 
 NOISE_PX = 0.4
@@ -86,6 +86,22 @@ def test_measurement_csv_errors_and_unknown_ids():
 def test_read_missing_file(tmp_path):
     with pytest.raises(DataFileError, match="no such file"):
         read_control_csv(tmp_path / "nope.csv")
+
+
+def test_readers_pass_the_path_into_messages(tmp_path, csv_files, field):
+    """The io readers give the parsers the path, so row errors name the file on disk."""
+    m = read_measurements_csv(csv_files / "measurements.csv")
+    assert m.source == str(csv_files / "measurements.csv") and len(m.id) == field.xy_px.shape[0]
+    bad = tmp_path / "ctl.csv"
+    bad.write_text("\ufeffid,X,Y,Z\nA,1,2,3\nB,1,x,3\n", encoding="utf-8")  # BOM dropped, row 3 bad
+    with pytest.raises(CorruptFileError, match=r"ctl\.csv, row 3: Y = 'x' is not a number") as err:
+        read_control_csv(bad)
+    assert str(err.value).startswith(f"{bad}, row 3")
+    (tmp_path / "latin.csv").write_bytes(b"id,X,Y,Z\n\xe9,1,2,3\n")
+    with pytest.raises(UnsupportedFormatError, match="latin.csv: not a UTF-8 text file"):
+        read_control_csv(tmp_path / "latin.csv")
+    with pytest.raises(DataFileError, match="is a folder"):
+        read_measurements_csv(tmp_path)
 
 
 # ------------------------------------------------------------------------------------------- CLI, CSV route

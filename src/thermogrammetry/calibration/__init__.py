@@ -6,7 +6,8 @@ Public entry points (imported lazily so that ``import thermogrammetry.calibratio
   :class:`ImageMeasurements` — staged self-calibrating bundle adjustment (seed 001 strategy), in
   :mod:`thermogrammetry.calibration.selfcal`;
 - :func:`parse_control_csv` / :func:`parse_measurements_csv` — the 3D test-field CSV formats, in
-  :mod:`thermogrammetry.calibration.testfield_csv`;
+  :mod:`thermogrammetry.calibration.testfield_csv` (text in; the file readers are in
+  :mod:`thermogrammetry.io.testfield_csv`);
 - :func:`prepare_testfield` / :func:`prepare_detections` (checks and inputs) and
   :func:`calibrate_testfield` / :func:`calibrate_detections`, in :mod:`thermogrammetry.calibration.workflow`;
 - :func:`calibration_steps` — the calibrate workflow as pipeline steps, in
@@ -27,8 +28,6 @@ _LAZY = {
     "CameraCalibration": "selfcal",
     "parse_control_csv": "testfield_csv",
     "parse_measurements_csv": "testfield_csv",
-    "read_control_csv": "testfield_csv",
-    "read_measurements_csv": "testfield_csv",
     "write_outputs": "outputs",
     "prepare_testfield": "workflow",
     "prepare_detections": "workflow",

@@ -17,7 +17,8 @@ Every problem raises an error from :mod:`thermogrammetry.errors` naming the file
 string) and the row (1-based line number in the file, the header being row 1): missing columns, non-numbers, non-positive standard
 deviations, duplicate IDs, measurements of IDs that are not in the control file.
 
-The ``parse_*`` functions work on text (no file access); ``read_*`` read a file and call them.
+The functions here work on text and a ``source`` name for messages (no file access); reading the
+files is :mod:`thermogrammetry.io.testfield_csv` (``read_control_csv``, ``read_measurements_csv``).
 """
 
 from __future__ import annotations
@@ -26,19 +27,16 @@ import csv
 import io
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from ..errors import CorruptFileError, DataFileError, UnsupportedFormatError
+from ..errors import CorruptFileError, UnsupportedFormatError
 
 __all__ = [
     "ControlPoints",
     "Measurements",
     "parse_control_csv",
     "parse_measurements_csv",
-    "read_control_csv",
-    "read_measurements_csv",
     "check_measurement_ids",
 ]
 
@@ -214,27 +212,3 @@ def check_measurement_ids(meas: Measurements, control: ControlPoints) -> np.ndar
                 f"{control.source or 'control.csv'}; known ids: {', '.join(control.ids[:8])}{' ...' if len(control.ids) > 8 else ''}")
         out[k] = j
     return out
-
-
-def _read(path) -> tuple[str, str]:
-    p = Path(path)
-    try:
-        return p.read_text(encoding="utf-8-sig"), str(p)
-    except FileNotFoundError:
-        raise DataFileError(f"{p}: no such file") from None
-    except UnicodeDecodeError as exc:
-        raise UnsupportedFormatError(f"{p}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
-    except OSError as exc:
-        raise DataFileError(f"{p}: cannot read ({exc.strerror or exc})") from None
-
-
-def read_control_csv(path) -> ControlPoints:
-    """Read a control file (see :func:`parse_control_csv`)."""
-    text, src = _read(path)
-    return parse_control_csv(text, src)
-
-
-def read_measurements_csv(path) -> Measurements:
-    """Read a measurement file (see :func:`parse_measurements_csv`)."""
-    text, src = _read(path)
-    return parse_measurements_csv(text, src)

@@ -148,8 +148,8 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
     from ..calibration.outputs import flush
     from ..calibration.pipeline import calibration_steps, observations_dict
     from ..calibration.selfcal import SelfCalibrationOptions
-    from ..calibration.testfield_csv import read_control_csv, read_measurements_csv
     from ..calibration.workflow import prepare_detections, prepare_testfield
+    from ..io.testfield_csv import read_control_csv, read_measurements_csv
     from ..pipeline import FolderProject, MemoryProject, run_steps
 
     console = Console(soft_wrap=True)
