@@ -187,8 +187,9 @@ def test_image_with_too_few_points_gets_a_verdict(field):
     assert len(r.images_used) == 15
 
 
-def test_rig_relative_orientation(field):
-    """A second (RGB-like) camera rigidly mounted beside the thermal one, same frames."""
+def _rig_inputs(field):
+    """Thermal images of the field plus a second (RGB-like) camera rigidly mounted beside the
+    thermal one in the same frames (0.3 px noise); returns cameras, images and the true rig offset."""
     T = field.truth
     rng = np.random.default_rng(5)
     R_rel = rotation_exp(np.array([[0.01, -0.03, 0.02]]))[0]
@@ -210,6 +211,13 @@ def test_rig_relative_orientation(field):
         ims.append(ImageMeasurements(n + "_rgb", 1, idx, xy[idx] + rng.normal(0, 0.3, (idx.size, 2)), frame=n))
     cams = [CameraSetup("thermal", T.image_size, T.pixel_pitch_um, {"c_mm": 18.0}),
             CameraSetup("rgb", size2, pitch2, {"c_mm": 7.5})]
+    return cams, ims, R_rel, t_rel
+
+
+def test_rig_relative_orientation(field):
+    """A second (RGB-like) camera rigidly mounted beside the thermal one, same frames."""
+    T = field.truth
+    cams, ims, R_rel, t_rel = _rig_inputs(field)
     r = calibrate(cams, T.points, ims, rig=True)
     assert r.outcome.success, r.outcome.reason
     assert len(r.relative) == 1
@@ -240,6 +248,31 @@ def test_engine_and_dense_solver_agree(field):
     assert np.allclose(ca.std[free], cb.std[free], rtol=1e-3)
     assert a.sigma0 == pytest.approx(b.sigma0, rel=1e-6)
     assert np.allclose(a.redundancy, b.redundancy, atol=1e-6)
+
+
+def test_engine_and_dense_solver_agree_with_rig_and_weighted_points(field):
+    """Both routes also agree on the blocks the case above does not have: a rig offset (rotation
+    increments composed in solve_dense's update) and object points with a-priori σ (weighted
+    pseudo-observations). Same bounds as above: a common minimum to 1e-4 σ, σ to 0.1 %."""
+    T = field.truth
+    cams, ims, _, _ = _rig_inputs(field)
+    rng = np.random.default_rng(8)
+    pts = T.points + rng.normal(0, 0.001, T.points.shape)
+    kw = dict(rig=True, point_std=np.full(T.points.shape, 0.001))
+    a = calibrate(cams, pts, ims, options=SelfCalibrationOptions(snooping=False, solver="adjustment"), **kw)
+    b = calibrate(cams, pts, ims, options=SelfCalibrationOptions(snooping=False, solver="dense"), **kw)
+    assert a.outcome.success and b.outcome.success, (a.outcome.reason, b.outcome.reason)
+    for ca, cb in zip(a.cameras, b.cameras):
+        free = ca.free
+        assert np.all(np.abs(ca.params[free] - cb.params[free]) < 1e-4 * ca.std[free])
+        assert np.allclose(ca.std[free], cb.std[free], rtol=1e-3)
+    ra, rb = a.relative[0], b.relative[0]
+    assert np.all(np.abs(ra.t - rb.t) < 1e-4 * ra.std[3:])
+    assert np.linalg.norm(ra.R @ rb.R.T - np.eye(3)) < 1e-4 * np.linalg.norm(ra.std[:3])
+    assert np.allclose(ra.std, rb.std, rtol=1e-3)
+    # adjusted control points: same to 1e-4 of their 1 mm a-priori σ
+    assert np.max(np.abs(a.solution.points - b.solution.points)) < 1e-7
+    assert a.sigma0 == pytest.approx(b.sigma0, rel=1e-6)
 
 
 def test_model_matches_camera_package():
