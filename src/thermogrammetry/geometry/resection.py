@@ -28,6 +28,7 @@ perspective-n-point problem. ECCV 2020 (SQPnP).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -238,6 +239,32 @@ def _rodrigues(r):
     return np.eye(3) + a * K + b * (K @ K)
 
 
+def _rvec(R):
+    """Rodrigues vector of one rotation matrix (Shepperd's quaternion, then ``2 atan2(|v|, w)``):
+    :func:`rotations.axis_angle_from_matrix` without validation and batching."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+    tr = r00 + r11 + r22
+    if tr >= max(r00, r11, r22):
+        w4 = 2.0 * math.sqrt(max(1.0 + tr, 0.0))
+        w, x, y, z = w4 / 4, (r21 - r12) / w4, (r02 - r20) / w4, (r10 - r01) / w4
+    elif r00 >= r11 and r00 >= r22:
+        x4 = 2.0 * math.sqrt(max(1.0 + r00 - r11 - r22, 0.0))
+        w, x, y, z = (r21 - r12) / x4, x4 / 4, (r01 + r10) / x4, (r02 + r20) / x4
+    elif r11 >= r22:
+        y4 = 2.0 * math.sqrt(max(1.0 - r00 + r11 - r22, 0.0))
+        w, x, y, z = (r02 - r20) / y4, (r01 + r10) / y4, y4 / 4, (r12 + r21) / y4
+    else:
+        z4 = 2.0 * math.sqrt(max(1.0 - r00 - r11 + r22, 0.0))
+        w, x, y, z = (r10 - r01) / z4, (r02 + r20) / z4, (r12 + r21) / z4, z4 / 4
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    sv = math.sqrt(x * x + y * y + z * z)
+    if sv < 1e-300:
+        return np.zeros(3)
+    f = 2.0 * math.atan2(sv, w) / sv
+    return np.array([x * f, y * f, z * f])
+
+
 def _flatness(X):
     s = np.linalg.svd(X - X.mean(0), compute_uv=False)
     return s[2] / s[0] if s[0] > 0 else 0.0
@@ -439,14 +466,19 @@ def resection(
 
     def update(p, dp):
         R = _rodrigues(p[:3]) @ _rodrigues(dp[:3])
-        return np.concatenate([rot.axis_angle_from_matrix(R), p[3:6] + dp[3:6], p[6:] + dp[6:]])
+        return np.concatenate([_rvec(R), p[3:6] + dp[3:6], p[6:] + dp[6:]])
 
     names = ["dx_rot", "dy_rot", "dz_rot", "X0", "Y0", "Z0", *inames]
     w = 1.0 / sig.ravel() ** 2
     # refine every start (parameter vector: rvec (3, absolute, updated multiplicatively), C (3),
     # interior (k)); candidates are ranked by vᵀPv, those with points behind the camera last
     refined = []
+    scale = float(np.mean(np.linalg.norm(X - X.mean(0), axis=1))) + 1e-300
     for pose0, cname in cands:
+        # a start within 1e-3 (relative / rad) of a minimum already found converges to it: skip
+        if any(np.linalg.norm(pose0.center - r_[3].x[3:6]) < 1e-3 * scale
+               and np.linalg.norm(rot.axis_angle_from_matrix(r_[4].T @ pose0.R)) < 1e-3 for r_ in refined):
+            continue
         x0 = np.concatenate([rot.axis_angle_from_matrix(pose0.R), pose0.center, p_int0])
         a = solve_dense(fun, x0, weights=w, update=update, param_names=names, options=options)
         Rc = rot.matrix_from_axis_angle(a.x[:3])
