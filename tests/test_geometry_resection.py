@@ -172,3 +172,20 @@ def test_well_spread_points_are_not_ambiguous(rng):
     xy = CAM.project(POSE.transform(X)) + rng.normal(0, 0.3, (12, 2))
     r = resection(CAM, X, xy, sigma_px=0.3)
     assert r.success and not r.ambiguous
+
+
+def test_internal_rodrigues_helpers_match_rotations_module():
+    from thermogrammetry.geometry import rotations as rot
+    from thermogrammetry.geometry.resection import _rodrigues, _rvec
+
+    rng = np.random.default_rng(11)
+    for angle in (0.0, 1e-9, 1e-4, 0.5, 2.0, np.pi - 1e-7, np.pi):
+        for _ in range(20):
+            axis = rng.normal(size=3)
+            v = axis / np.linalg.norm(axis) * angle
+            R = rot.matrix_from_axis_angle(v)
+            assert np.abs(_rodrigues(v) - R).max() < 1e-15 * 8
+            # the log map returns a rotation vector of the same matrix (at π: either sign)
+            assert np.abs(rot.matrix_from_axis_angle(_rvec(R)) - R).max() < 1e-14
+            if angle < 3.0:
+                assert np.abs(_rvec(R) - v).max() < 1e-14 + 1e-12 * angle
