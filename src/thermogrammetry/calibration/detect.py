@@ -1,6 +1,7 @@
 """Target detection on thermal images: the public entry points.
 
-Targets and their detectors:
+Targets (described once, in millimetres, by :mod:`thermogrammetry.targets`; ``ChessboardSpec`` is
+:class:`~thermogrammetry.targets.ChessboardTarget` and so on) and their detectors:
 
 ========================  ===================================  =========================================
 spec                      detector                             module
@@ -32,7 +33,11 @@ from collections.abc import Callable, Iterable, Mapping
 
 from ..errors import ConfigError, InvalidInputError
 from .detect_chessboard import canonical_grid_order, detect_chessboard, refine_corners
-from .detect_circles import detect_circle_grid, ellipse_centre_bias, refine_circle_centres
+from .detect_circles import (
+    detect_circle_grid,
+    ellipse_centre_bias,
+    refine_circle_centres,
+)
 from .detect_coded import detect_coded_checkerboard, detect_marker
 from .detect_common import (
     ChessboardSpec,
@@ -71,6 +76,9 @@ def detect(image, spec, image_id: str = "", **options) -> Detection:
     ``options`` are passed to the detector (see :func:`detect_chessboard`,
     :func:`detect_circle_grid`, :func:`detect_coded_checkerboard`).
     """
+    inner = getattr(spec, "target", None)  # metre-unit views of thermogrammetry.synthetic.targets
+    if not isinstance(spec, (ChessboardSpec, CircleGridSpec, CodedCheckerboardSpec)) and inner is not None:
+        spec = inner
     if isinstance(spec, ChessboardSpec):
         return detect_chessboard(image, spec, image_id, **options)
     if isinstance(spec, CircleGridSpec):
@@ -78,7 +86,8 @@ def detect(image, spec, image_id: str = "", **options) -> Detection:
     if isinstance(spec, CodedCheckerboardSpec):
         return detect_coded_checkerboard(image, spec, image_id, **options)
     raise ConfigError(
-        f"spec: expected ChessboardSpec, CircleGridSpec or CodedCheckerboardSpec, got {type(spec).__name__}"
+        f"spec: expected ChessboardSpec, CircleGridSpec or CodedCheckerboardSpec (the millimetre descriptions of "
+        f"thermogrammetry.targets), got {type(spec).__name__}"
     )
 
 

@@ -32,7 +32,15 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .detect_common import ChessboardSpec, Detection, clahe_u8, image_size_of, normalize_to_u8, to_gray_float
+from .detect_common import (
+    ChessboardSpec,
+    Detection,
+    clahe_u8,
+    image_size_of,
+    normalize_to_u8,
+    spec_of,
+    to_gray_float,
+)
 
 __all__ = ["detect_chessboard", "canonical_grid_order", "refine_corners", "square_size_px"]
 
@@ -217,10 +225,7 @@ def detect_chessboard(image, spec: ChessboardSpec, image_id: str = "", *, refine
         ``points_px`` (columns*rows, 2) in canonical order (:func:`canonical_grid_order`),
         ``object_ids = arange(N)``; or a failure with the reason.
     """
-    if not isinstance(spec, ChessboardSpec):
-        from ..errors import ConfigError
-
-        raise ConfigError(f"spec: expected a ChessboardSpec, got {type(spec).__name__}")
+    spec = spec_of(spec, ChessboardSpec, "ChessboardSpec")
     gray = to_gray_float(image, f"image {image_id!r}" if image_id else "image")
     size = image_size_of(gray)
     u8 = normalize_to_u8(gray)

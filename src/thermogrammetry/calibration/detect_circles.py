@@ -34,7 +34,15 @@ import cv2
 import numpy as np
 
 from ..errors import ConfigError
-from .detect_common import CircleGridSpec, Detection, clahe_u8, image_size_of, normalize_to_u8, to_gray_float
+from .detect_common import (
+    CircleGridSpec,
+    Detection,
+    clahe_u8,
+    image_size_of,
+    normalize_to_u8,
+    spec_of,
+    to_gray_float,
+)
 
 __all__ = ["detect_circle_grid", "refine_circle_centres", "ellipse_centre_bias", "order_grid_by_homography"]
 
@@ -283,8 +291,7 @@ def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polar
         ``points_px`` (columns*rows, 2) in canonical order (:func:`order_grid_by_homography`),
         ``object_ids = arange(N)``.
     """
-    if not isinstance(spec, CircleGridSpec):
-        raise ConfigError(f"spec: expected a CircleGridSpec, got {type(spec).__name__}")
+    spec = spec_of(spec, CircleGridSpec, "CircleGridSpec")
     if polarity not in ("auto", "bright", "dark"):
         raise ConfigError(f"polarity: expected 'auto', 'bright' or 'dark', got {polarity!r}")
     if refine not in ("moments", "none"):

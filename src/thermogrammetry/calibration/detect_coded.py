@@ -31,18 +31,22 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..errors import ConfigError
 from .detect_chessboard import _sample
-from .detect_common import CodedCheckerboardSpec, Detection, clahe_u8, image_size_of, normalize_to_u8, to_gray_float
+from .detect_common import (
+    CodedCheckerboardSpec,
+    Detection,
+    clahe_u8,
+    image_size_of,
+    normalize_to_u8,
+    spec_of,
+    to_gray_float,
+)
 
 __all__ = ["detect_coded_checkerboard", "detect_marker"]
 
 
 def _dictionary(spec: CodedCheckerboardSpec):
-    if spec.predefined_dictionary:
-        return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, spec.predefined_dictionary))
-    # cv2.aruco.custom_dictionary(n, bits) of OpenCV < 4.7 is extendDictionary(n, bits, Dictionary(), 0)
-    return cv2.aruco.extendDictionary(int(spec.dictionary_size), int(spec.marker_bits), cv2.aruco.Dictionary(), 0)
+    return spec.dictionary()
 
 
 def detect_marker(u8: np.ndarray, spec: CodedCheckerboardSpec):
@@ -158,9 +162,7 @@ def detect_coded_checkerboard(image, spec: CodedCheckerboardSpec | None = None, 
         ``points_px`` (N, 2), ``object_ids`` (N,) into ``spec.object_points()`` (sorted ascending);
         ``extra`` holds the marker corners and the polarity.
     """
-    spec = CodedCheckerboardSpec() if spec is None else spec
-    if not isinstance(spec, CodedCheckerboardSpec):
-        raise ConfigError(f"spec: expected a CodedCheckerboardSpec, got {type(spec).__name__}")
+    spec = CodedCheckerboardSpec() if spec is None else spec_of(spec, CodedCheckerboardSpec, "CodedCheckerboardSpec")
     gray = to_gray_float(image, f"image {image_id!r}" if image_id else "image")
     size = image_size_of(gray)
     u8 = normalize_to_u8(gray)

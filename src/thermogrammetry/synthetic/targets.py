@@ -1,21 +1,24 @@
 """Calibration target images as a thermal camera sees them, with exact ground truth.
 
-Targets lie in the plane z = 0 of their own frame (x right along a row, y down the columns, metres);
-a pose is ``cam_from_target``. Rendering is by **supersampled inverse mapping**: every pixel is split
-into S×S sub-pixel samples, each sample is unprojected through the camera model (so distortion is the
-model's, exactly), intersected with the target plane and classified (feature / board / surround). The
-pixel's *signal* is the area-weighted mean of the parts' signals (radiance-linear, not temperature);
-the sensor then blurs, vignettes, converts to apparent temperature and adds noise
-(:mod:`thermogrammetry.synthetic.sensor`).
+The targets themselves are described once, in :mod:`thermogrammetry.targets` (millimetre fields,
+``object_points()`` in mm, OpenCV order); :func:`render_target_image` takes those directly. The
+classes of the same names here, :class:`CircleGridTarget`, :class:`ChessboardTarget`,
+:class:`CodedCheckerboardTarget`, are the older **metre**-unit views (``spacing_m``, ``square_m``,
+``object_points()`` in metres) kept for existing callers; each holds its millimetre description in
+``.target``, which the detectors of :mod:`thermogrammetry.calibration.detect` take.
 
-Object-point order is OpenCV's, so ``cv2.findCirclesGrid`` / ``cv2.findChessboardCorners`` results with
-``patternSize = (columns, rows)`` line up with :meth:`object_points` index by index:
+Targets lie in the plane z = 0 of their own frame (x right along a row, y down the columns); a pose is
+``cam_from_target`` in **metres**. Rendering is by **supersampled inverse mapping**: every pixel is
+split into S×S sub-pixel samples, each sample is unprojected through the camera model (so distortion is
+the model's, exactly), intersected with the target plane and classified (feature / board / surround,
+:meth:`thermogrammetry.targets.ChessboardTarget.classify` and friends). The pixel's *signal* is the
+area-weighted mean of the parts' signals (radiance-linear, not temperature); the sensor then blurs,
+vignettes, converts to apparent temperature and adds noise (:mod:`thermogrammetry.synthetic.sensor`).
 
-* symmetric circle grid: point ``i·columns + j`` at ``(j·s, i·s, 0)``;
-* asymmetric circle grid (OpenCV's ``CALIB_CB_ASYMMETRIC_GRID``): point ``i·columns + j`` at
-  ``((2j + i mod 2)·s, i·s, 0)`` — circles in a row are ``2s`` apart, rows are ``s`` apart and every
-  other row is shifted by ``s`` (the convention of OpenCV's calibration sample and ``acircles_pattern``);
-* chessboard: inner corner ``i·inner_columns + j`` at ``(j·s, i·s, 0)``.
+Object-point order is OpenCV's (see :mod:`thermogrammetry.targets`), so ``cv2.findCirclesGrid`` /
+``cv2.findChessboardCorners`` results with ``patternSize = (columns, rows)`` line up with the returned
+``points_px`` index by index — up to the 180° ambiguity of grids that look the same turned half way
+round (symmetric circle grids, chessboards), for which a detector may number from the other end.
 
 The returned ``points_px`` are the camera model's projections of the exact circle centres / corners.
 (For circles of finite size the centre of the imaged ellipse differs from the projected centre by the
@@ -26,7 +29,7 @@ References
 ----------
 .. [1] OpenCV 4.x documentation, "Camera calibration With OpenCV" tutorial and ``calcBoardCornerPositions``
    in samples/cpp/tutorial_code/calib3d/camera_calibration/camera_calibration.cpp (object-point order).
-.. [2] Khodaei et al. (seed 003): mask circle grid held in front of a warm monitor (emissivity contrast).
+.. [2] Khodaei et al. (seed 003): mask circle grid held in front of a warm emitter (emissivity contrast).
 """
 
 from __future__ import annotations
@@ -35,7 +38,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ConfigError, InvalidInputError
+from .. import targets as _t
+from ..errors import ConfigError
+from ..targets import BOARD, FEATURE, SURROUND, as_target
 from ._render import as_pose, camera_size, iter_sample_rays
 from .radiance import BandPlanckCurve, SignalCurve
 from .sensor import SensorEffects, apply_sensor_effects
@@ -48,30 +53,63 @@ __all__ = [
     "RenderedTarget",
     "render_target_image",
     "render_target_signal",
+    "SURROUND",
+    "BOARD",
+    "FEATURE",
 ]
 
-SURROUND, BOARD, FEATURE = 0, 1, 2
 
-
-def _pos_int(v, name):
-    if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-        raise ConfigError(f"{name}={v!r}: expected a positive integer")
-    return int(v)
-
-
-def _pos_float(v, name):
+def _metres(owner: str, name: str, v) -> float:
     try:
         f = float(v)
     except (TypeError, ValueError):
-        raise ConfigError(f"{name}={v!r}: expected a positive number (metres)") from None
+        raise ConfigError(f"{owner}.{name}={v!r}: expected a positive number (metres)") from None
     if not np.isfinite(f) or f <= 0:
-        raise ConfigError(f"{name}={v!r}: expected a positive number (metres)")
+        raise ConfigError(f"{owner}.{name}={v!r}: expected a positive number (metres)")
     return f
 
 
+def _mm(v):
+    return None if v is None else 1e3 * v
+
+
+class _MetreView:
+    """Metre-unit view of a :mod:`thermogrammetry.targets` description (held in ``.target``, mm)."""
+
+    def _build(self, cls, **kw):
+        try:
+            object.__setattr__(self, "target", cls(**kw))
+        except ConfigError as exc:
+            raise ConfigError(f"{type(self).__name__} (lengths given in metres, checked in mm): {exc}") from None
+
+    @property
+    def pattern_size(self) -> tuple[int, int]:
+        return self.target.pattern_size
+
+    @property
+    def n_points(self) -> int:
+        return self.target.n_points
+
+    def object_points(self) -> np.ndarray:
+        """(N, 3) object points in **metres**, OpenCV order, z = 0 (``self.target.object_points_m()``)."""
+        return self.target.object_points_m()
+
+    def extent(self) -> tuple[float, float, float, float]:
+        """(xmin, xmax, ymin, ymax) of the board in metres."""
+        return tuple(1e-3 * v for v in self.target.extent_mm())
+
+    def classify(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Part label (SURROUND=0, BOARD=1, FEATURE=2) of target-plane points ``x, y`` in **metres**."""
+        return self.target.classify(1e3 * np.asarray(x, dtype=np.float64), 1e3 * np.asarray(y, dtype=np.float64))
+
+    def outline_points(self) -> np.ndarray:
+        """Visibility-check points (metres)."""
+        return 1e-3 * self.target.outline_points()
+
+
 @dataclass(frozen=True)
-class CircleGridTarget:
-    """Mask circle grid (holes in a cool mask in front of a warm emitter), OpenCV ``patternSize=(columns, rows)``.
+class CircleGridTarget(_MetreView):
+    """Metre-unit mask circle grid; ``.target`` is the :class:`thermogrammetry.targets.CircleGridTarget`.
 
     Attributes
     ----------
@@ -81,7 +119,7 @@ class CircleGridTarget:
         Symmetric: centre distance in a row and between rows. Asymmetric: OpenCV's "square size" —
         rows are ``spacing_m`` apart and circles in a row ``2·spacing_m`` apart.
     diameter_m : float
-        Circle diameter (must be smaller than ``spacing_m`` so circles never touch).
+        Circle diameter (smaller than the nearest-neighbour distance).
     asymmetric : bool
     margin_m : float or None
         Mask border around the outermost circle centres (default: one spacing).
@@ -93,139 +131,57 @@ class CircleGridTarget:
     diameter_m: float
     asymmetric: bool = False
     margin_m: float | None = None
+    target: _t.CircleGridTarget = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        object.__setattr__(self, "columns", _pos_int(self.columns, "CircleGridTarget.columns"))
-        object.__setattr__(self, "rows", _pos_int(self.rows, "CircleGridTarget.rows"))
-        s = _pos_float(self.spacing_m, "CircleGridTarget.spacing_m")
-        d = _pos_float(self.diameter_m, "CircleGridTarget.diameter_m")
-        if d >= s:
-            raise ConfigError(f"CircleGridTarget.diameter_m={d!r}: expected < spacing_m={s!r} (circles would touch)")
-        object.__setattr__(self, "spacing_m", s)
-        object.__setattr__(self, "diameter_m", d)
-        object.__setattr__(self, "asymmetric", bool(self.asymmetric))
-        m = s if self.margin_m is None else _pos_float(self.margin_m, "CircleGridTarget.margin_m")
-        object.__setattr__(self, "margin_m", m)
-
-    @property
-    def pattern_size(self) -> tuple[int, int]:
-        """OpenCV ``patternSize`` (columns, rows)."""
-        return (self.columns, self.rows)
-
-    def object_points(self) -> np.ndarray:
-        """(columns·rows, 3) circle centres in OpenCV order (row-major over ``rows``), metres, z = 0."""
-        i, j = np.meshgrid(np.arange(self.rows), np.arange(self.columns), indexing="ij")
-        i = i.ravel().astype(np.float64)
-        j = j.ravel().astype(np.float64)
-        s = self.spacing_m
-        x = (2.0 * j + (i % 2)) * s if self.asymmetric else j * s
-        return np.stack([x, i * s, np.zeros_like(x)], axis=1)
-
-    def extent(self) -> tuple[float, float, float, float]:
-        """(xmin, xmax, ymin, ymax) of the mask in metres."""
-        p = self.object_points()
-        m = self.margin_m
-        return (p[:, 0].min() - m, p[:, 0].max() + m, p[:, 1].min() - m, p[:, 1].max() + m)
-
-    def classify(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Label (SURROUND=0, BOARD=1, FEATURE=2) of target-plane points ``x, y`` (metres, any shape)."""
-        s = self.spacing_m
-        r2 = (0.5 * self.diameter_m) ** 2
-        xmin, xmax, ymin, ymax = self.extent()
-        lab = np.where((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax), BOARD, SURROUND).astype(np.int8)
-        # nearest row centre; diameter < spacing means only that row can contain the point
-        i = np.clip(np.rint(y / s), 0, self.rows - 1)
-        if self.asymmetric:
-            shift = (i % 2) * s
-            j = np.clip(np.rint((x - shift) / (2 * s)), 0, self.columns - 1)
-            cx = (2 * j) * s + shift
-        else:
-            j = np.clip(np.rint(x / s), 0, self.columns - 1)
-            cx = j * s
-        inside = (x - cx) ** 2 + (y - i * s) ** 2 <= r2
-        lab[inside & np.isfinite(x)] = FEATURE
-        return lab
+        n = type(self).__name__
+        s = _metres(n, "spacing_m", self.spacing_m)
+        d = _metres(n, "diameter_m", self.diameter_m)
+        m = None if self.margin_m is None else _metres(n, "margin_m", self.margin_m)
+        self._build(_t.CircleGridTarget, columns=self.columns, rows=self.rows, spacing_mm=_mm(s),
+                    asymmetric=self.asymmetric, diameter_mm=_mm(d), margin_mm=_mm(m))
+        for k, v in (("columns", self.target.columns), ("rows", self.target.rows), ("spacing_m", s),
+                     ("diameter_m", d), ("asymmetric", self.target.asymmetric), ("margin_m", s if m is None else m)):
+            object.__setattr__(self, k, v)
 
     def outline_points(self, n: int = 16) -> np.ndarray:
-        """(N·n, 3) points on every circle's rim (for visibility checks)."""
-        c = self.object_points()
-        a = 2 * np.pi * np.arange(n) / n
-        r = 0.5 * self.diameter_m
-        rim = np.stack([r * np.cos(a), r * np.sin(a), np.zeros(n)], axis=1)
-        return (c[:, None, :] + rim[None, :, :]).reshape(-1, 3)
+        """(N·n, 3) points on every circle's rim, metres (visibility checks)."""
+        return 1e-3 * self.target.outline_points(n)
 
 
 @dataclass(frozen=True)
-class ChessboardTarget:
-    """Heated chessboard with ``inner_columns × inner_rows`` inner corners (OpenCV ``patternSize``).
+class ChessboardTarget(_MetreView):
+    """Metre-unit heated chessboard; ``.target`` is the :class:`thermogrammetry.targets.ChessboardTarget`.
 
-    Squares: (inner_columns+1) × (inner_rows+1); the square whose lower-right corner is inner corner 0
-    (the top-left square) is a *feature* (hot, absorbing) square, colours alternate; a border of the
-    *board* (cool, reflective) colour of width ``margin_m`` (default one square) surrounds them.
+    ``inner_columns × inner_rows`` inner corners (OpenCV ``patternSize``), squares of ``square_m``.
+    The top-left square (diagonally outside inner corner 0) is a *board* (cool) square, as is the
+    border of width ``margin_m`` (default one square); the squares sharing an edge with it are
+    *feature* (hot) squares — ``corner0_square="dark"`` of the detector. (An earlier docstring said the
+    top-left square was hot; the renderer has always made it cool and the detector tests rely on it.)
     """
 
     inner_columns: int
     inner_rows: int
     square_m: float
     margin_m: float | None = None
+    target: _t.ChessboardTarget = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        object.__setattr__(self, "inner_columns", _pos_int(self.inner_columns, "ChessboardTarget.inner_columns"))
-        object.__setattr__(self, "inner_rows", _pos_int(self.inner_rows, "ChessboardTarget.inner_rows"))
-        s = _pos_float(self.square_m, "ChessboardTarget.square_m")
-        object.__setattr__(self, "square_m", s)
-        m = s if self.margin_m is None else _pos_float(self.margin_m, "ChessboardTarget.margin_m")
-        object.__setattr__(self, "margin_m", m)
-
-    @property
-    def pattern_size(self) -> tuple[int, int]:
-        return (self.inner_columns, self.inner_rows)
-
-    def object_points(self) -> np.ndarray:
-        """(inner_columns·inner_rows, 3) inner corners in OpenCV order, metres, z = 0."""
-        i, j = np.meshgrid(np.arange(self.inner_rows), np.arange(self.inner_columns), indexing="ij")
-        s = self.square_m
-        return np.stack([j.ravel() * s, i.ravel() * s, np.zeros(i.size)], axis=1).astype(np.float64)
-
-    def extent(self) -> tuple[float, float, float, float]:
-        s, m = self.square_m, self.margin_m
-        return (-s - m, self.inner_columns * s + m, -s - m, self.inner_rows * s + m)
-
-    def classify(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        s = self.square_m
-        xmin, xmax, ymin, ymax = self.extent()
-        lab = np.where((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax), BOARD, SURROUND).astype(np.int8)
-        with np.errstate(invalid="ignore"):
-            a = np.floor(x / s) + 1  # square column 0..inner_columns
-            b = np.floor(y / s) + 1
-            squares = (a >= 0) & (a <= self.inner_columns) & (b >= 0) & (b <= self.inner_rows)
-            hot = squares & (np.mod(a + b, 2) == 1)
-        lab[hot & np.isfinite(x)] = FEATURE
-        return lab
-
-    def outline_points(self, n: int = 4) -> np.ndarray:
-        """Inner corners and their neighbours half a square away (visibility check)."""
-        c = self.object_points()
-        h = 0.5 * self.square_m
-        d = np.array([[h, 0, 0], [-h, 0, 0], [0, h, 0], [0, -h, 0]], dtype=np.float64)
-        return (c[:, None, :] + d[None]).reshape(-1, 3)
+        n = type(self).__name__
+        s = _metres(n, "square_m", self.square_m)
+        m = None if self.margin_m is None else _metres(n, "margin_m", self.margin_m)
+        self._build(_t.ChessboardTarget, inner_columns=self.inner_columns, inner_rows=self.inner_rows,
+                    square_mm=_mm(s), corner0_square="dark", margin_mm=_mm(m))
+        for k, v in (("inner_columns", self.target.inner_columns), ("inner_rows", self.target.inner_rows),
+                     ("square_m", s), ("margin_m", s if m is None else m)):
+            object.__setattr__(self, k, v)
 
 
 @dataclass(frozen=True)
-class CodedCheckerboardTarget:
-    """Checkerboard with an ArUco marker on its central corner (MRT coded target, Schramm et al. 2021).
-
-    Same layout as :class:`thermogrammetry.calibration.detect_common.CodedCheckerboardSpec` (metres
-    here): origin at the top-left inner corner, ``object_points()`` = all inner corners row-major
-    (including those hidden by the marker area; :meth:`valid_ids` lists the usable ones);
-    ``hidden_squares``² squares around the central corner are blank (bright) and carry the marker of
-    side ``marker_m`` (black border + ``marker_bits``² bits of ``extendDictionary(dictionary_size,
-    marker_bits, seed 0)``, id ``marker_id``). ``top_left_square`` is the colour of the square diagonally
-    outside corner 0. *Bright* parts (light squares, blank area, white bits, border) take the
-    ``feature_k`` temperature, *dark* parts (dark squares, black marker cells) ``board_k`` — the board
-    as a heated print whose dark ink absorbs less (swap the temperatures for the opposite polarity).
-    Every edge is analytic, so corners are exact.
-    """
+class CodedCheckerboardTarget(_MetreView):
+    """Metre-unit MRT coded checkerboard; ``.target`` is the
+    :class:`thermogrammetry.targets.CodedCheckerboardTarget` (see there for the layout and parts).
+    The defaults are the MRT 60x45 cm board."""
 
     inner_columns: int = 11
     inner_rows: int = 9
@@ -237,100 +193,31 @@ class CodedCheckerboardTarget:
     dictionary_size: int = 1
     top_left_square: str = "dark"
     margin_m: float | None = None
+    target: _t.CodedCheckerboardTarget = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        for n in ("inner_columns", "inner_rows"):
-            v = _pos_int(getattr(self, n), f"CodedCheckerboardTarget.{n}")
-            if v % 2 == 0:
-                raise ConfigError(f"CodedCheckerboardTarget.{n}={v}: expected an odd number (the marker sits on the central corner)")
-        object.__setattr__(self, "square_m", _pos_float(self.square_m, "CodedCheckerboardTarget.square_m"))
-        object.__setattr__(self, "marker_m", _pos_float(self.marker_m, "CodedCheckerboardTarget.marker_m"))
-        if self.marker_m > self.hidden_squares * self.square_m:
-            raise ConfigError(f"CodedCheckerboardTarget.marker_m={self.marker_m}: larger than the blank area "
-                              f"({self.hidden_squares} x {self.square_m} m)")
-        if self.top_left_square not in ("dark", "bright"):
-            raise ConfigError(f"CodedCheckerboardTarget.top_left_square={self.top_left_square!r}: expected 'dark' or 'bright'")
-        m = self.square_m if self.margin_m is None else _pos_float(self.margin_m, "CodedCheckerboardTarget.margin_m")
-        object.__setattr__(self, "margin_m", m)
-
-    @property
-    def pattern_size(self) -> tuple[int, int]:
-        return (self.inner_columns, self.inner_rows)
+        n = type(self).__name__
+        s = _metres(n, "square_m", self.square_m)
+        mk = _metres(n, "marker_m", self.marker_m)
+        m = None if self.margin_m is None else _metres(n, "margin_m", self.margin_m)
+        self._build(_t.CodedCheckerboardTarget, inner_columns=self.inner_columns, inner_rows=self.inner_rows,
+                    square_mm=_mm(s), marker_mm=_mm(mk), hidden_squares=self.hidden_squares,
+                    marker_bits=self.marker_bits, marker_id=self.marker_id, dictionary_size=self.dictionary_size,
+                    top_left_square=self.top_left_square, margin_mm=_mm(m))
+        for k, v in (("square_m", s), ("marker_m", mk), ("margin_m", s if m is None else m)):
+            object.__setattr__(self, k, v)
 
     @property
     def centre(self) -> np.ndarray:
-        return np.array([(self.inner_columns - 1) / 2 * self.square_m, (self.inner_rows - 1) / 2 * self.square_m])
-
-    def object_points(self) -> np.ndarray:
-        i, j = np.meshgrid(np.arange(self.inner_rows), np.arange(self.inner_columns), indexing="ij")
-        s = self.square_m
-        return np.stack([j.ravel() * s, i.ravel() * s, np.zeros(i.size)], axis=1).astype(np.float64)
-
-    def _square_dark(self, a, b) -> np.ndarray:
-        """Square (a, b) = the square whose lower-right corner is inner corner (a, b) − 1 (a, b >= 0);
-        dark unless blanked by the marker area (blank squares count as bright)."""
-        s = self.square_m
-        xc = (np.asarray(a) - 0.5) * s
-        yc = (np.asarray(b) - 0.5) * s
-        half = self.hidden_squares / 2 * s
-        blank = (np.abs(xc - self.centre[0]) < half) & (np.abs(yc - self.centre[1]) < half)
-        dark = (np.mod(np.asarray(a) + np.asarray(b), 2) == 0) == (self.top_left_square == "dark")
-        return dark & ~blank
+        """(2,) central corner (= marker centre), metres."""
+        return 1e-3 * self.target.center_mm
 
     def valid_ids(self) -> np.ndarray:
-        """Corners that are true saddles (their four squares alternate once the blank area is bright),
-        the definition of ``CodedCheckerboardSpec.valid_ids``."""
-        r, c = np.mgrid[0:self.inner_rows, 0:self.inner_columns]
-        r, c = r.ravel(), c.ravel()
-        tl, tr = self._square_dark(c, r), self._square_dark(c + 1, r)
-        bl, br = self._square_dark(c, r + 1), self._square_dark(c + 1, r + 1)
-        return np.flatnonzero((tl == br) & (tr == bl) & (tl != tr))
+        """Usable corners (:meth:`thermogrammetry.targets.CodedCheckerboardTarget.valid_ids`)."""
+        return self.target.valid_ids()
 
     def marker_bits_matrix(self) -> np.ndarray:
-        """(bits+2, bits+2) uint8, 1 = white cell, including the black border."""
-        import cv2
-
-        d = cv2.aruco.extendDictionary(int(self.dictionary_size), int(self.marker_bits), cv2.aruco.Dictionary(), 0)
-        n = self.marker_bits + 2
-        img = cv2.aruco.generateImageMarker(d, int(self.marker_id), n, borderBits=1)
-        return (img > 127).astype(np.uint8)
-
-    def extent(self) -> tuple[float, float, float, float]:
-        s, m = self.square_m, self.margin_m
-        return (-s - m, self.inner_columns * s + m, -s - m, self.inner_rows * s + m)
-
-    def classify(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """FEATURE = bright, BOARD = dark, SURROUND outside the board (see the class docstring)."""
-        s = self.square_m
-        xmin, xmax, ymin, ymax = self.extent()
-        lab = np.where((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax), FEATURE, SURROUND).astype(np.int8)
-        with np.errstate(invalid="ignore"):
-            a = np.floor(x / s) + 1
-            b = np.floor(y / s) + 1
-            squares = (a >= 0) & (a <= self.inner_columns) & (b >= 0) & (b <= self.inner_rows)
-            tl_dark = self.top_left_square == "dark"
-            dark = squares & ((np.mod(a + b, 2) == 0) == tl_dark)
-            cx, cy = self.centre
-            half = self.hidden_squares / 2 * s
-            blank = (np.abs(x - cx) < half) & (np.abs(y - cy) < half)
-            dark &= ~blank
-            bits = self.marker_bits_matrix()
-            n = bits.shape[0]
-            cell = self.marker_m / n
-            u = np.floor((x - (cx - self.marker_m / 2)) / cell)
-            v = np.floor((y - (cy - self.marker_m / 2)) / cell)
-            inm = (u >= 0) & (u < n) & (v >= 0) & (v < n)
-            ui = np.where(inm, u, 0).astype(np.intp)
-            vi = np.where(inm, v, 0).astype(np.intp)
-            dark |= inm & (bits[vi, ui] == 0)
-        lab[dark & np.isfinite(x)] = BOARD
-        return lab
-
-    def outline_points(self, n: int = 4) -> np.ndarray:
-        c = self.object_points()
-        h = 0.5 * self.square_m
-        d = np.array([[h, 0, 0], [-h, 0, 0], [0, h, 0], [0, -h, 0]], dtype=np.float64)
-        return (c[:, None, :] + d[None]).reshape(-1, 3)
+        return self.target.marker_bits_matrix()
 
 
 @dataclass(frozen=True)
@@ -389,7 +276,7 @@ class RenderedTarget:
         Camera-model projections of the circle centres / inner corners (OpenCV pixel origin), NaN
         where behind the camera.
     points_target : ndarray (N, 3)
-        The same points in the target frame (OpenCV order), metres.
+        The same points in the target frame (OpenCV order), **metres** (``target.object_points_m()``).
     visible : ndarray (N,) bool
         True when the point is in front of the camera and its whole circle (or a half-square
         neighbourhood of the corner) projects inside the image.
@@ -424,6 +311,7 @@ def _project_with_depth(camera, pose, points):
 
 def render_target_signal(camera, pose, target, temperatures=None, *, supersample: int = 8, curve: SignalCurve | None = None) -> np.ndarray:
     """Pixel-integrated signal image (H, W) of ``target`` (no sensor effects). See :func:`render_target_image`."""
+    tgt = as_target(target)
     pose = as_pose(pose)
     temps = TargetTemperatures.coerce(temperatures)
     curve = curve or BandPlanckCurve()
@@ -438,7 +326,7 @@ def render_target_signal(camera, pose, target, temperatures=None, *, supersample
             ok = np.isfinite(lam) & (lam > 0) & np.all(np.isfinite(rays), axis=-1)
             x = np.where(ok, C[0] + lam * d[..., 0], np.nan)
             y = np.where(ok, C[1] + lam * d[..., 1], np.nan)
-        lab = target.classify(x, y)
+        lab = tgt.classify(1e3 * x, 1e3 * y)  # the description is in mm, the pose in metres
         lab[~ok] = SURROUND
         out[rows] = s_part[lab].mean(axis=-1)
     return out
@@ -467,7 +355,8 @@ def render_target_image(
         Any model; only ``image_size``, ``unproject`` (pixel → z = 1 ray) and ``project`` are used.
     pose : thermogrammetry.geometry.Pose or (R, t)
         ``cam_from_target`` (target frame: plane z = 0, see :class:`CircleGridTarget`).
-    target : CircleGridTarget or ChessboardTarget
+    target : thermogrammetry.targets.CircleGridTarget, ChessboardTarget or CodedCheckerboardTarget
+        The millimetre description, or one of the metre-unit views of this module.
     temperatures : TargetTemperatures, dict, (feature_k, board_k[, surround_k]) or None (defaults)
         Apparent temperatures in kelvin.
     supersample : int
@@ -483,23 +372,22 @@ def render_target_image(
     RenderedTarget
         ``image_k`` (H, W) float32 K, ``points_px`` (N, 2), ``points_target`` (N, 3), ``visible`` (N,).
     """
-    if not hasattr(target, "classify") or not hasattr(target, "object_points"):
-        raise InvalidInputError(f"target={target!r}: expected a CircleGridTarget or ChessboardTarget")
+    tgt = as_target(target)
     pose = as_pose(pose)
     curve = curve or BandPlanckCurve()
     effects = SensorEffects(psf_sigma_px=psf_sigma_px, netd_k=netd_k, fpn_k=fpn_k, vignetting=vignetting, fpn_seed=fpn_seed)
     signal = render_target_signal(camera, pose, target, temperatures, supersample=supersample, curve=curve)
     image = apply_sensor_effects(signal, curve, effects, np.random.default_rng(seed))
-    pts = target.object_points()
+    pts = tgt.object_points_m()
     xy, front = _project_with_depth(camera, pose, pts)
     w, h = camera_size(camera)
-    rim = target.outline_points()
+    rim = 1e-3 * tgt.outline_points()
     rim_xy, rim_front = _project_with_depth(camera, pose, rim)
     with np.errstate(invalid="ignore"):
         inside = rim_front & (rim_xy[:, 0] >= -0.5) & (rim_xy[:, 0] <= w - 0.5) & (rim_xy[:, 1] >= -0.5) & (rim_xy[:, 1] <= h - 0.5)
     visible = front & inside.reshape(len(pts), -1).all(axis=1)
-    if hasattr(target, "valid_ids"):
+    if hasattr(tgt, "valid_ids"):
         usable = np.zeros(len(pts), dtype=bool)
-        usable[target.valid_ids()] = True
+        usable[tgt.valid_ids()] = True
         visible &= usable
     return RenderedTarget(image, xy, pts, visible, camera, pose, target, signal)
