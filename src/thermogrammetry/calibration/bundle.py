@@ -390,6 +390,34 @@ def _param_names(problem: BundleProblem, lay: dict) -> list[str]:
     return names
 
 
+def _system(problem: BundleProblem, lay: dict, cams, R, t, rigR, rigt, pts):
+    """Misclosures ``v = computed − observed`` and their Jacobian w.r.t. the unknowns of ``lay``.
+
+    Rows: the image coordinates (2N, px; NaN where an observation is not ``ok``), then the
+    a-priori coordinates of the weighted object points (3 per free point, m). Returns
+    ``(v (m,), J (m, n), ok (N,))``.
+    """
+    res, ok, J = _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True)
+    v = -res.ravel()
+    v[np.repeat(~ok, 2)] = np.nan
+    fp = np.nonzero(lay["point"] >= 0)[0]
+    if fp.size:
+        prior = problem.points if problem.point_prior is None else problem.point_prior
+        v = np.concatenate([v, (pts[fp] - np.asarray(prior, float)[fp]).ravel()])
+        Jp = np.zeros((3 * fp.size, lay["n"]))
+        cols = (lay["point"][fp][:, None] + np.arange(3)[None, :]).ravel()
+        Jp[np.arange(3 * fp.size), cols] = 1.0
+        J = np.vstack([J, Jp])
+    return v, J, ok
+
+
+def _weights(problem: BundleProblem, lay: dict) -> np.ndarray:
+    """Weights of the rows of :func:`_system`: 1/σ² (image coordinates), 1/σ_X² (weighted points)."""
+    fp = np.nonzero(lay["point"] >= 0)[0]
+    pstd = np.asarray(problem.point_prior_std, float)[fp] if fp.size else np.zeros((0, 3))
+    return np.concatenate([1.0 / np.asarray(problem.obs_sigma, float).ravel() ** 2, 1.0 / pstd.ravel() ** 2])
+
+
 def _solve_bundle(problem: BundleProblem, max_iterations: int, tolerance: float) -> BundleSolution:
     """The dense route: this problem handed to :func:`thermogrammetry.adjustment.dense.solve_dense`.
 
@@ -414,26 +442,15 @@ def _solve_bundle(problem: BundleProblem, max_iterations: int, tolerance: float)
     n = lay["n"]
     sig = np.asarray(problem.obs_sigma, float)
     Nobs = problem.obs_xy.shape[0]
-    prior_pts = (pts0 if problem.point_prior is None else np.asarray(problem.point_prior, float)).copy()
-    fp = np.nonzero(lay["point"] >= 0)[0]
-    pstd = np.asarray(problem.point_prior_std, float)[fp] if fp.size else np.zeros((0, 3))
-    pcols = (lay["point"][fp][:, None] + np.arange(3)[None, :]).ravel()
+    n_prior = 3 * int(np.count_nonzero(lay["point"] >= 0))
     rot_starts = np.concatenate([lay["pose"][lay["pose"] >= 0], lay["rig"]]).astype(int)
     rot_cols = (rot_starts[:, None] + np.arange(3)[None, :])
 
     def state(x):
         return _apply(problem, cams0, R0, t0, rigR0, rigt0, pts0, lay, x)
 
-    def fun(x):
-        cams, R, t, rigR, rigt, pts = state(x)
-        res, ok, J = _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True)
-        v = -res.ravel()  # misclosure f(x) - l = computed - observed
-        v[np.repeat(~ok, 2)] = np.nan  # behind a camera / beyond the model's range: step rejected
-        if fp.size:
-            v = np.concatenate([v, (pts[fp] - prior_pts[fp]).ravel()])
-            Jp = np.zeros((3 * fp.size, n))
-            Jp[np.arange(3 * fp.size), pcols] = 1.0
-            J = np.vstack([J, Jp])
+    def fun(x):  # NaN rows (behind a camera / beyond the model's range) make solve_dense reject the step
+        v, J, _ = _system(problem, lay, *state(x))
         return v, J
 
     def update(x, dx):
@@ -445,17 +462,18 @@ def _solve_bundle(problem: BundleProblem, max_iterations: int, tolerance: float)
 
     # the start must be valid: every observation in front of its camera and inside the model's range
     res, ok, _ = _evaluate(problem, cams0, R0, t0, rigR0, rigt0, pts0, lay, want_jac=False)
-    nobs = 2 * Nobs + 3 * fp.size
+    nobs = 2 * Nobs + n_prior
     if nobs - n <= 0:
         return _fail(problem, cams0, R0, t0, rigR0, rigt0, pts0, res, Termination.TOO_FEW_OBSERVATIONS,
                      f"{nobs} observations for {n} unknowns: redundancy {nobs - n} <= 0", lay)
     if not np.all(ok):
         return _fail(problem, cams0, R0, t0, rigR0, rigt0, pts0, res, Termination.DEGENERATE,
                      f"{np.count_nonzero(~ok)} observations project behind a camera or outside the model's range at the start", lay)
-    weights = np.concatenate([1.0 / sig.ravel() ** 2, 1.0 / pstd.ravel() ** 2])
+    weights = _weights(problem, lay)
     # small initial damping: self-calibration normal matrices have tiny eigenvalues along the
     # correlated K1-K3 directions, and a larger λ would turn Gauss-Newton into slow gradient steps.
-    # decrease_tol 1e-15 of the cost (~2000 here) stops when the Gauss-Newton step is ~1e-6 σ.
+    # Stops on a relative cost change below ``tolerance`` or when the undamped step would lower the
+    # cost by less than 1e-15 of it (solve_dense's decrease_tol: the step is ~1e-6 σ there).
     opts = DenseOptions(max_iterations=max_iterations, initial_lambda=1e-9, cost_tol=tolerance, rank_tol=1e-14)
     dr = solve_dense(fun, np.zeros(n), weights=weights, update=update, param_names=_param_names(problem, lay),
                      options=opts)
@@ -612,22 +630,12 @@ def _gn_step_sigma(problem: BundleProblem) -> float:
     """Largest Gauss-Newton step at the problem's current values, in units of each parameter's
     conditional standard deviation (1/sqrt(N_ii)); ~0 at a minimum."""
     lay = _layout(problem)
-    res, ok, J = _evaluate(problem, problem.cameras, problem.R, problem.t, problem.rig_R, problem.rig_t, problem.points,
-                           lay, want_jac=True)
+    v, J, ok = _system(problem, lay, problem.cameras, problem.R, problem.t, problem.rig_R, problem.rig_t, problem.points)
     if not np.all(ok):
         return float("inf")
-    sig = problem.obs_sigma.ravel()
-    e = res.ravel() / sig
-    J = J / sig[:, None]
-    fp = np.nonzero(lay["point"] >= 0)[0]
-    if fp.size:  # weighted control pseudo-observations
-        prior = problem.points if problem.point_prior is None else np.asarray(problem.point_prior, float)
-        e = np.concatenate([e, ((prior[fp] - problem.points[fp]) / np.asarray(problem.point_prior_std, float)[fp]).ravel()])
-        pstd = np.asarray(problem.point_prior_std, float)[fp]
-        Jp = np.zeros((3 * fp.size, lay["n"]))
-        cols = (lay["point"][fp][:, None] + np.arange(3)[None, :]).ravel()
-        Jp[np.arange(3 * fp.size), cols] = 1.0 / pstd.ravel()
-        J = np.vstack([J, Jp])
+    sw = np.sqrt(_weights(problem, lay))
+    e = sw * v
+    J = sw[:, None] * J
     Nm = J.T @ J
     d = np.sqrt(np.maximum(np.diag(Nm), 1e-300))
     try:
