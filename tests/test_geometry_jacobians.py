@@ -93,7 +93,7 @@ def test_collinearity_jacobian_fixed_interior_point_only_path(rng):
 
     for cam in (CAM, PinholeK(K)):
         xy = cam.project(pose.transform(X)) + rng.normal(0, 1, (15, 2))
-        _fd_check(lambda q, cam=cam: collinearity_residuals(q, cam, X, xy), p, update, np.full(6, 1e-6))
+        _fd_check(lambda q, cam=cam, xy=xy: collinearity_residuals(q, cam, X, xy), p, update, np.full(6, 1e-6))
     pk = PinholeK(K)
     xy0, jp0, jk0 = pk.project_jacobian(pose.transform(X))
     xy1, jp1, none = pk.project_jacobian(pose.transform(X), params=False)

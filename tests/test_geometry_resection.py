@@ -189,3 +189,19 @@ def test_internal_rodrigues_helpers_match_rotations_module():
             assert np.abs(rot.matrix_from_axis_angle(_rvec(R)) - R).max() < 1e-14
             if angle < 3.0:
                 assert np.abs(_rvec(R) - v).max() < 1e-14 + 1e-12 * angle
+
+
+@pytest.mark.parametrize("seed", [0, 9, 14])
+def test_six_nearly_coplanar_points_get_the_planar_starts_too(seed):
+    # 6 points with 5 cm height scatter on a 10 m field: "non-coplanar" for the DLT, but its start is
+    # poor there. Before the fix: seed 0 DEGENERATE 92 m off, seeds 9 and 14 CONVERGED 78 / 75 m off.
+    rng = np.random.default_rng(seed)
+    X = np.c_[rng.uniform(-5, 5, (6, 2)), rng.normal(0, 0.05, 6)]
+    ang = np.radians(40)
+    C = np.array([0, -60 * np.sin(ang), 60 * np.cos(ang)])
+    pose = Pose.look_at(C, [0, 0, 0], up=(0, 0, 1))
+    xy = _OBLIQUE_CAM.project(pose.transform(X)) + rng.normal(0, 0.3, (6, 2))
+    r = resection(_OBLIQUE_CAM, X, xy, sigma_px=0.3)
+    assert r.termination is Termination.CONVERGED and not r.ambiguous
+    assert r.init_method == "dlt" and r.start in ("sqpnp", "ippe")  # the DLT start lost
+    assert np.linalg.norm(r.center - C) < 4 * np.linalg.norm(r.center_std_prior)
