@@ -111,26 +111,28 @@ def run_circles():
     """Synthetic mask grids (seed 003: 20 mm holes, 50 mm spacing, 7x4; asymmetric 30 mm pitch),
     rendered by thermogrammetry.synthetic (PSF 1 px, NETD 0.05 K); centre RMS vs exact projections."""
     from thermogrammetry import Camera
-    from thermogrammetry.calibration.detect import CircleGridSpec, detect_circle_grid
+    from thermogrammetry.calibration.detect import detect_circle_grid
     from thermogrammetry.geometry import Pose
-    from thermogrammetry.synthetic.targets import CircleGridTarget, render_target_image
+    from thermogrammetry.pipeline.demo import match_to_truth
+    from thermogrammetry.synthetic.targets import render_target_image
+    from thermogrammetry.targets import CircleGridTarget
 
     rows = []
     for w, h, f, ss in ((640, 480, 1000.0, 8), (160, 120, 250.0, 8)):
         cam = Camera("pinhole", (w, h), {"fx": f, "fy": f, "cx": (w - 1) / 2, "cy": (h - 1) / 2})
         for asym in (False, True):
-            tgt = CircleGridTarget(7, 4, 0.03 if asym else 0.05, 0.02, asymmetric=asym)
-            spec = CircleGridSpec(7, 4, 1000 * tgt.spacing_m, asymmetric=asym, diameter_mm=20.0)
-            c = tgt.object_points().mean(axis=0)
+            # one description (mm) for rendering and detection
+            tgt = CircleGridTarget(7, 4, 30.0 if asym else 50.0, asymmetric=asym, diameter_mm=20.0)
+            c = tgt.object_points_m().mean(axis=0)
             for view, off in (("frontal", np.array([0.0, 0.0, -0.7])), ("oblique", np.array([0.3, -0.25, -0.6]))):
                 pose = Pose.look_at(c + off * (1.4 if asym else 1.0), c, up=(0, -1, 0))
                 errs = {True: [], False: []}
                 for seed in range(3):
                     r = render_target_image(cam, pose, tgt, psf_sigma_px=1.0, netd_k=0.05, seed=seed, supersample=ss)
                     for pc in (True, False):
-                        d = detect_circle_grid(r.image_k, spec, perspective_correction=pc)
-                        if d.found:
-                            errs[pc].append(d.points_px - r.points_px)
+                        d = detect_circle_grid(r.image_k, tgt, perspective_correction=pc)
+                        if d.found:  # paired by position: a symmetric grid may be numbered from the other end
+                            errs[pc].append(d.points_px - r.points_px[match_to_truth(d.points_px, r.points_px)[1]])
                 for pc in (True, False):
                     e = np.concatenate(errs[pc]) if errs[pc] else np.full((1, 2), np.nan)
                     rms = float(np.sqrt(np.mean(np.sum(e**2, axis=1))))

@@ -216,3 +216,35 @@ def test_symmetric_grid_upside_down_compared_by_position():
     err, idx = match_to_truth(d.points_px, r.points_px)
     assert err.max() < 0.3, err.max()
     np.testing.assert_array_equal(idx, 27 - d.object_ids)  # exactly the 180° renumbering
+
+
+# ------------------------------------------------------------------------------------------ layering
+def test_targets_and_synthetic_do_not_import_calibration():
+    """thermogrammetry.targets is the lowest layer (errors + numpy); synthetic must not import the
+    calibration layer for targets. Static check of every import statement (testfield.py belongs to the
+    calibration engineer's simulator and is excluded), plus a fresh interpreter that loads the
+    renderer and the descriptions and must not have pulled in thermogrammetry.calibration."""
+    import ast
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import thermogrammetry
+
+    root = Path(thermogrammetry.__file__).parent
+    files = [root / "targets.py"] + [p for p in (root / "synthetic").glob("*.py") if p.name != "testfield.py"]
+    bad = []
+    for p in files:
+        for node in ast.walk(ast.parse(p.read_text())):
+            mods = []
+            if isinstance(node, ast.ImportFrom):
+                mods = [("." * node.level) + (node.module or "")] + [a.name for a in node.names]
+            elif isinstance(node, ast.Import):
+                mods = [a.name for a in node.names]
+            if any("calibration" in m for m in mods):
+                bad.append(f"{p.name}:{node.lineno}")
+    assert not bad, bad
+    code = ("import sys, thermogrammetry.targets, thermogrammetry.synthetic.targets; "
+            "print([m for m in sys.modules if m.startswith('thermogrammetry.calibration')])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]", out

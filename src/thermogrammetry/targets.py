@@ -63,13 +63,13 @@ def _int(owner: str, name: str, value, minimum: int) -> int:
     return int(value)
 
 
-def _length(owner: str, name: str, value) -> float:
+def _length(owner: str, name: str, value, unit: str = "millimetres") -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ConfigError(f"{owner}.{name}={value!r}: expected a positive length in millimetres") from None
+        v = float("nan")
     if not np.isfinite(v) or v <= 0:
-        raise ConfigError(f"{owner}.{name}={value!r}: expected a positive finite length in millimetres")
+        raise ConfigError(f"{owner}.{name}={value!r}: expected a positive finite length in {unit}")
     return v
 
 

@@ -60,13 +60,7 @@ __all__ = [
 
 
 def _metres(owner: str, name: str, v) -> float:
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{owner}.{name}={v!r}: expected a positive number (metres)") from None
-    if not np.isfinite(f) or f <= 0:
-        raise ConfigError(f"{owner}.{name}={v!r}: expected a positive number (metres)")
-    return f
+    return _t._length(owner, name, v, "metres")
 
 
 def _mm(v):
