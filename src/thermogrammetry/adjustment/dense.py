@@ -445,12 +445,12 @@ def solve_dense(
     Q[np.ix_(free, free)] = Qf
     # redundancy numbers diag(I − J Q Jᵀ P) computed in whitened form: 1 − diag(Jw Q Jwᵀ) for diagonal P
     if kind == "diag":
-        JQJ = np.einsum("ij,jk,ik->i", Jf, Qf, Jf)
+        JQJ = ((Jf @ Qf) * Jf).sum(axis=1)  # diag(J Q Jᵀ) through BLAS
         rn = np.where(valid, 1.0 - JQJ, np.nan)
     else:
         Jl = J[:, free]
         P = W.T @ W
-        rn = 1.0 - np.einsum("ij,jk,lk,li->i", Jl, Qf, Jl, P)
+        rn = 1.0 - ((Jl @ Qf @ Jl.T) * P.T).sum(axis=1)  # diag(J Q Jᵀ P)
     if redundancy > 0:
         s02 = cost / redundancy
         cov_post = s02 * Q
