@@ -99,9 +99,38 @@ class _PlanarTarget:
         return self.object_points() * 1e-3
 
 
+class _SquareGrid(_PlanarTarget):
+    """Layout shared by the boards of squares (fields ``inner_columns``, ``inner_rows``, ``square_mm``,
+    ``margin_mm``): inner corners row-major, board extent, visibility points."""
+
+    @property
+    def pattern_size(self) -> tuple[int, int]:
+        """OpenCV ``patternSize`` (inner_columns, inner_rows)."""
+        return (self.inner_columns, self.inner_rows)
+
+    @property
+    def n_points(self) -> int:
+        return self.inner_columns * self.inner_rows
+
+    def object_points(self) -> np.ndarray:
+        """(inner_columns·inner_rows, 3) float64 inner corners in **mm**, OpenCV (row-major) order, z = 0."""
+        r, c = _grid(self.inner_rows, self.inner_columns)
+        s = self.square_mm
+        return np.column_stack([c * s, r * s, np.zeros(r.size)])
+
+    def extent_mm(self) -> tuple[float, float, float, float]:
+        """(xmin, xmax, ymin, ymax) of the board including the border, mm."""
+        s, m = self.square_mm, self.margin_mm
+        return (-s - m, self.inner_columns * s + m, -s - m, self.inner_rows * s + m)
+
+    def outline_points(self) -> np.ndarray:
+        """(4N, 3) mm: each inner corner's neighbours half a square away (visibility checks)."""
+        return _corner_neighbours(self.object_points(), self.square_mm)
+
+
 # --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class ChessboardTarget(_PlanarTarget):
+class ChessboardTarget(_SquareGrid):
     """A chessboard described by its **inner** corners (OpenCV ``patternSize = (inner_columns, inner_rows)``).
 
     ``(inner_columns + 1) × (inner_rows + 1)`` squares, colours alternating, surrounded by a border of
@@ -148,26 +177,6 @@ class ChessboardTarget(_PlanarTarget):
         m = s if self.margin_mm is None else _length(n, "margin_mm", self.margin_mm)
         object.__setattr__(self, "margin_mm", m)
 
-    @property
-    def pattern_size(self) -> tuple[int, int]:
-        """OpenCV ``patternSize`` (inner_columns, inner_rows)."""
-        return (self.inner_columns, self.inner_rows)
-
-    @property
-    def n_points(self) -> int:
-        return self.inner_columns * self.inner_rows
-
-    def object_points(self) -> np.ndarray:
-        """(inner_columns·inner_rows, 3) float64 inner corners in **mm**, OpenCV order, z = 0."""
-        r, c = _grid(self.inner_rows, self.inner_columns)
-        s = self.square_mm
-        return np.column_stack([c * s, r * s, np.zeros(r.size)])
-
-    def extent_mm(self) -> tuple[float, float, float, float]:
-        """(xmin, xmax, ymin, ymax) of the board including the border, mm."""
-        s, m = self.square_mm, self.margin_mm
-        return (-s - m, self.inner_columns * s + m, -s - m, self.inner_rows * s + m)
-
     def classify(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
         """Part label (SURROUND=0, BOARD=1, FEATURE=2) of target-plane points, int8, shape of ``x_mm``.
 
@@ -189,10 +198,6 @@ class ChessboardTarget(_PlanarTarget):
             feature = squares & (~even if self.corner0_square == "dark" else even)
         lab[feature & np.isfinite(x) & np.isfinite(y)] = FEATURE
         return lab
-
-    def outline_points(self) -> np.ndarray:
-        """(4N, 3) mm: each inner corner's neighbours half a square away (visibility checks)."""
-        return _corner_neighbours(self.object_points(), self.square_mm)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -314,7 +319,7 @@ class CircleGridTarget(_PlanarTarget):
 
 # --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class CodedCheckerboardTarget(_PlanarTarget):
+class CodedCheckerboardTarget(_SquareGrid):
     """Checkerboard with an ArUco marker on its central corner (Schramm et al. 2021, MRT coded target).
 
     The defaults describe the 60x45 cm target of ``../shared/data/ir_coded_checkerboard``
@@ -457,23 +462,9 @@ class CodedCheckerboardTarget(_PlanarTarget):
         )
 
     @property
-    def pattern_size(self) -> tuple[int, int]:
-        return (self.inner_columns, self.inner_rows)
-
-    @property
-    def n_points(self) -> int:
-        return self.inner_columns * self.inner_rows
-
-    @property
     def center_mm(self) -> np.ndarray:
         """(2,) position of the central corner (= marker centre), mm."""
         return np.array([(self.inner_columns - 1) / 2, (self.inner_rows - 1) / 2]) * self.square_mm
-
-    def object_points(self) -> np.ndarray:
-        """(inner_columns·inner_rows, 3) float64 grid corners in **mm**, row-major, z = 0 (hidden included)."""
-        r, c = _grid(self.inner_rows, self.inner_columns)
-        s = self.square_mm
-        return np.column_stack([c * s, r * s, np.zeros(r.size)])
 
     def marker_corners_mm(self) -> np.ndarray:
         """(4, 2) marker corners, mm, ArUco order (top-left, top-right, bottom-right, bottom-left)."""
@@ -526,10 +517,6 @@ class CodedCheckerboardTarget(_PlanarTarget):
         img = cv2.aruco.generateImageMarker(self.dictionary(), int(self.marker_id), n, borderBits=1)
         return (img > 127).astype(np.uint8)
 
-    def extent_mm(self) -> tuple[float, float, float, float]:
-        s, m = self.square_mm, self.margin_mm
-        return (-s - m, self.inner_columns * s + m, -s - m, self.inner_rows * s + m)
-
     def classify(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
         """Part label of target-plane points (mm): FEATURE = bright, BOARD = dark, SURROUND outside."""
         x, y = np.asarray(x_mm, dtype=np.float64), np.asarray(y_mm, dtype=np.float64)
@@ -554,10 +541,6 @@ class CodedCheckerboardTarget(_PlanarTarget):
             dark = np.where(inm, bits[vi, ui] == 0, dark)
         lab[dark & np.isfinite(x) & np.isfinite(y)] = BOARD
         return lab
-
-    def outline_points(self) -> np.ndarray:
-        """(4N, 3) mm: each grid corner's neighbours half a square away (visibility checks)."""
-        return _corner_neighbours(self.object_points(), self.square_mm)
 
 
 #: any of the target descriptions
