@@ -31,8 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..calibration.bundle import PARAM_NAMES, project
-from ..camera.models import photogrammetric_correction_jacobian
+from ..camera.models import PARAM_NAMES as _MODEL_PARAM_NAMES
+from ..camera.models import CameraModel, photogrammetric_correction_jacobian, photogrammetric_project_solve
+
+PARAM_NAMES = _MODEL_PARAM_NAMES[CameraModel.PHOTOGRAMMETRIC]
 
 __all__ = [
     "FLIR_A320_IMAGE_SIZE",
@@ -116,7 +118,7 @@ def look_at_pose(center: np.ndarray, target: np.ndarray, roll_deg: float = 0.0, 
 class TestFieldTruth:
     """Exact values behind a synthetic test-field calibration."""
 
-    params: np.ndarray  # (12,) correction-form parameters, layout calibration.bundle.PARAM_NAMES
+    params: np.ndarray  # (12,) correction-form parameters, layout camera.models.PARAM_NAMES['photogrammetric']
     image_size: tuple[int, int]
     pixel_pitch_um: float
     point_ids: np.ndarray  # (77,) str
@@ -213,7 +215,10 @@ def make_testfield(
     oi, op, xyt = [], [], []
     for f in range(R.shape[0]):
         Xc = xyz @ R[f].T + t[f]
-        xy, _, _, ok = project(Xc, pvec, FLIR_A320_IMAGE_SIZE, pitch_mm, jacobians=False)
+        front = Xc[:, 2] > 1e-12
+        xy, ok = photogrammetric_project_solve(pvec, np.where(front[:, None], Xc, 1.0), FLIR_A320_IMAGE_SIZE,
+                                               (FLIR_A320_PIXEL_PITCH_UM,) * 2)
+        ok = ok & front
         xb = (xy[:, 0] - (w - 1) / 2) * pitch_mm[0] - pvec[1]
         yb = -(xy[:, 1] - (h - 1) / 2) * pitch_mm[1] - pvec[2]
         # Js = I + d(correction)/d(xb, yb): its determinant guards against the fold of the polynomial
