@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from thermogrammetry.calibration.testfield_csv import (
+from thermogrammetry.io.testfield_csv import (
     check_measurement_ids,
     parse_control_csv,
     parse_measurements_csv,

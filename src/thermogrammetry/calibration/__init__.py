@@ -5,9 +5,8 @@ Public entry points (imported lazily so that ``import thermogrammetry.calibratio
 - :func:`calibrate` / :class:`SelfCalibrationOptions` / :class:`CameraSetup` /
   :class:`ImageMeasurements` — staged self-calibrating bundle adjustment (seed 001 strategy), in
   :mod:`thermogrammetry.calibration.selfcal`;
-- :func:`parse_control_csv` / :func:`parse_measurements_csv` — the 3D test-field CSV formats, in
-  :mod:`thermogrammetry.calibration.testfield_csv` (text in; the file readers are in
-  :mod:`thermogrammetry.io.testfield_csv`);
+- the 3D test-field CSV formats (control points, image measurements) are read by
+  :mod:`thermogrammetry.io.testfield_csv`;
 - :func:`prepare_testfield` / :func:`prepare_detections` (checks and inputs) and
   :func:`calibrate_testfield` / :func:`calibrate_detections`, in :mod:`thermogrammetry.calibration.workflow`;
 - :func:`calibration_steps` — the calibrate workflow as pipeline steps, in
@@ -26,8 +25,6 @@ _LAZY = {
     "ImageMeasurements": "selfcal",
     "CalibrationResult": "selfcal",
     "CameraCalibration": "selfcal",
-    "parse_control_csv": "testfield_csv",
-    "parse_measurements_csv": "testfield_csv",
     "write_outputs": "outputs",
     "prepare_testfield": "workflow",
     "prepare_detections": "workflow",

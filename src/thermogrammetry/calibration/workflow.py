@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, TooFewPointsError
 from .selfcal import CalibrationResult, CameraSetup, ImageMeasurements, SelfCalibrationOptions, calibrate
-from .testfield_csv import ControlPoints, Measurements, check_measurement_ids
+from ..io.testfield_csv import ControlPoints, Measurements, check_measurement_ids
 
 __all__ = ["CalibrationRun", "prepare_testfield", "calibrate_testfield", "prepare_detections", "calibrate_detections",
            "DEFAULT_PIXEL_PITCH_UM"]

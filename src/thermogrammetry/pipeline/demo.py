@@ -346,7 +346,7 @@ def _section_calibration_target(project: ProjectStore, opt: DemoOptions) -> list
 
 def _section_calibration_testfield(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
     """Seed 001: 77-point 3D test field, 4 positions x 4 rolls, 0.4 px noise -> self-calibration."""
-    from ..calibration.testfield_csv import parse_control_csv, parse_measurements_csv
+    from ..io.testfield_csv import parse_control_csv, parse_measurements_csv
     from ..calibration.workflow import calibrate_testfield
     from ..synthetic.testfield import (
         FLIR_A320_IMAGE_SIZE,
