@@ -60,12 +60,14 @@ def test_pipeline_outputs_in_memory(case):
 
 
 def test_tables_errors():
-    with pytest.raises(DataFileError, match="lacks column 'Z'"):
+    with pytest.raises(DataFileError, match=r"c.csv, row 1: missing column\(s\) Z in header 'id,X,Y'"):
         parse_control("id,X,Y\n1,2,3\n", "c.csv")
-    with pytest.raises(InvalidInputError, match=r"c.csv row 2: Y='abc' is not a number"):
+    with pytest.raises(DataFileError, match=r"c.csv, row 2: Y = 'abc' is not a number"):
         parse_control("id,X,Y,Z\n1,2,abc,3\n", "c.csv")
-    with pytest.raises(InvalidInputError, match="measured twice"):
+    with pytest.raises(DataFileError, match=r"row 3: point '1' measured twice in image 'a' \(first on row 2\)"):
         parse_measurements("image,id,x,y\na,1,2,3\na,1,4,5\n")
+    assert parse_control("id,X,Y,Z\nA,1,2,3\n") == {"A": (1.0, 2.0, 3.0)}
+    assert parse_measurements("image,id,x,y\nimg,A,1.5,2.5\n") == [("img", "A", 1.5, 2.5)]
     with pytest.raises(InvalidInputError, match="plane 'p' has 2 point id"):
         parse_planes("name,id1,id2,id3\np,1,2,\n")
     assert parse_planes("name,id1,id2,id3,id4\np,1,2,3,\nq,4,5,6,7\n") == {"p": ("1", "2", "3"), "q": ("4", "5", "6", "7")}

@@ -1,8 +1,9 @@
 """The close-range workflow's input tables, parsed from text (callers read the files).
 
-- ``control.csv``: ``id,X,Y,Z`` (m), one control point per row;
-- ``measurements.csv``: ``image,id,x,y`` (px, OpenCV origin: (0, 0) is the centre of the top-left
-  pixel) for every image, optical and thermal;
+- ``control.csv``: ``id,X,Y,Z[,sX,sY,sZ]`` (m), one control point per row, and
+- ``measurements.csv``: ``image,id,x,y[,sx,sy]`` (px, OpenCV origin: (0, 0) is the centre of the
+  top-left pixel) for every image, optical and thermal — both read by the project's one parser of
+  these formats, :mod:`thermogrammetry.io.testfield_csv`;
 - ``planes.csv``: ``name,id1,id2,id3[,...]`` — a plane picked by 3 or more marked points; empty
   trailing cells are allowed.
 
@@ -17,6 +18,7 @@ import io
 import math
 
 from ..errors import DataFileError, InvalidInputError
+from ..io.testfield_csv import parse_control_csv, parse_measurements_csv
 
 __all__ = ["parse_control", "parse_measurements", "parse_planes"]
 
@@ -51,37 +53,25 @@ def _header(head: list[str], want: list[str], source: str) -> list[int]:
 
 
 def parse_control(text: str, source: str = "control.csv") -> dict[str, tuple[float, float, float]]:
-    """``id,X,Y,Z`` → {id: (X, Y, Z)} (m)."""
-    nums, rows = _rows(text, source)
-    ix = _header(rows[0], ["id", "X", "Y", "Z"], source)
-    out: dict[str, tuple[float, float, float]] = {}
-    for n, r in zip(nums[1:], rows[1:]):
-        if len(r) <= max(ix):
-            raise InvalidInputError(f"{source} row {n}: {r}; expected id,X,Y,Z")
-        pid = r[ix[0]]
-        if pid in out:
-            raise InvalidInputError(f"{source} row {n}: control point {pid!r} given twice")
-        out[pid] = tuple(_float(r[i], source, n, c) for i, c in zip(ix[1:], "XYZ"))
-    return out
+    """``id,X,Y,Z[,sX,sY,sZ]`` → {id: (X, Y, Z)} (m).
+
+    The format and its checks are the project's one control-point CSV
+    (:func:`thermogrammetry.io.testfield_csv.parse_control_csv`); this adapter keeps the coordinates.
+    """
+    ctl = parse_control_csv(text, source)
+    return {pid: tuple(float(v) for v in xyz) for pid, xyz in zip(ctl.ids, ctl.xyz)}
 
 
 def parse_measurements(text: str, source: str = "measurements.csv") -> list[tuple[str, str, float, float]]:
-    """``image,id,x,y`` → list of (image, id, x, y) in px."""
-    nums, rows = _rows(text, source)
-    ix = _header(rows[0], ["image", "id", "x", "y"], source)
-    out = []
-    seen = set()
-    for n, r in zip(nums[1:], rows[1:]):
-        if len(r) <= max(ix):
-            raise InvalidInputError(f"{source} row {n}: {r}; expected image,id,x,y")
-        key = (r[ix[0]], r[ix[1]])
-        if key in seen:
-            raise InvalidInputError(f"{source} row {n}: point {key[1]!r} measured twice on image {key[0]!r}")
-        seen.add(key)
-        out.append((key[0], key[1], _float(r[ix[2]], source, n, "x"), _float(r[ix[3]], source, n, "y")))
-    if not out:
+    """``image,id,x,y[,sx,sy]`` → list of (image, id, x, y) in px.
+
+    The format and its checks are the project's one image-measurement CSV
+    (:func:`thermogrammetry.io.testfield_csv.parse_measurements_csv`).
+    """
+    m = parse_measurements_csv(text, source)
+    if not m.image:
         raise DataFileError(f"{source}: no measurements; expected rows image,id,x,y")
-    return out
+    return [(im, pid, float(x), float(y)) for im, pid, (x, y) in zip(m.image, m.id, m.xy)]
 
 
 def parse_planes(text: str, source: str = "planes.csv") -> dict[str, tuple[str, ...]]:
