@@ -11,7 +11,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-__all__ = ["Termination", "Outcome"]
+__all__ = ["Termination", "Outcome", "HasOutcome"]
 
 
 class Termination(str, enum.Enum):
@@ -44,3 +44,22 @@ class Outcome:
     def success(self) -> bool:
         """True when an estimate is available (converged, or stopped at the iteration limit)."""
         return self.termination.success
+
+
+class HasOutcome:
+    """Mixin for result dataclasses with an ``outcome: Outcome`` field: exposes
+    ``termination``, ``reason`` and ``success`` directly on the result."""
+
+    outcome: Outcome
+
+    @property
+    def termination(self) -> Termination:
+        return self.outcome.termination
+
+    @property
+    def reason(self) -> str:
+        return self.outcome.reason
+
+    @property
+    def success(self) -> bool:
+        return self.outcome.success

@@ -46,7 +46,7 @@ import numpy as np
 
 from .._validate import as_array
 from ..errors import ConfigError, InvalidInputError, ShapeError
-from ..results import Outcome, Termination
+from ..results import HasOutcome, Outcome, Termination
 
 __all__ = ["DenseOptions", "DenseResult", "DenseBatchResult", "solve_dense", "solve_dense_batch"]
 
@@ -105,7 +105,7 @@ class DenseOptions:
 
 
 @dataclass(frozen=True, eq=False)
-class DenseResult:
+class DenseResult(HasOutcome):
     """Outcome of :func:`solve_dense`.
 
     Attributes
@@ -150,18 +150,6 @@ class DenseResult:
     cost: float
     outcome: Outcome
     fixed: np.ndarray = field(default=None)
-
-    @property
-    def termination(self) -> Termination:
-        return self.outcome.termination
-
-    @property
-    def reason(self) -> str:
-        return self.outcome.reason
-
-    @property
-    def success(self) -> bool:
-        return self.outcome.success
 
     @property
     def std(self) -> np.ndarray:

@@ -60,7 +60,7 @@ import scipy.linalg
 from .._validate import as_array, as_points
 from ..adjustment.dense import DenseOptions, DenseResult, solve_dense
 from ..errors import DegenerateInputError, InvalidInputError, ShapeError, TooFewPointsError
-from ..results import Outcome, Termination
+from ..results import HasOutcome, Outcome, Termination
 from . import rotations as rot
 from ._common import sigma_per_coordinate
 from .pose import Pose
@@ -289,7 +289,7 @@ def _dlt_residuals(params, Xn, xn, names):
 
 
 @dataclass(frozen=True, eq=False)
-class DLTResult:
+class DLTResult(HasOutcome):
     """Result of :func:`dlt`.
 
     Attributes
@@ -348,18 +348,6 @@ class DLTResult:
     outcome: Outcome
     image_size: tuple | None = None
     pixel_pitch_um: tuple | None = None
-
-    @property
-    def termination(self) -> Termination:
-        return self.outcome.termination
-
-    @property
-    def reason(self) -> str:
-        return self.outcome.reason
-
-    @property
-    def success(self) -> bool:
-        return self.outcome.success
 
     def project(self, points_world, *, iterations: int = 20) -> np.ndarray:
         """Project with the refined DLT including the additional parameters (pixels).

@@ -29,7 +29,7 @@ import numpy as np
 from .._validate import as_array, as_points
 from ..adjustment.dense import DenseOptions, DenseResult, solve_dense
 from ..errors import InvalidInputError, ShapeError, TooFewPointsError
-from ..results import Outcome, Termination
+from ..results import HasOutcome, Outcome
 from . import rotations as rot
 
 __all__ = ["Similarity", "HelmertResult", "helmert", "umeyama", "similarity_residuals"]
@@ -100,7 +100,7 @@ def umeyama(source, target, weights=None, *, fix_scale: bool = False) -> Similar
 
 
 @dataclass(frozen=True, eq=False)
-class HelmertResult:
+class HelmertResult(HasOutcome):
     """Result of :func:`helmert`.
 
     Attributes
@@ -138,14 +138,6 @@ class HelmertResult:
     @property
     def std_prior(self) -> np.ndarray:
         return np.sqrt(np.clip(np.diag(self.covariance_prior), 0, None))
-
-    @property
-    def termination(self) -> Termination:
-        return self.outcome.termination
-
-    @property
-    def success(self) -> bool:
-        return self.outcome.success
 
     def apply(self, points) -> np.ndarray:
         return self.transform.apply(points)

@@ -37,7 +37,7 @@ import numpy as np
 from .._validate import as_points
 from ..adjustment.dense import DenseOptions, DenseResult, solve_dense
 from ..errors import InvalidInputError, ShapeError, TooFewPointsError
-from ..results import Outcome, Termination
+from ..results import HasOutcome, Outcome, Termination
 from . import rotations as rot
 from ._camera import as_camera, point_jacobian
 from .dlt import _COPLANAR_TOL, decompose_projection, dlt_linear
@@ -54,7 +54,7 @@ _DEFAULT_INTERIOR = {
 
 
 @dataclass(frozen=True, eq=False)
-class ResectionResult:
+class ResectionResult(HasOutcome):
     """Result of :func:`resection`.
 
     Attributes
@@ -116,18 +116,6 @@ class ResectionResult:
     start: str = ""
     ambiguous: bool = False
     alternatives: tuple = ()
-
-    @property
-    def termination(self) -> Termination:
-        return self.outcome.termination
-
-    @property
-    def reason(self) -> str:
-        return self.outcome.reason
-
-    @property
-    def success(self) -> bool:
-        return self.outcome.success
 
     @property
     def center_std(self) -> np.ndarray:
