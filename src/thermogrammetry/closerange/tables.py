@@ -68,9 +68,7 @@ def parse_measurements(text: str, source: str = "measurements.csv") -> list[tupl
     The format and its checks are the project's one image-measurement CSV
     (:func:`thermogrammetry.io.testfield_csv.parse_measurements_csv`).
     """
-    m = parse_measurements_csv(text, source)
-    if not m.image:
-        raise DataFileError(f"{source}: no measurements; expected rows image,id,x,y")
+    m = parse_measurements_csv(text, source)  # refuses a file without measurements
     return [(im, pid, float(x), float(y)) for im, pid, (x, y) in zip(m.image, m.id, m.xy)]
 
 
