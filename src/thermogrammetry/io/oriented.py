@@ -189,6 +189,22 @@ class OrientedCameras:
         p = Path(im.frame)
         return p if p.is_absolute() or self.root is None else self.root / p
 
+    def read_frame(self, image: OrientedImage | str) -> np.ndarray:
+        """The decoded frame as a 2D array: float32 kelvin (unit ``K``), uint16 raw counts (``counts``)
+        or uint8/uint16 display numbers (``dn``); (H, W, 3) for RGB images."""
+        import tifffile
+
+        p = self.frame_path(image)
+        if p is None:
+            name = image if isinstance(image, str) else image.name
+            raise DataFileError(f"cameras.json: image {name!r} has no decoded 'frame'; expected frames/<name>.tif beside it")
+        try:
+            return tifffile.imread(p)
+        except FileNotFoundError:
+            raise DataFileError(f"{p}: frame file missing (named by cameras.json)") from None
+        except Exception as exc:  # tifffile raises many kinds on damaged files
+            raise CorruptFileError(f"{p}: cannot read frame TIFF ({exc})") from None
+
     # ------------------------------------------------------------------ dict form
     def to_dict(self) -> dict:
         cams = {k: c.to_dict() for k, c in self.cameras.items()}
