@@ -310,22 +310,31 @@ def intersect_check_points(rec, fa: FinalAdjustment, ctrl: ControlInputs, *, eps
         def f(X, Rs, ts, cams):
             return np.concatenate([_project(cams[k], Rs[k], ts[k], X) for k in range(len(ii))])
 
+        # work about a local origin: CRS coordinates (1e6 m) would eat the finite-difference steps
+        origin = X.copy()
         Rs = [rec.R[i].copy() for i in ii]
-        ts = [rec.t[i].copy() for i in ii]
+        ts = [rec.t[i] + rec.R[i] @ origin for i in ii]
         cams = [rec.cameras[rec.image_camera[i]] for i in ii]
+        X = np.zeros(3)
         for _ in range(10):  # Gauss-Newton on X
             r = xy.ravel() - f(X, Rs, ts, cams)
             J = np.empty((2 * len(ii), 3))
-            h = max(eps * np.linalg.norm(X), 1e-6)
+            h = 1e-4
             for a in range(3):
                 d = np.zeros(3)
                 d[a] = h
                 J[:, a] = (f(X + d, Rs, ts, cams) - f(X - d, Rs, ts, cams)) / (2 * h)
             N = J.T @ (w[:, None] * J)
+            if not np.all(np.isfinite(N)) or np.linalg.cond(N) > 1e12:
+                break
             dx = np.linalg.solve(N, J.T @ (w * r))
             X = X + dx
             if np.linalg.norm(dx) < 1e-9 * max(1.0, np.linalg.norm(X)):
                 break
+        if not np.all(np.isfinite(N)) or np.linalg.cond(N) > 1e12:
+            out.append({"id": cid, "xyz": None, "std": None, "error": None, "n_images": len(obs),
+                        "reason": "intersection undetermined (rays nearly parallel or projections invalid)"})
+            continue
         Ninv = np.linalg.inv(N)
         cov = Ninv.copy()
         # propagation of the a-posteriori covariance of the camera-side parameters involved
@@ -375,6 +384,7 @@ def intersect_check_points(rec, fa: FinalAdjustment, ctrl: ControlInputs, *, eps
                 S = fa.covariance[np.ix_(cols, cols)]
                 cov = cov + G @ S @ G.T
         std = np.sqrt(np.diag(cov))
+        X = X + origin
         out.append({"id": cid, "xyz": X, "std": std, "cov": cov, "error": X - ctrl.check_xyz[ci], "n_images": len(obs), "reason": ""})
     return out
 

@@ -144,6 +144,9 @@ def triangulate_tracks(track_ids, obs_track, obs_R, obs_t, obs_ray):
     max_angle_deg : (T,) largest angle between two rays of the track
     """
     uid, inv = np.unique(obs_track, return_inverse=True)
+    # about a local origin: homogeneous solutions of CRS-sized coordinates (1e6 m) lose their precision
+    origin = -np.einsum("kji,kj->i", obs_R, obs_t) / max(len(obs_t), 1)
+    obs_t = obs_t + obs_R @ origin
     P = np.concatenate([obs_R, obs_t[:, :, None]], axis=2)  # (K, 3, 4)
     r1 = obs_ray[:, 0:1] * P[:, 2] - P[:, 0]
     r2 = obs_ray[:, 1:2] * P[:, 2] - P[:, 1]
@@ -180,7 +183,7 @@ def triangulate_tracks(track_ids, obs_track, obs_R, obs_t, obs_ray):
     Xo = np.full((len(sel), 3), np.nan)
     ao = np.zeros(len(sel))
     ok = sel >= 0
-    Xo[ok] = X[sel[ok]]
+    Xo[ok] = X[sel[ok]] + origin
     ao[ok] = 2.0 * amax[sel[ok]]
     return Xo, ao
 
