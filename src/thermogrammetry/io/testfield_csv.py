@@ -42,7 +42,8 @@ __all__ = [
     "Measurements",
     "parse_control_csv",
     "parse_measurements_csv",
-    "check_measurement_ids", "read_control_csv", "read_measurements_csv", "read_text"]
+    "check_measurement_ids", "read_control_csv", "read_measurements_csv", "read_text",
+    "GnssPositions", "parse_gnss_csv", "read_gnss_csv"]
 
 CONTROL_COLUMNS = ("id", "X", "Y", "Z")
 CONTROL_OPTIONAL = ("sX", "sY", "sZ")
@@ -102,10 +103,22 @@ def _is_number(s: str) -> bool:
         return False
 
 
+# accepted alternative column names (surveyors' E,N,H; the synthetic scenes' long names)
+_ALIASES = {
+    ("control", "id"): ("name", "point"),
+    ("control", "X"): ("E", "easting"), ("control", "Y"): ("N", "northing"), ("control", "Z"): ("H", "height"),
+    ("control", "sX"): ("sE",), ("control", "sY"): ("sN",), ("control", "sZ"): ("sH",),
+    ("measurements", "id"): ("name", "point"), ("measurements", "x"): ("x_px",), ("measurements", "y"): ("y_px",),
+    ("gnss", "image"): ("name",),
+    ("gnss", "X"): ("E", "easting"), ("gnss", "Y"): ("N", "northing"), ("gnss", "Z"): ("H", "height"),
+    ("gnss", "sX"): ("sE",), ("gnss", "sY"): ("sN",), ("gnss", "sZ"): ("sH",),
+}
+
+
 def _header(rows, required, optional, source, what):
     """Column map name -> index, and the data rows."""
     n0, first = rows[0]
-    coord_col = 1 if what == "control" else 2
+    coord_col = 2 if what == "measurements" else 1
     if len(first) > coord_col and _is_number(first[coord_col]):  # no header: positional
         cols = list(required) + list(optional)
         ncol = len(first)
@@ -118,8 +131,10 @@ def _header(rows, required, optional, source, what):
     # case-insensitive, but X/x are different columns in neither file, so match on lower case
     cmap = {}
     for name in list(required) + list(optional):
-        if name.lower() in lower:
-            cmap[name] = lower.index(name.lower())
+        for alias in (name,) + _ALIASES.get((what, name), ()):
+            if alias.lower() in lower:
+                cmap[name] = lower.index(alias.lower())
+                break
     missing = [c for c in required if c not in cmap]
     if missing:
         raise UnsupportedFormatError(
@@ -202,6 +217,44 @@ def parse_measurements_csv(text: str, source: str = "measurements.csv") -> Measu
         lines.append(n)
     return Measurements(tuple(img), tuple(ids), np.array(xy, float), np.array(std, float) if has_std else None,
                         tuple(lines), source)
+
+
+@dataclass(frozen=True)
+class GnssPositions:
+    """Camera positions per image: ``image`` (M,) str, ``xyz`` (M,3) m, ``std`` (M,3) m or None."""
+
+    image: tuple[str, ...]
+    xyz: np.ndarray
+    std: np.ndarray | None
+    source: str = ""
+
+
+def parse_gnss_csv(text: str, source: str = "gnss.csv") -> GnssPositions:
+    """Parse ``image,X,Y,Z[,sX,sY,sZ]`` (metres, in the survey's CRS; ``E,N,H`` accepted for ``X,Y,Z``)."""
+    _, rows = _rows(text)
+    if not rows:
+        raise UnsupportedFormatError(f"{source}: empty file; expected a header image,X,Y,Z[,sX,sY,sZ] and one row per image")
+    cmap, data = _header(rows, ("image", "X", "Y", "Z"), CONTROL_OPTIONAL, source, "gnss")
+    if not data:
+        raise UnsupportedFormatError(f"{source}: no positions after the header")
+    has_std = "sX" in cmap
+    img, xyz, std, seen = [], [], [], {}
+    for n, row in data:
+        im = _text(row, cmap, "image", n, source)
+        if im in seen:
+            raise CorruptFileError(f"{source}, row {n}: image {im!r} listed twice (first on row {seen[im]})")
+        seen[im] = n
+        img.append(im)
+        xyz.append([_num(row, cmap, c, n, source, "metres") for c in ("X", "Y", "Z")])
+        if has_std:
+            std.append([_num(row, cmap, c, n, source, "metres", positive=True) for c in CONTROL_OPTIONAL])
+    return GnssPositions(tuple(img), np.array(xyz, float), np.array(std, float) if has_std else None, source)
+
+
+def read_gnss_csv(path: str | os.PathLike) -> GnssPositions:
+    """Read ``image,X,Y,Z[,sX,sY,sZ]``; see :func:`parse_gnss_csv`."""
+    text, src = read_text(path)
+    return parse_gnss_csv(text, src)
 
 
 def check_measurement_ids(meas: Measurements, control: ControlPoints) -> np.ndarray:

@@ -1,0 +1,191 @@
+"""``thermogrammetry survey``: orient thermal frames (and RGB images) into one georeferenced block.
+
+Contract::
+
+    thermogrammetry survey IMAGES... -o OUT [--input-unit K|C] [--camera camera.json]
+        [--rgb DIR] [--rig rig.json] [--gnss auto|none|gnss.csv] [--crs EPSG:N]
+        [--gcps gcps.csv --gcp-measurements m.csv] [--checkpoints cp.csv --check-measurements cm.csv]
+        [--workers N | --scheduler ADDRESS]
+
+Exit 0 when a block was oriented (even with some frames left out), 1 when nothing could be oriented,
+2 on unusable input with nothing written. The run works in a folder beside OUT and renames it into place
+at the end, so OUT is either as it was or complete.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from .app import app
+
+
+class _Progress:
+    """A rich progress bar on a terminal, plain lines (every 10 %) in a log."""
+
+    def __init__(self, console):
+        self.console = console
+        self.tty = sys.stderr.isatty()
+        self.bar = None
+        self.tasks = {}
+        self.last = {}
+        if self.tty:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self.bar = Progress(TextColumn("{task.description:<9}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                                console=console, transient=False)
+
+    def __enter__(self):
+        if self.bar:
+            self.bar.__enter__()
+        return self
+
+    def __exit__(self, *a):
+        if self.bar:
+            self.bar.__exit__(*a)
+
+    def __call__(self, step, k, n):
+        if self.bar:
+            if step not in self.tasks:
+                self.tasks[step] = self.bar.add_task(step, total=n)
+            self.bar.update(self.tasks[step], completed=k, total=n)
+            return
+        pct = int(100 * k / max(n, 1)) // 10
+        if self.last.get(step) != pct or k == n:
+            self.last[step] = pct
+            print(f"survey {step}: {k}/{n}", file=sys.stderr, flush=True)
+
+
+@app.command("survey")
+def survey(
+    images: List[Path] = typer.Argument(..., help="Thermal frames: files and/or folders (R-JPEG, TIFF, SEQ/CSQ, 8-bit JPEG/PNG, videos)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output folder (written as a whole at the end)."),
+    input_unit: Optional[str] = typer.Option(None, "--input-unit", help="K or C: unit of float TIFFs that declare none."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="camera.json from `calibrate`: intrinsics held fixed (else self-calibration)."),
+    rgb: List[Path] = typer.Option([], "--rgb", help="RGB images (folder or files) oriented in the same block."),
+    rig: Optional[Path] = typer.Option(None, "--rig", help="rig.json (R*, t between RGB and thermal). Not available yet: refused."),
+    gnss: str = typer.Option("auto", "--gnss", help="auto (EXIF/XMP, RTK σ), none, or gnss.csv (image,X,Y,Z[,sX,sY,sZ] in --crs)."),
+    crs: Optional[str] = typer.Option(None, "--crs", help="Output CRS, e.g. EPSG:2056 (default: UTM zone of the GNSS)."),
+    gcps: Optional[Path] = typer.Option(None, "--gcps", help="gcps.csv: id,X,Y,Z[,sX,sY,sZ] (E,N,H accepted), metres in --crs."),
+    gcp_measurements: Optional[Path] = typer.Option(None, "--gcp-measurements", help="image,id,x,y (px, (0,0) = centre of the top-left pixel)."),
+    checkpoints: Optional[Path] = typer.Option(None, "--checkpoints", help="cp.csv: id,X,Y,Z — never used in the adjustment."),
+    check_measurements: Optional[Path] = typer.Option(None, "--check-measurements", help="image,id,x,y of the check points."),
+    workers: int = typer.Option(2, "--workers", help="Local dask worker processes for features and matching (0 = in this process)."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
+) -> None:
+    """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report."""
+    from rich.console import Console
+
+    from ..camera import Camera
+    from ..errors import ThermogrammetryError
+    from ..pipeline.project import FolderProject
+    from ..pipeline.survey import SurveyInput, SurveyOptions, run_survey
+
+    console = Console(stderr=True)
+
+    def fail(msg, code=2):
+        console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+        console.print(f"nothing was written to {out}", highlight=False)
+        raise typer.Exit(code)
+
+    try:
+        if rig is not None:
+            raise ThermogrammetryError(f"--rig {rig}: rig mode is not implemented yet in survey; orient RGB and thermal "
+                                       "together with --rgb (tied by tie points, GNSS and GCP measurements) instead")
+        if (gcps is None) != (gcp_measurements is None):
+            raise ThermogrammetryError("--gcps and --gcp-measurements go together (coordinates and their image measurements)")
+        if (checkpoints is None) != (check_measurements is None):
+            raise ThermogrammetryError("--checkpoints and --check-measurements go together")
+        for p, flag in ((gcps, "--gcps"), (gcp_measurements, "--gcp-measurements"), (checkpoints, "--checkpoints"),
+                        (check_measurements, "--check-measurements"), (camera, "--camera")):
+            if p is not None and not p.is_file():
+                raise ThermogrammetryError(f"{flag} {p}: no such file")
+        if gnss.lower() not in ("auto", "none") and not Path(gnss).is_file():
+            raise ThermogrammetryError(f"--gnss {gnss!r}: expected auto, none or the path of a gnss.csv; no such file")
+        if out.exists() and not out.is_dir():
+            raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
+        cam = Camera.load(camera) if camera is not None else None
+        opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, workers=workers if scheduler is None else 0,
+                            scheduler=scheduler)
+        inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,
+                          str(gcp_measurements) if gcp_measurements else None, str(checkpoints) if checkpoints else None,
+                          str(check_measurements) if check_measurements else None)
+    except (ThermogrammetryError, ValueError, OSError) as exc:
+        fail(str(exc))
+    parent = out.resolve().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        # stale staging folders of runs that were killed
+        for old in parent.glob(f".{out.name}.partial-*"):
+            pid = old.name.rsplit("-", 1)[-1]
+            if pid.isdigit() and not _alive(int(pid)):
+                shutil.rmtree(old, ignore_errors=True)
+        stage = parent / f".{out.name}.partial-{os.getpid()}"
+        shutil.rmtree(stage, ignore_errors=True)
+        stage.mkdir()
+    except OSError as exc:
+        fail(f"-o {out}: cannot create the output folder ({exc.strerror or exc})")
+    t0 = time.perf_counter()
+    ok = False
+    try:
+        project = FolderProject(stage)
+        with _Progress(console) as prog:
+            reports = run_survey(project, inp, opt, progress=prog)
+        failed = [r for r in reports if not r.ok]
+        if failed:
+            r = failed[0]
+            first = r.error.strip().splitlines()[-1] if r.error else "failed"
+            if r.name == "inputs" or "Error:" in first and r.name in ("features",):
+                fail(f"step {r.name}: {first}")
+            fail(f"step {r.name} failed: {first}", code=1)
+        s = project.read_json("survey.json")
+        _publish(stage, out)
+        ok = True
+    except typer.Exit:
+        raise
+    except (ThermogrammetryError, OSError, ValueError) as exc:
+        fail(str(exc))
+    finally:
+        if not ok:
+            shutil.rmtree(stage, ignore_errors=True)
+    dt = time.perf_counter() - t0
+    console.print(f"{s['images_oriented']}/{s['images_total']} images oriented in {len(s['components'])} block(s) "
+                  f"{s['components']}, reprojection RMS {s['reprojection_rms_px'] or float('nan'):.3f} px, "
+                  f"CRS {s['crs'] or 'local'} ({dt:.1f} s)", highlight=False)
+    for ax in ("checkpoints", "gcps"):
+        d = s[ax]
+        if d["n"]:
+            console.print(f"{ax}: n={d['n']} RMSE X {d['rmse_x']:.3f} Y {d['rmse_y']:.3f} Z {d['rmse_z']:.3f} m", highlight=False)
+    bad = [im for im in s["images"] if not im["oriented"]]
+    for im in bad:
+        console.print(f"  not oriented: {im['name']}: {im['reason']}", highlight=False, soft_wrap=True)
+    console.print(f"outputs in {out}: cameras.json survey.json report.html colmap/ sparse.ply sparse.las", highlight=False)
+    if s["images_oriented"] == 0:
+        raise typer.Exit(1)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _publish(stage: Path, out: Path) -> None:
+    """Rename the finished staging folder to OUT (an existing OUT is replaced only after success)."""
+    if out.exists():
+        old = out.parent / f".{out.name}.old-{os.getpid()}"
+        os.replace(out, old)
+        os.replace(stage, out)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(stage, out)

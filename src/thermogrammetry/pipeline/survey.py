@@ -1,0 +1,991 @@
+"""``survey``: thermal frames (and RGB images) -> one oriented, georeferenced block with its accuracy report.
+
+The workflow is a list of small steps (:mod:`thermogrammetry.pipeline.steps`) over a project store; each
+reads what the previous wrote and writes a small report under ``reports/``:
+
+================  ==================================================================================
+``inputs``        decode every input (radiometric files, 8-bit renderings, float TIFFs, video frames) to
+                  ``frames/<name>.tif`` (float32 K, uint16 counts or uint8 display numbers) and
+                  ``work/inputs.json`` (unit, size, GNSS, camera guess per image; failures by name)
+``features``      ``features/<name>.npz`` per image (dask tasks)
+``matching``      candidate pairs from GNSS/sequence, ``matches/<i>_<j>.npz`` verified (dask tasks)
+``orient``        tracks + incremental orientation -> ``work/reconstruction.npz``
+``georef``        similarity to GNSS/GCPs, final adjustment with GNSS priors and weighted GCPs, check
+                  points intersected afterwards -> ``cameras.json``, ``survey.json``, exports, report
+================  ==================================================================================
+
+Outputs (OUT): ``cameras.json`` (:mod:`thermogrammetry.io.oriented`), ``survey.json``, ``report.html``,
+``colmap/`` (cameras.txt, images.txt, points3D.txt), ``sparse.ply``, ``sparse.las``, ``frames/``,
+``features/``, ``matches/``, ``reports/``.
+
+``survey.json`` keys: ``images_total``, ``images_oriented``, ``components`` (images per oriented block,
+largest first), ``reprojection_rms_px`` (root mean square of the residual vector length of the tie
+observations, px), ``gcps`` / ``checkpoints`` (``n, rmse_x.., mae_x.., min_x.., max_x..`` in metres; n = 0
+and nulls when none), ``crs``, ``seconds`` and more detail (per image, per step, camera).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import time
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..enums import StrChoice
+from ..errors import ConfigError, DataFileError, ThermogrammetryError, UnsupportedFormatError
+from ..sfm.features import FeatureOptions
+from ..sfm.matching import MatchOptions
+from ..sfm.reconstruction import ReconstructionOptions
+from .project import FolderProject, ProjectStore
+
+__all__ = ["SurveyOptions", "SurveyInput", "survey_steps", "run_survey", "VIDEO_SUFFIXES", "IMAGE_SUFFIXES"]
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".tif", ".tiff", ".png", ".seq", ".csq", ".fff", ".csv", ".npy", ".bmp", ".is2"}
+VIDEO_SUFFIXES = {".mp4", ".mkv", ".mov", ".avi", ".ts", ".m4v", ".webm"}
+SELF_CALIBRATION = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
+
+# thermal cores whose pixel pitch the files do not state (µm); focal length comes from EXIF
+_PITCH_UM = {"M3T": 12.0, "M30T": 12.0, "H20T": 12.0, "H20N": 12.0, "H30T": 12.0, "M4T": 12.0, "M3TD": 12.0,
+             "XT2": 17.0, "ZH20T": 12.0, "MAVIC2-ENTERPRISE-ADVANCED": 12.0, "M2EA": 12.0}
+
+
+class GnssMode(StrChoice):
+    AUTO = "auto"
+    NONE = "none"
+
+
+@dataclass(frozen=True)
+class SurveyOptions:
+    """What ``survey`` does and how (typed; :meth:`from_dict` refuses unknown keys).
+
+    Attributes
+    ----------
+    input_unit : "K" | "C" | None
+        Unit of float TIFFs that carry none.
+    gnss : "auto" | "none" | path of a gnss.csv
+    crs : str or None
+        Output CRS (``EPSG:N``); None: the UTM zone of the GNSS positions, or a local frame.
+    self_calibrate : tuple of str
+        Camera parameters estimated in the final adjustment (ignored when a camera file is given).
+    tie_sigma_px : float
+        A-priori σ of a tie observation.
+    gcp_sigma_m, marker_sigma_px : float
+        Defaults when the GCP / measurement files have no σ columns.
+    gnss_sigma_m : (3,) or None
+        Overrides the σ of every GNSS position (default: RTK σ from the files, or by fix type).
+    lever_arm_m : (3,)
+        GNSS antenna offset in the camera frame (x right, y down, z forward), metres.
+    video_overlap : float
+        Target forward overlap of frames extracted from a video.
+    workers : int
+        0 = in-process; N = local dask cluster of N worker processes.
+    scheduler : str or None
+        Address of an existing dask scheduler (overrides ``workers``).
+    """
+
+    input_unit: str | None = None
+    gnss: str = "auto"
+    crs: str | None = None
+    self_calibrate: tuple = SELF_CALIBRATION
+    tie_sigma_px: float = 1.0
+    gcp_sigma_m: float = 0.02
+    marker_sigma_px: float = 0.5
+    gnss_sigma_m: tuple | None = None
+    lever_arm_m: tuple = (0.0, 0.0, 0.0)
+    video_overlap: float = 0.8
+    features: FeatureOptions = field(default_factory=FeatureOptions)
+    matching: MatchOptions = field(default_factory=MatchOptions)
+    reconstruction: ReconstructionOptions = field(default_factory=ReconstructionOptions)
+    workers: int = 0
+    scheduler: str | None = None
+
+    def __post_init__(self):
+        if self.input_unit is not None and str(self.input_unit).upper() not in ("K", "C"):
+            raise ConfigError(f"input_unit={self.input_unit!r}: expected 'K' or 'C'")
+        if self.crs is not None:
+            from pyproj import CRS
+            from pyproj.exceptions import CRSError
+
+            try:
+                CRS.from_user_input(self.crs)
+            except CRSError:
+                raise ConfigError(f"crs={self.crs!r}: not a coordinate reference system pyproj knows; expected e.g. EPSG:2056") from None
+        if not (isinstance(self.workers, (int, np.integer)) and self.workers >= 0):
+            raise ConfigError(f"workers={self.workers!r}: expected an integer >= 0")
+        for name in ("tie_sigma_px", "gcp_sigma_m", "marker_sigma_px"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"{name}={v!r}: expected a number > 0")
+        if not 0 <= self.video_overlap < 1:
+            raise ConfigError(f"video_overlap={self.video_overlap!r}: expected a fraction in [0, 1)")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SurveyOptions":
+        known = {f.name for f in fields(cls)}
+        bad = sorted(set(d) - known)
+        if bad:
+            raise ConfigError(f"SurveyOptions: unknown key(s) {bad}; valid: {sorted(known)}")
+        d = dict(d)
+        for k, sub in (("features", FeatureOptions), ("matching", MatchOptions), ("reconstruction", ReconstructionOptions)):
+            if isinstance(d.get(k), dict):
+                d[k] = sub.from_dict(d[k])
+        return cls(**d)
+
+
+@dataclass
+class SurveyInput:
+    """Everything the user gave (paths as given)."""
+
+    images: list  # files/folders (thermal)
+    rgb: list = field(default_factory=list)  # files/folders (RGB)
+    camera: Any = None  # thermogrammetry.Camera (fixed intrinsics) or None
+    gcps: str | None = None
+    gcp_measurements: str | None = None
+    checkpoints: str | None = None
+    check_measurements: str | None = None
+
+
+# ------------------------------------------------------------------------------------------------
+# inputs
+# ------------------------------------------------------------------------------------------------
+def expand_inputs(items: Sequence, *, kind: str = "thermal") -> tuple[list[Path], list[str]]:
+    """Files from files/folders (folders: their image and video files, sorted; subfolders not entered).
+
+    Returns (files, notes): notes say what was skipped and why.
+    """
+    files, notes = [], []
+    for it in items:
+        p = Path(it)
+        if p.is_dir():
+            inside = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES)
+            other = [q.name for q in sorted(p.iterdir()) if q.is_file() and q not in inside and not q.name.startswith(".")]
+            subs = [q.name for q in sorted(p.iterdir()) if q.is_dir()]
+            if other:
+                notes.append(f"{p}: {len(other)} file(s) that are not images or videos skipped ({', '.join(other[:3])}{' ...' if len(other) > 3 else ''})")
+            if subs:
+                notes.append(f"{p}: subfolder(s) not entered: {', '.join(subs[:3])}{' ...' if len(subs) > 3 else ''} (name them to include them)")
+            files += inside
+        elif p.exists():
+            files.append(p)
+        else:
+            files.append(p)  # reported as failed by the decode step, with the reason
+    return files, notes
+
+
+def _geotag_dict(gt) -> dict:
+    if gt is None or gt.latitude_deg is None or gt.longitude_deg is None:
+        return {}
+    return {"lat": gt.latitude_deg, "lon": gt.longitude_deg, "alt": gt.altitude_m, "rtk_flag": gt.rtk_flag,
+            "rtk_std_m": list(gt.rtk_std_m) if gt.rtk_std_m else None,
+            "gimbal_yaw_deg": gt.gimbal_yaw_deg, "gimbal_pitch_deg": gt.gimbal_pitch_deg}
+
+
+def _camera_guess(width, height, md) -> dict:
+    """Focal length in px from EXIF (35 mm equivalent, or focal + pixel pitch); notes when guessed."""
+    exif = getattr(md, "exif", {}) or {}
+    raw = exif.get("raw_exif", {}) if isinstance(exif, dict) else {}
+    f35 = raw.get(41989)
+    model = (getattr(md, "model", None) or "").upper()
+    focal = getattr(md, "focal_length_mm", None)
+    pitch = getattr(md, "pixel_pitch_um", None)
+    pitch = pitch[0] if isinstance(pitch, (tuple, list)) else pitch
+    if pitch is None and model in _PITCH_UM:
+        pitch = _PITCH_UM[model]
+    if focal and pitch:
+        return {"f_px": focal / (pitch * 1e-3), "source": f"EXIF focal {focal:g} mm / pitch {pitch:g} µm", "pitch_um": pitch}
+    if f35:
+        try:
+            f35 = float(f35)
+        except (TypeError, ValueError):
+            f35 = None
+    if f35:
+        return {"f_px": f35 * np.hypot(width, height) / 43.2666, "source": f"EXIF 35 mm-equivalent focal {f35:g} mm", "pitch_um": pitch}
+    if focal:
+        return {"f_px": focal / 0.017, "source": f"EXIF focal {focal:g} mm, pixel pitch assumed 17 µm", "pitch_um": 17.0}
+    return {"f_px": 1.0 * max(width, height), "source": "no focal length in the file: 1.0 x image width assumed (self-calibrated)",
+            "pitch_um": None}
+
+
+def _decode(path: Path, input_unit: str | None):
+    """One input file -> list of (name suffix, array, unit, geotag dict, camera guess dict, note)."""
+    from ..io import iter_thermal
+
+    suffix = path.suffix.lower()
+    if suffix in VIDEO_SUFFIXES:
+        raise UnsupportedFormatError(f"{path}: video input is decoded by the inputs step (io.video)")
+    try:
+        out = []
+        for im in iter_thermal(path, unit=input_unit):
+            if im.temperature_k is not None:
+                arr, unit = np.asarray(im.temperature_k, np.float32), "K"
+                if not np.isfinite(arr).any():
+                    raise UnsupportedFormatError(f"{path}: no finite temperature in the frame")
+            else:
+                arr, unit = np.asarray(im.raw_counts, np.uint16), "counts"
+            md = im.metadata
+            h, w = arr.shape
+            sfx = "" if md.frame_index is None else f"_f{md.frame_index:05d}"
+            out.append((sfx, arr, unit, _geotag_dict(md.geotag), _camera_guess(w, h, md),
+                        "raw counts (no documented conversion): geometry and products labelled as counts" if unit == "counts" else ""))
+        return out
+    except UnsupportedFormatError as exc:
+        not_radiometric = "radiometric" in str(exc) or "no reader" in str(exc).lower() or "not a" in str(exc).lower()
+        if not not_radiometric or suffix not in (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"):
+            raise
+    # plain image: 8-bit rendering (geometry only) or 16-bit grey without a unit
+    import cv2
+
+    data = np.fromfile(str(path), dtype=np.uint8)
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise UnsupportedFormatError(f"{path}: neither a radiometric thermal file nor an image OpenCV can decode")
+    if img.ndim == 3:
+        img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
+    unit = "dn" if img.dtype == np.uint8 else "counts"
+    if img.dtype not in (np.uint8, np.uint16):
+        raise UnsupportedFormatError(f"{path}: {img.dtype} image without a unit; give --input-unit K|C for float temperature TIFFs")
+    geo, md = {}, None
+    try:
+        from ..io.exif import read_exif
+
+        ex = read_exif(bytes(data[: 1 << 20])) if suffix in (".jpg", ".jpeg") else {}
+        if ex.get("latitude_deg") is not None:
+            geo = {"lat": ex["latitude_deg"], "lon": ex["longitude_deg"], "alt": ex.get("altitude_m"), "rtk_flag": None, "rtk_std_m": None}
+
+        class _Md:  # what _camera_guess reads
+            exif = ex
+            model = ex.get("model")
+            focal_length_mm = ex.get("focal_length_mm")
+            pixel_pitch_um = None
+        md = _Md
+    except Exception:  # noqa: BLE001 - EXIF is optional for a plain image; its absence is noted below
+        md = None
+    h, w = img.shape
+    note = "8-bit rendering: geometry only, these frames carry no temperatures" if unit == "dn" else \
+        "16-bit image without a declared mapping: values kept as counts"
+    return [("", img, unit, geo, _camera_guess(w, h, md) if md else _camera_guess(w, h, None), note)]
+
+
+def _decode_video(path: Path, overlap: float):
+    try:
+        from ..io.video import read_video_frames
+    except ImportError:
+        raise UnsupportedFormatError(f"{path}: video input needs thermogrammetry.io.video, which this installation lacks") from None
+    out = []
+    for fr in read_video_frames(path, forward_overlap=overlap):
+        h, w = fr.image.shape[:2]
+        out.append((f"_f{fr.index:06d}", fr.image, fr.unit, {}, _camera_guess(w, h, None),
+                    f"video frame at {fr.time_s:.2f} s"))
+    return out
+
+
+def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, progress: Callable | None = None) -> dict:
+    """Decode every input to ``frames/<name>.tif``; ``work/inputs.json``."""
+    import tifffile
+
+    t0 = time.perf_counter()
+    items = []
+    notes = []
+    for kind, src in (("thermal", inp.images), ("rgb", inp.rgb)):
+        files, nts = expand_inputs(src, kind=kind)
+        notes += nts
+        items += [(kind, f) for f in files]
+    if not items:
+        raise DataFileError("no input images: the files/folders given hold no image or video files")
+    images, failed = [], []
+    used_names: set[str] = set()
+    for k, (kind, path) in enumerate(items):
+        try:
+            if not path.exists():
+                raise DataFileError(f"{path}: no such file")
+            if path.suffix.lower() in VIDEO_SUFFIXES:
+                decoded = _decode_video(path, opt.video_overlap)
+            elif kind == "rgb":
+                import cv2
+
+                img = cv2.imdecode(np.fromfile(str(path), dtype=np.uint8), cv2.IMREAD_COLOR)
+                if img is None:
+                    raise UnsupportedFormatError(f"{path}: not an image OpenCV can decode (RGB input)")
+                from ..io.exif import read_exif
+
+                ex = {}
+                if path.suffix.lower() in (".jpg", ".jpeg"):
+                    try:
+                        ex = read_exif(path.read_bytes()[: 1 << 20])
+                    except ThermogrammetryError:
+                        ex = {}
+                geo = {"lat": ex["latitude_deg"], "lon": ex["longitude_deg"], "alt": ex.get("altitude_m"), "rtk_flag": None,
+                       "rtk_std_m": None} if ex.get("latitude_deg") is not None else {}
+
+                class _Md:
+                    exif = ex
+                    model = ex.get("model")
+                    focal_length_mm = ex.get("focal_length_mm")
+                    pixel_pitch_um = None
+                h, w = img.shape[:2]
+                decoded = [("", img[..., ::-1].copy(), "dn", geo, _camera_guess(w, h, _Md), "RGB image")]
+            else:
+                decoded = _decode(path, opt.input_unit)
+        except (ThermogrammetryError, OSError, ValueError, MemoryError) as exc:
+            failed.append({"file": str(path), "reason": str(exc)})
+            if progress:
+                progress(k + 1, len(items))
+            continue
+        for sfx, arr, unit, geo, guess, note in decoded:
+            name = path.stem + sfx
+            base, n = name, 1
+            while name in used_names:
+                n += 1
+                name = f"{base}_{n}"
+            used_names.add(name)
+            buf = io.BytesIO()
+            tifffile.imwrite(buf, arr, photometric="rgb" if arr.ndim == 3 else "minisblack",
+                             metadata={"unit": unit, "source": str(path)})
+            project.write_bytes(f"frames/{name}.tif", buf.getvalue())
+            images.append({"name": name, "source": str(path.resolve()) if path.exists() else str(path), "sensor": kind,
+                           "unit": unit, "width": int(arr.shape[1]), "height": int(arr.shape[0]), "geotag": geo,
+                           "camera_guess": guess, "note": note})
+        if progress:
+            progress(k + 1, len(items))
+    project.write_json("work/inputs.json", {"images": images, "failed": failed, "notes": notes})
+    return {"images": len(images), "failed": len(failed), "seconds": time.perf_counter() - t0}
+
+
+# ------------------------------------------------------------------------------------------------
+# features and matching (units of work for dask)
+# ------------------------------------------------------------------------------------------------
+def _read_frame(project: ProjectStore, name: str) -> np.ndarray:
+    import tifffile
+
+    return tifffile.imread(io.BytesIO(project.read_bytes(f"frames/{name}.tif")))
+
+
+def _save_npz(project: ProjectStore, key: str, **arrays) -> None:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    project.write_bytes(key, buf.getvalue())
+
+
+def _load_npz(project: ProjectStore, key: str) -> dict:
+    with np.load(io.BytesIO(project.read_bytes(key))) as z:
+        return {k: z[k] for k in z.files}
+
+
+def feature_task(args) -> tuple[str, int]:
+    """Unit of work: features of one frame, written to ``features/<name>.npz``."""
+    project, name, fopt = args
+    from ..sfm.features import extract_features
+
+    f = extract_features(_read_frame(project, name), fopt)
+    _save_npz(project, f"features/{name}.npz", **f.to_npz_dict())
+    return name, len(f)
+
+
+def match_task(args) -> tuple[int, int, int, int, str]:
+    """Unit of work: match and verify one pair, written to ``matches/<i>_<j>.npz``."""
+    project, i, j, ni, nj, cam_i, cam_j, mopt = args
+    from ..sfm.matching import match_descriptors, verify_pair
+
+    fi = _load_npz(project, f"features/{ni}.npz")
+    fj = _load_npz(project, f"features/{nj}.npz")
+    m = match_descriptors(fi["descriptors"], fj["descriptors"], ratio=mopt.ratio)
+    if cam_i is not None and cam_j is not None and len(m) >= mopt.min_inliers:
+        ri = cam_i.unproject(fi["xy"][m[:, 0]])[:, :2]
+        rj = cam_j.unproject(fj["xy"][m[:, 1]])[:, :2]
+        full_i = np.zeros((len(fi["xy"]), 2))
+        full_j = np.zeros((len(fj["xy"]), 2))
+        full_i[m[:, 0]] = ri
+        full_j[m[:, 1]] = rj
+        inl, model, reason = verify_pair(fi["xy"], fj["xy"], m, camera1=cam_i, camera2=cam_j, rays1=full_i, rays2=full_j, options=mopt)
+    else:
+        inl, model, reason = verify_pair(fi["xy"], fj["xy"], m, options=mopt)
+    if not reason:
+        _save_npz(project, f"matches/{i}_{j}.npz", idx=inl)
+    return i, j, len(m), len(inl), reason
+
+
+def _run_tasks(fn, tasks, opt: SurveyOptions, progress: Callable | None, what: str):
+    """Run tasks in-process, on a local dask cluster (``workers``) or on ``scheduler``; results in task order."""
+    n = len(tasks)
+    if n == 0:
+        return []
+    if opt.scheduler is None and opt.workers == 0:
+        out = []
+        for k, t in enumerate(tasks):
+            out.append(fn(t))
+            if progress:
+                progress(k + 1, n)
+        return out
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if opt.scheduler:
+        client = Client(opt.scheduler)
+    else:
+        cluster = LocalCluster(n_workers=int(opt.workers), threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=40)
+        client = Client(cluster)
+    try:
+        futs = client.map(fn, tasks, pure=False)
+        pos = {f.key: k for k, f in enumerate(futs)}
+        out = [None] * n
+        for done, fut in enumerate(as_completed(futs), 1):
+            out[pos[fut.key]] = fut.result()
+            if progress:
+                progress(done, n)
+        return out
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _initial_cameras(inputs: dict, camera=None) -> tuple[dict, list]:
+    """Camera id -> starting Camera, and the camera id of each image."""
+    from ..camera import Camera
+
+    groups: dict[tuple, str] = {}
+    cams, ids = {}, []
+    for im in inputs["images"]:
+        key = (im["sensor"], im["width"], im["height"], round(im["camera_guess"]["f_px"], 1))
+        if key not in groups:
+            cid = im["sensor"] if not any(k[0] == im["sensor"] for k in groups) else f"{im['sensor']}{len(groups) + 1}"
+            groups[key] = cid
+            if camera is not None and im["sensor"] == "thermal":
+                if tuple(camera.image_size) != (im["width"], im["height"]):
+                    raise ConfigError(f"camera file: image size {camera.image_size} differs from the frames' "
+                                      f"{im['width']}x{im['height']} ({im['name']})")
+                cams[cid] = camera
+            else:
+                w, h, f = im["width"], im["height"], im["camera_guess"]["f_px"]
+                pitch = im["camera_guess"].get("pitch_um")
+                cams[cid] = Camera("opencv", (w, h), dict(fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2),
+                                   pixel_pitch_um=pitch, name=cid)
+        ids.append(groups[key])
+    return cams, ids
+
+
+def step_features(project: ProjectStore, opt: SurveyOptions, progress=None) -> dict:
+    inputs = project.read_json("work/inputs.json")
+    store = project if not isinstance(project, FolderProject) else FolderProject(project.root)
+    res = _run_tasks(feature_task, [(store, im["name"], opt.features) for im in inputs["images"]], opt, progress, "features")
+    counts = {name: n for name, n in res}
+    project.write_json("work/features.json", counts)
+    return {"images": len(counts), "median_features": float(np.median(list(counts.values()))) if counts else 0.0}
+
+
+def _gnss_xyz(inputs: dict, opt: SurveyOptions, crs_out: str | None):
+    """(n, 3) positions in the output CRS and (n, 3) σ, from EXIF/XMP (``auto``) or a gnss.csv."""
+    n = len(inputs["images"])
+    xyz = np.full((n, 3), np.nan)
+    sig = np.full((n, 3), np.nan)
+    notes = []
+    mode = opt.gnss
+    if str(mode).lower() == "none":
+        return xyz, sig, crs_out, ["GNSS not used (--gnss none)"]
+    if str(mode).lower() == "auto":
+        lat = np.array([im["geotag"].get("lat", np.nan) if im["geotag"] else np.nan for im in inputs["images"]], float)
+        lon = np.array([im["geotag"].get("lon", np.nan) if im["geotag"] else np.nan for im in inputs["images"]], float)
+        alt = np.array([(im["geotag"].get("alt") if im["geotag"] and im["geotag"].get("alt") is not None else np.nan)
+                        for im in inputs["images"]], float)
+        have = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt)
+        if not have.any():
+            return xyz, sig, crs_out, ["no GNSS positions in the files"]
+        from pyproj import CRS, Transformer
+
+        if crs_out is None:
+            zone = int((np.nanmean(lon[have]) + 180) // 6) + 1
+            crs_out = f"EPSG:{(32600 if np.nanmean(lat[have]) >= 0 else 32700) + zone}"
+            notes.append(f"no --crs given: positions in the UTM zone of the flight, {crs_out}")
+        tf = Transformer.from_crs(CRS.from_epsg(4979), CRS.from_user_input(crs_out), always_xy=True)
+        x, y, z = tf.transform(lon[have], lat[have], alt[have])
+        xyz[have] = np.column_stack([x, y, z])
+        for k in np.nonzero(have)[0]:
+            g = inputs["images"][k]["geotag"]
+            flag, std = g.get("rtk_flag"), g.get("rtk_std_m")
+            if flag == 50 and std:
+                s = np.maximum(np.array([std[0], std[1], std[2]], float), [0.01, 0.01, 0.02])
+            elif flag == 50:
+                s = np.array([0.03, 0.03, 0.05])
+            elif flag == 34:
+                s = np.array([0.5, 0.5, 1.0])
+            elif flag == 16:
+                s = np.array([2.0, 2.0, 4.0])
+            else:
+                s = np.array([3.0, 3.0, 5.0])
+            sig[k] = s
+        miss = [inputs["images"][k]["name"] for k in np.nonzero(~have)[0]]
+        if miss:
+            notes.append(f"{len(miss)} image(s) without GNSS: {', '.join(miss[:5])}{' ...' if len(miss) > 5 else ''}")
+        notes.append("GNSS heights used as written in the files (no geoid/ellipsoid conversion)")
+    else:
+        from ..io.testfield_csv import read_gnss_csv
+
+        g = read_gnss_csv(mode)
+        index = {}
+        for k, im in enumerate(inputs["images"]):
+            index[im["name"]] = k
+            index.setdefault(Path(im["source"]).name, k)
+            index.setdefault(Path(im["source"]).stem, k)
+        unknown = []
+        for r, name in enumerate(g.image):
+            k = index.get(name, index.get(Path(name).stem))
+            if k is None:
+                unknown.append(name)
+                continue
+            xyz[k] = g.xyz[r]
+            sig[k] = g.std[r] if g.std is not None else np.array([0.05, 0.05, 0.10])
+        if g.std is None:
+            notes.append(f"{g.source}: no sX,sY,sZ columns: σ 0.05 m horizontal, 0.10 m vertical assumed")
+        if unknown:
+            notes.append(f"{g.source}: {len(unknown)} image name(s) not among the inputs, ignored: {', '.join(unknown[:5])}")
+    if opt.gnss_sigma_m is not None:
+        sig[np.isfinite(sig).all(1)] = np.asarray(opt.gnss_sigma_m, float)
+    return xyz, sig, crs_out, notes
+
+
+def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None) -> dict:
+    from ..sfm.matching import select_pairs
+
+    inputs = project.read_json("work/inputs.json")
+    cams, cam_ids = _initial_cameras(inputs, camera)
+    xyz, _, crs, _ = _gnss_xyz(inputs, opt, opt.crs)
+    names = [im["name"] for im in inputs["images"]]
+    pairs = select_pairs(len(names), xyz, options=opt.matching)
+    store = project if not isinstance(project, FolderProject) else FolderProject(project.root)
+    tasks = [(store, i, j, names[i], names[j], cams[cam_ids[i]], cams[cam_ids[j]], opt.matching) for i, j in pairs]
+    res = _run_tasks(match_task, tasks, opt, progress, "matching")
+    kept = [(i, j, nv) for i, j, npu, nv, reason in res if not reason]
+    project.write_json("work/pairs.json", {"pairs": [[i, j, npu, nv, reason] for i, j, npu, nv, reason in res]})
+    return {"pairs_tried": len(pairs), "pairs_verified": len(kept),
+            "median_verified_matches": float(np.median([k[2] for k in kept])) if kept else 0.0}
+
+
+def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None) -> dict:
+    from ..sfm.reconstruction import reconstruct
+    from ..sfm.tracks import build_tracks
+
+    inputs = project.read_json("work/inputs.json")
+    counts = project.read_json("work/features.json")
+    names = [im["name"] for im in inputs["images"]]
+    cams, cam_ids = _initial_cameras(inputs, camera)
+    cam_list = list(cams)
+    image_camera = np.array([cam_list.index(c) for c in cam_ids])
+    xy = [_load_npz(project, f"features/{n}.npz")["xy"] for n in names]
+    pairs = []
+    pc = {}
+    for i, j, npu, nv, reason in project.read_json("work/pairs.json")["pairs"]:
+        if reason:
+            continue
+        idx = _load_npz(project, f"matches/{i}_{j}.npz")["idx"]
+        pairs.append((i, j, idx))
+        pc[(i, j)] = len(idx)
+    tracks = build_tracks([int(counts[n]) for n in names], pairs)
+    ropt = opt.reconstruction
+    if camera is not None:
+        ropt = replace(ropt, free_intrinsics=())
+    rec = reconstruct([cams[c] for c in cam_list], image_camera, xy, tracks, pc, ropt, on_progress=progress)
+    _save_npz(project, "work/reconstruction.npz", R=rec.R, t=rec.t, registered=rec.registered, component=rec.component,
+              points=rec.points, track=tracks.track, image=tracks.image, feature=tracks.feature, obs_valid=rec.obs_valid,
+              image_camera=image_camera)
+    project.write_json("work/reconstruction.json", {
+        "cameras": {c: rec.cameras[k].to_dict() for k, c in enumerate(cam_list)}, "camera_ids": cam_list,
+        "termination": rec.termination.value, "reason": rec.reason, "log": rec.log,
+        "status": [{"registered": bool(s.registered), "component": int(s.component), "reason": s.reason} for s in rec.status],
+        "tracks": int(tracks.n_tracks), "tracks_split": int(tracks.n_split), "seconds": rec.seconds})
+    return {"oriented": int(rec.registered.sum()), "of": len(names), "components": [len(c) for c in rec.components()],
+            "tracks": int(tracks.n_tracks), "reason": rec.reason}
+
+
+def _load_reconstruction(project: ProjectStore):
+    from ..camera import Camera
+    from ..results import Outcome, Termination
+    from ..sfm.reconstruction import ImageStatus, Reconstruction
+    from ..sfm.tracks import Tracks
+
+    z = _load_npz(project, "work/reconstruction.npz")
+    meta = project.read_json("work/reconstruction.json")
+    cams = [Camera.from_dict(meta["cameras"][c], source="work/reconstruction.json") for c in meta["camera_ids"]]
+    tr = Tracks(z["track"], z["image"], z["feature"])
+    rec = Reconstruction(Outcome(Termination(meta["termination"]), meta["reason"]), cams, z["image_camera"], z["R"], z["t"],
+                         z["registered"].astype(bool), z["component"], z["points"], tr, z["obs_valid"].astype(bool),
+                         [ImageStatus(s["registered"], s["component"], s["reason"]) for s in meta["status"]], meta["log"])
+    return rec, meta
+
+
+def _read_markers(path_pts, path_meas, names, default_sigma_m, default_sigma_px, what):
+    """Control/check CSVs -> ids, xyz, sigma, observations [(image index, point index, xy, sigma)], notes."""
+    from ..io.testfield_csv import read_control_csv, read_measurements_csv
+
+    if path_pts is None:
+        return [], np.zeros((0, 3)), np.zeros((0, 3)), [], []
+    ctrl = read_control_csv(path_pts)
+    sig = ctrl.std if ctrl.std is not None else np.full((len(ctrl.ids), 3), default_sigma_m)
+    obs, notes = [], []
+    if path_meas is None:
+        notes.append(f"{what}: no image measurements given ({path_pts} alone cannot be used)")
+        return list(ctrl.ids), ctrl.xyz, sig, obs, notes
+    meas = read_measurements_csv(path_meas)
+    index = {}
+    for k, n in enumerate(names):
+        index[n] = k
+    idmap = {pid: k for k, pid in enumerate(ctrl.ids)}
+    unknown_img, unknown_id = set(), set()
+    for r in range(len(meas.id)):
+        im = meas.image[r]
+        k = index.get(im, index.get(Path(im).stem))
+        if k is None:
+            unknown_img.add(im)
+            continue
+        g = idmap.get(meas.id[r])
+        if g is None:
+            unknown_id.add(meas.id[r])
+            continue
+        s = meas.std[r] if meas.std is not None else np.array([default_sigma_px, default_sigma_px])
+        obs.append((k, g, meas.xy[r], s))
+    if unknown_img:
+        notes.append(f"{meas.source}: measurements in {len(unknown_img)} image(s) that are not inputs, ignored: {', '.join(sorted(unknown_img)[:5])}")
+    if unknown_id:
+        notes.append(f"{meas.source}: {len(unknown_id)} id(s) not in {ctrl.source}, ignored: {', '.join(sorted(unknown_id)[:5])}")
+    return list(ctrl.ids), ctrl.xyz, sig, obs, notes
+
+
+def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, camera=None, progress=None) -> dict:
+    """Georeference the largest block(s), adjust, intersect check points, write every output."""
+    from ..sfm.georef import (ControlInputs, apply_similarity, axis_statistics, final_adjustment, intersect_check_points,
+                              similarity_start)
+
+    t0 = time.perf_counter()
+    inputs = project.read_json("work/inputs.json")
+    names = [im["name"] for im in inputs["images"]]
+    rec, meta = _load_reconstruction(project)
+    xy = [_load_npz(project, f"features/{n}.npz")["xy"] for n in names]
+    gnss, gsig, crs, notes = _gnss_xyz(inputs, opt, opt.crs)
+    g_ids, g_xyz, g_sig, g_obs, n1 = _read_markers(inp.gcps, inp.gcp_measurements, names, opt.gcp_sigma_m, opt.marker_sigma_px, "GCPs")
+    c_ids, c_xyz, _, c_obs, n2 = _read_markers(inp.checkpoints, inp.check_measurements, names, opt.gcp_sigma_m,
+                                               opt.marker_sigma_px, "check points")
+    notes += n1 + n2
+    ctrl = ControlInputs(gnss, np.where(np.isfinite(gsig), gsig, 1.0), np.asarray(opt.lever_arm_m, float),
+                         g_ids, g_xyz, g_sig, g_obs, c_ids, c_xyz, c_obs)
+    comps = rec.components()
+    results = []
+    oriented = np.zeros(len(names), bool)
+    fa_all = []
+    for ci, images in enumerate(comps):
+        S, how, nts = similarity_start(rec, images, ctrl)
+        notes += [f"block {ci + 1}: {x}" for x in nts]
+        geo = S is not None
+        if not geo and ci > 0:
+            # a second block without datum cannot be placed with the first: reported, not exported
+            for i in images:
+                rec.status[i].reason = f"in block {ci + 1} ({len(images)} images) that has no GNSS/GCP datum and no tie to block 1"
+            continue
+        if geo:
+            apply_similarity(rec, images, S)
+        self_cal = () if camera is not None else opt.self_calibrate
+        fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=self_cal, tie_sigma_px=opt.tie_sigma_px,
+                              max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
+                              compute_covariance=len(images) <= 2500)
+        notes += [f"block {ci + 1}: {x}" for x in fa.notes]
+        oriented[images] = True
+        fa_all.append((ci, images, fa, how, geo))
+        results.append({"block": ci + 1, "images": len(images), "datum": how, "sigma0": float(fa.result.sigma0),
+                        "termination": fa.result.termination.value, "reason": fa.result.reason})
+    if not fa_all:
+        crs = None
+    georeferenced = any(g for *_, g in fa_all)
+    if not georeferenced:
+        crs = None
+    # check points (in the block that sees them)
+    checks = []
+    gcp_errors = []
+    gcp_rejected = []
+    for ci, images, fa, how, geo in fa_all:
+        if not geo:
+            continue
+        checks += [c for c in intersect_check_points(rec, fa, ctrl) if c["xyz"] is not None or c["n_images"] > 0]
+        gcp_errors += [fa.gcp_residuals_m[g] for g in np.nonzero(fa.gcp_used)[0]]
+        gcp_rejected += [{"image": names[i], "id": gid, "residual_px": e} for i, gid, e in fa.gcp_rejected]
+    # merge check points seen in several blocks: keep the one with most images
+    best = {}
+    for c in checks:
+        if c["xyz"] is None:
+            best.setdefault(c["id"], c)
+        elif c["id"] not in best or best[c["id"]]["xyz"] is None or c["n_images"] > best[c["id"]]["n_images"]:
+            best[c["id"]] = c
+    checks = [best[k] for k in c_ids if k in best]
+    out = _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results)
+    out["seconds_georef"] = time.perf_counter() - t0
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# outputs
+# ------------------------------------------------------------------------------------------------
+def _point_values(project, inputs, rec, names, images_used, obs_mask):
+    """Mean frame value at the observations of each point (bilinear), and whether it is a temperature."""
+    tr = rec.tracks
+    units = {inputs["images"][i]["unit"] for i in images_used}
+    unit = units.pop() if len(units) == 1 else "mixed"
+    vals = np.zeros(len(rec.points))
+    cnt = np.zeros(len(rec.points))
+    if unit not in ("K", "counts"):
+        return None, unit
+    for i in images_used:
+        o = np.nonzero(obs_mask & (tr.image == i))[0]
+        if len(o) == 0:
+            continue
+        img = _read_frame(project, names[i]).astype(np.float64)
+        xy = _load_npz(project, f"features/{names[i]}.npz")["xy"][tr.feature[o]]
+        import cv2
+
+        v = cv2.remap(img.astype(np.float32), xy[:, 0].astype(np.float32).reshape(-1, 1), xy[:, 1].astype(np.float32).reshape(-1, 1),
+                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()
+        ok = np.isfinite(v)
+        np.add.at(vals, tr.track[o][ok], v[ok])
+        np.add.at(cnt, tr.track[o][ok], 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return vals / cnt, unit
+
+
+def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results):
+    from ..io.oriented import OrientedCameras, OrientedImage
+    from ..sfm.georef import axis_statistics
+
+    cam_ids = project.read_json("work/reconstruction.json")["camera_ids"]
+    images_out = []
+    per_image = []
+    rms_all = []
+    tie_by_image: dict[int, np.ndarray] = {}
+    oriented_idx = []
+    for ci, images, fa, how, geo in fa_all:
+        for i in images:
+            oriented_idx.append(int(i))
+        v = fa.tie_residuals
+        for i in images:
+            tie_by_image[int(i)] = v[fa.tie_obs_image == i]
+        rms_all.append(v)
+        for i in images:
+            im = inputs["images"][i]
+            images_out.append(OrientedImage(names[i], cam_ids[rec.image_camera[i]], rec.R[i], rec.t[i],
+                                            center_std=fa.center_std[i], rotation_std_deg=fa.rotation_std_deg[i],
+                                            frame=f"frames/{names[i]}.tif", source=im["source"], unit=im["unit"],
+                                            sensor=im["sensor"]))
+    cams = {cid: rec.cameras[k] for k, cid in enumerate(cam_ids) if any(o.camera_id == cid for o in images_out)}
+    # the camera's standard deviations from the last solve of the largest block
+    if fa_all:
+        fa0 = fa_all[0][2]
+        if fa0.result.camera_std:
+            for b, (cid) in enumerate(sorted({o.camera_id for o in images_out if True}, key=cam_ids.index)):
+                k = cam_ids.index(cid)
+                pb_cams = fa0.result.problem.cameras
+                # cameras in the problem are added in sorted camera index order
+                order = sorted({int(rec.image_camera[i]) for i in fa_all[0][1]})
+                if k in order:
+                    std = fa0.result.camera_std[order.index(k)]
+                    cams[cid] = rec.cameras[k].replace(param_std=np.where(np.isfinite(std), std, np.nan))
+    oc = OrientedCameras(cams, images_out, crs=crs,
+                         notes="" if crs else "local frame (no GNSS/GCP datum): arbitrary origin, orientation and scale") if images_out else None
+    V = np.concatenate(rms_all) if rms_all else np.zeros((0, 2))
+    rms = float(np.sqrt(np.mean(np.sum(V**2, axis=1)))) if len(V) else None
+    n_total = len(names) + len(inputs["failed"])
+    status = []
+    for i, n in enumerate(names):
+        s = rec.status[i]
+        ok = i in set(oriented_idx)
+        v = tie_by_image.get(i)
+        status.append({"name": n, "oriented": ok, "block": int(rec.component[i]) + 1 if ok else None,
+                       "reason": "" if ok else (s.reason or "not oriented"),
+                       "tie_points": int(len(v)) if v is not None else 0,
+                       "rms_px": float(np.sqrt(np.mean(np.sum(v**2, 1)))) if v is not None and len(v) else None,
+                       "unit": inputs["images"][i]["unit"], "sensor": inputs["images"][i]["sensor"]})
+    for f in inputs["failed"]:
+        status.append({"name": Path(f["file"]).name, "oriented": False, "block": None, "reason": f["reason"], "tie_points": 0,
+                       "rms_px": None, "unit": None, "sensor": None})
+    # sparse cloud of the exported blocks
+    tr = rec.tracks
+    used = np.zeros(len(names), bool)
+    used[oriented_idx] = True
+    obs_mask = rec.obs_valid & used[tr.image] & np.isfinite(rec.points[tr.track]).all(1)
+    cnt = np.bincount(tr.track[obs_mask], minlength=len(rec.points))
+    pts_ok = (cnt >= 2) & np.isfinite(rec.points).all(1)
+    values, unit = _point_values(project, inputs, rec, names, oriented_idx, obs_mask)
+    mult = cnt[pts_ok]
+    units = sorted({inputs["images"][i]["unit"] for i in oriented_idx})
+    summary = {
+        "images_total": n_total,
+        "images_oriented": int(len(oriented_idx)),
+        "components": [int(len(images)) for ci, images, fa, how, geo in fa_all],
+        "reprojection_rms_px": rms,
+        "gcps": axis_statistics(gcp_errors),
+        "checkpoints": axis_statistics([c["error"] for c in checks if c.get("error") is not None]),
+        "crs": crs,
+        "seconds": None,
+        "georeferenced": bool(crs),
+        "frame_units": units,
+        "temperatures": units == ["K"],
+        "points": int(pts_ok.sum()),
+        "tie_point_multiplicity": {"mean": float(mult.mean()) if len(mult) else None,
+                                   "histogram": np.bincount(mult).tolist() if len(mult) else []},
+        "blocks": results,
+        "images": status,
+        "cameras": {cid: {"params": c.param_dict, "std": dict(zip(c.param_names, [None if not np.isfinite(x) else float(x)
+                                                                                   for x in (c.param_std if c.param_std is not None else [np.nan] * len(c.param_names))]))}
+                    for cid, c in cams.items()},
+        "gcp_residuals": [{"id": ctrl.gcp_ids[g], "dx": float(e[0]), "dy": float(e[1]), "dz": float(e[2])}
+                          for g, e in zip([g for *_, fa, how, geo in fa_all for g in np.nonzero(fa.gcp_used)[0]], gcp_errors)],
+        "gcp_rejected_measurements": gcp_rejected,
+        "checkpoint_errors": [{"id": c["id"], "n_images": c["n_images"], "reason": c.get("reason", ""),
+                               **({"dx": float(c["error"][0]), "dy": float(c["error"][1]), "dz": float(c["error"][2]),
+                                   "sx": float(c["std"][0]), "sy": float(c["std"][1]), "sz": float(c["std"][2])}
+                                  if c.get("error") is not None else {})} for c in checks],
+        "failed_inputs": inputs["failed"],
+        "notes": inputs.get("notes", []) + notes + sorted({im["note"] for im in inputs["images"] if im.get("note")}),
+    }
+    if oc is not None:
+        project.write_text("cameras.json", json.dumps(oc.to_dict(), indent=1) + "\n")
+        _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, values)
+        _write_clouds(project, rec.points[pts_ok], None if values is None else values[pts_ok], unit, mult, crs)
+    project.write_json("survey.json", summary)
+    return {"images_oriented": summary["images_oriented"], "components": summary["components"], "rms_px": rms, "crs": crs}
+
+
+def _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, values):
+    from ..io.colmap import ColmapImage, ColmapPoints3D, colmap_camera_line
+    from ..geometry.rotations import quaternion_from_matrix
+
+    cam_keys = list(oc.cameras)
+    lines = ["# Camera list with one line of data per camera:", "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]"]
+    for k, cid in enumerate(cam_keys):
+        cam = oc.cameras[cid]
+        if cam.model.value == "photogrammetric":
+            from ..camera import convert_camera
+
+            cam = convert_camera(cam, "opencv").camera
+        lines.append(colmap_camera_line(k + 1, cam))
+    project.write_text("colmap/cameras.txt", "\n".join(lines) + "\n")
+    tr = rec.tracks
+    pid = np.full(len(rec.points), -1, np.int64)
+    pid[pts_ok] = np.arange(1, int(pts_ok.sum()) + 1)
+    name_to_idx = {n: i for i, n in enumerate(names)}
+    img_lines = ["# Image list with two lines of data per image:", "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
+                 "#   POINTS2D[] as (X, Y, POINT3D_ID)"]
+    track_elems: dict[int, list] = {}
+    # COLMAP text models hold coordinates as written: large CRS coordinates keep their precision in %.17g
+    for k, o in enumerate(oc.images):
+        i = name_to_idx[o.name]
+        q = quaternion_from_matrix(o.R)
+        sel = np.nonzero(obs_mask & (tr.image == i) & pts_ok[tr.track])[0]
+        xy = _load_npz_cached(project, names[i])[tr.feature[sel]]
+        img_lines.append(" ".join([str(k + 1)] + [repr(float(v)) for v in q] + [repr(float(v)) for v in o.t]
+                                  + [str(cam_keys.index(o.camera_id) + 1), f"{o.name}.tif"]))
+        img_lines.append(" ".join(f"{x + 0.5!r} {y + 0.5!r} {int(pid[t])}" for (x, y), t in zip(xy.tolist(), tr.track[sel].tolist())))
+        for n2d, t in enumerate(tr.track[sel].tolist()):
+            track_elems.setdefault(int(pid[t]), []).append(f"{k + 1} {n2d}")
+    project.write_text("colmap/images.txt", "\n".join(img_lines) + "\n")
+    P = rec.points[pts_ok]
+    if values is not None:
+        v = values[pts_ok]
+        lo, hi = np.nanpercentile(v, [1, 99]) if np.isfinite(v).any() else (0.0, 1.0)
+        g = np.clip((np.nan_to_num(v, nan=lo) - lo) / max(hi - lo, 1e-9) * 255, 0, 255).astype(int)
+    else:
+        g = np.full(len(P), 128)
+    pl = ["# 3D point list with one line of data per point:", "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"]
+    for k in range(len(P)):
+        pl.append(f"{k + 1} {float(P[k, 0])!r} {float(P[k, 1])!r} {float(P[k, 2])!r} {int(g[k])} {int(g[k])} {int(g[k])} 0 " + " ".join(track_elems.get(k + 1, [])))
+    project.write_text("colmap/points3D.txt", "\n".join(pl) + "\n")
+    _NPZ_CACHE.clear()
+
+
+_NPZ_CACHE: dict = {}
+
+
+def _load_npz_cached(project, name):
+    if name not in _NPZ_CACHE:
+        _NPZ_CACHE[name] = _load_npz(project, f"features/{name}.npz")["xy"]
+    return _NPZ_CACHE[name]
+
+
+def _write_clouds(project, P, values, unit, mult, crs):
+    """sparse.ply (plyfile) and sparse.las (laspy) with the mean frame value of each point."""
+    import laspy
+    from plyfile import PlyData, PlyElement
+
+    name = "temperature_k" if unit == "K" else ("raw_counts" if unit == "counts" else None)
+    dt = [("x", "f8"), ("y", "f8"), ("z", "f8"), ("views", "u2")] + ([(name, "f4")] if name and values is not None else [])
+    arr = np.empty(len(P), dtype=dt)
+    arr["x"], arr["y"], arr["z"] = P[:, 0], P[:, 1], P[:, 2]
+    arr["views"] = np.minimum(mult, 65535)
+    if name and values is not None:
+        arr[name] = values.astype(np.float32)
+    buf = io.BytesIO()
+    PlyData([PlyElement.describe(arr, "vertex")], text=False,
+            comments=[f"crs {crs or 'local'}", f"value {name or 'none'}"]).write(buf)
+    project.write_bytes("sparse.ply", buf.getvalue())
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    if name and values is not None:
+        header.add_extra_dim(laspy.ExtraBytesParams(name=name, type=np.float32,
+                                                    description="kelvin" if unit == "K" else "raw sensor counts"))
+    header.add_extra_dim(laspy.ExtraBytesParams(name="views", type=np.uint16, description="images observing the point"))
+    if len(P):
+        header.offsets = np.floor(P.min(axis=0))
+    header.scales = np.array([0.001, 0.001, 0.001])
+    if crs:
+        from pyproj import CRS
+
+        try:
+            header.add_crs(CRS.from_user_input(crs))
+        except Exception:  # noqa: BLE001 - a CRS laspy cannot encode is recorded in the report instead
+            pass
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = P[:, 0], P[:, 1], P[:, 2]
+    if name and values is not None:
+        setattr(las, name, values.astype(np.float32))
+    las.views = np.minimum(mult, 65535).astype(np.uint16)
+    buf = io.BytesIO()
+    las.write(buf)
+    project.write_bytes("sparse.las", buf.getvalue())
+
+
+# ------------------------------------------------------------------------------------------------
+# the workflow
+# ------------------------------------------------------------------------------------------------
+def survey_steps(inp: SurveyInput, opt: SurveyOptions, progress: Callable | None = None):
+    """The survey as a list of :class:`~thermogrammetry.pipeline.steps.Step`."""
+    from .steps import Step
+
+    cam = inp.camera
+
+    def prog(name):
+        return (lambda k, n: progress(name, k, n)) if progress else None
+
+    return [
+        Step("inputs", lambda p: step_inputs(p, inp, opt, prog("inputs")), "decode inputs to frames/"),
+        Step("features", lambda p: step_features(p, opt, prog("features")), "tie-point features per image"),
+        Step("matching", lambda p: step_matching(p, opt, cam, prog("matching")), "pairs, matching, geometric verification"),
+        Step("orient", lambda p: step_orient(p, opt, cam, prog("orient")), "tracks and incremental orientation"),
+        Step("georef", lambda p: step_georef(p, inp, opt, cam, prog("georef")), "georeferencing, final adjustment, exports"),
+    ]
+
+
+def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | None = None, *, progress: Callable | None = None,
+               on_step: Callable | None = None):
+    """Run every step; writes ``report.html`` and the step reports. Returns the list of StepReport."""
+    from .steps import run_steps
+    from .survey_report import write_survey_report
+
+    opt = opt or SurveyOptions()
+    t0 = time.perf_counter()
+    reports = run_steps(project, survey_steps(inp, opt, progress), on_step=on_step)
+    if project.exists("survey.json"):
+        s = project.read_json("survey.json")
+        s["seconds"] = time.perf_counter() - t0
+        s["steps"] = [{"name": r.name, "seconds": r.seconds, "status": r.status} for r in reports]
+        project.write_json("survey.json", s)
+        write_survey_report(project)
+    return reports

@@ -1,0 +1,203 @@
+"""Tie-point features on the full dynamic range of thermal frames.
+
+Thermal frames are 16-bit counts, float kelvin or 8-bit renderings with a few tens of useful grey
+levels. Detectors want 8-bit input with contrast, so each frame is mapped by a robust *per-image*
+stretch (:func:`detector_input`): percentiles of the finite values to 0..255, optionally followed by
+CLAHE (local contrast) or a high-pass (background removal by a large blur). Keypoints are in OpenCV's
+pixel convention ((0, 0) is the centre of the top-left pixel), the project's convention.
+
+Detectors: OpenCV SIFT (default; descriptors converted to RootSIFT, Arandjelović & Zisserman 2012, so
+Euclidean matching compares Hellinger distances) and ORB (oriented FAST + rotated BRIEF, binary,
+Hamming distance) as the measured alternative (``benchmarks/survey.py``). OpenCV 5 moved AKAZE out of
+the main package, and its learned detectors (ALIKED, DISK) need model weights we cannot ship.
+
+References
+----------
+Lowe, D. G. (2004). Distinctive image features from scale-invariant keypoints. IJCV 60(2), 91-110.
+Arandjelović, R., Zisserman, A. (2012). Three things everyone should know to improve object retrieval. CVPR.
+Rublee, E., Rabaud, V., Konolige, K., Bradski, G. (2011). ORB: an efficient alternative to SIFT or SURF. ICCV.
+Zuiderveld, K. (1994). Contrast limited adaptive histogram equalization. Graphics Gems IV, 474-485.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..enums import StrChoice
+from ..errors import ConfigError, ShapeError
+
+__all__ = ["Detector", "Enhancement", "FeatureOptions", "Features", "detector_input", "extract_features"]
+
+
+class Detector(StrChoice):
+    SIFT = "sift"
+    ORB = "orb"
+
+
+class Enhancement(StrChoice):
+    """Per-image mapping of the frame to the detector's 8-bit input."""
+
+    STRETCH = "stretch"  # percentile stretch only
+    CLAHE = "clahe"  # percentile stretch, then CLAHE
+    HIGHPASS = "highpass"  # subtract a large blur (flat-field), then percentile stretch
+
+
+@dataclass(frozen=True)
+class FeatureOptions:
+    """How features are extracted (typed; :meth:`from_dict` refuses unknown keys).
+
+    Attributes
+    ----------
+    detector : Detector
+    enhancement : Enhancement
+    max_features : int
+        Strongest features kept per image (by detector response).
+    low_percentile, high_percentile : float
+        Percentiles of the finite values mapped to 0 and 255.
+    clahe_clip : float
+        CLAHE clip limit; tiles of ``clahe_tile_px``.
+    contrast_threshold : float
+        SIFT contrast threshold (OpenCV default 0.04; lower finds more features on flat thermal frames).
+    """
+
+    detector: Detector = Detector.SIFT
+    enhancement: Enhancement = Enhancement.CLAHE
+    max_features: int = 3000
+    low_percentile: float = 0.5
+    high_percentile: float = 99.5
+    clahe_clip: float = 2.0
+    clahe_tile_px: int = 64
+    contrast_threshold: float = 0.01
+    highpass_sigma_px: float = 25.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "detector", Detector(self.detector))
+        object.__setattr__(self, "enhancement", Enhancement(self.enhancement))
+        if not (isinstance(self.max_features, (int, np.integer)) and self.max_features >= 10):
+            raise ConfigError(f"FeatureOptions.max_features={self.max_features!r}: expected an integer >= 10")
+        if not 0 <= self.low_percentile < self.high_percentile <= 100:
+            raise ConfigError(f"FeatureOptions: percentiles {self.low_percentile!r}, {self.high_percentile!r}: "
+                              "expected 0 <= low < high <= 100")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FeatureOptions":
+        from dataclasses import fields
+
+        known = {f.name for f in fields(cls)}
+        bad = sorted(set(d) - known)
+        if bad:
+            raise ConfigError(f"FeatureOptions: unknown key(s) {bad}; valid: {sorted(known)}")
+        return cls(**d)
+
+
+@dataclass
+class Features:
+    """Keypoints and descriptors of one image.
+
+    Attributes
+    ----------
+    xy : (N, 2) float64, px (OpenCV convention)
+    size : (N,) float32, keypoint diameter (px)
+    angle : (N,) float32, deg
+    descriptors : (N, D) float32 (RootSIFT) or uint8 (ORB)
+    """
+
+    xy: np.ndarray
+    size: np.ndarray
+    angle: np.ndarray
+    descriptors: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    def to_npz_dict(self) -> dict:
+        return {"xy": self.xy, "size": self.size, "angle": self.angle, "descriptors": self.descriptors}
+
+    @classmethod
+    def from_npz_dict(cls, d) -> "Features":
+        return cls(np.asarray(d["xy"], float), np.asarray(d["size"]), np.asarray(d["angle"]), np.asarray(d["descriptors"]))
+
+
+def detector_input(image, options: FeatureOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Map a frame (any dtype, 2D or colour) to the detector's 8-bit input and a validity mask.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) array
+        uint8/uint16 counts, float kelvin (NaN = invalid) or an 8-bit rendering.
+    options : FeatureOptions
+
+    Returns
+    -------
+    img8 : (H, W) uint8
+    valid : (H, W) bool, finite pixels (features are only kept where the 9x9 neighbourhood is valid)
+    """
+    import cv2
+
+    opt = options or FeatureOptions()
+    a = np.asarray(image)
+    if a.ndim == 3 and a.shape[2] in (3, 4):
+        a = cv2.cvtColor(a[..., :3].astype(np.float32), cv2.COLOR_RGB2GRAY) if a.dtype != np.uint8 else cv2.cvtColor(a[..., :3], cv2.COLOR_RGB2GRAY)
+    if a.ndim != 2:
+        raise ShapeError(f"image: expected a 2D frame or (H, W, 3) colour image, got shape {a.shape}")
+    a = a.astype(np.float32)
+    valid = np.isfinite(a)
+    if not valid.any():
+        return np.zeros(a.shape, np.uint8), valid
+    fill = float(np.median(a[valid]))
+    a = np.where(valid, a, fill).astype(np.float32)
+    if opt.enhancement is Enhancement.HIGHPASS:
+        a = a - cv2.GaussianBlur(a, (0, 0), opt.highpass_sigma_px)
+    lo, hi = np.percentile(a[valid], [opt.low_percentile, opt.high_percentile])
+    if not hi > lo:
+        hi = lo + 1.0
+    img8 = np.clip((a - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+    if opt.enhancement is Enhancement.CLAHE:
+        h, w = img8.shape
+        tiles = (max(1, int(round(w / opt.clahe_tile_px))), max(1, int(round(h / opt.clahe_tile_px))))
+        img8 = cv2.createCLAHE(clipLimit=opt.clahe_clip, tileGridSize=tiles).apply(img8)
+    if not valid.all():
+        valid = cv2.erode(valid.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    return img8, valid
+
+
+def extract_features(image, options: FeatureOptions | None = None) -> Features:
+    """Detect and describe keypoints of one frame.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) array, any dtype (see :func:`detector_input`)
+    options : FeatureOptions
+
+    Returns
+    -------
+    Features
+        At most ``options.max_features``, strongest first; deterministic for a given image.
+    """
+    import cv2
+
+    opt = options or FeatureOptions()
+    img8, valid = detector_input(image, opt)
+    mask = valid.astype(np.uint8) * 255
+    if opt.detector is Detector.SIFT:
+        det = cv2.SIFT_create(nfeatures=opt.max_features, contrastThreshold=opt.contrast_threshold)
+    else:
+        det = cv2.ORB_create(nfeatures=opt.max_features, fastThreshold=5, edgeThreshold=19, patchSize=19)
+    kps, desc = det.detectAndCompute(img8, mask)
+    if desc is None or not kps:
+        d = 128 if opt.detector is Detector.SIFT else 32
+        return Features(np.zeros((0, 2)), np.zeros(0, np.float32), np.zeros(0, np.float32),
+                        np.zeros((0, d), np.float32 if opt.detector is Detector.SIFT else np.uint8))
+    resp = np.array([k.response for k in kps])
+    order = np.argsort(-resp, kind="stable")[: opt.max_features]
+    xy = np.array([kps[i].pt for i in order], dtype=np.float64)
+    size = np.array([kps[i].size for i in order], dtype=np.float32)
+    angle = np.array([kps[i].angle for i in order], dtype=np.float32)
+    desc = desc[order]
+    if opt.detector is Detector.SIFT:
+        desc = desc.astype(np.float32)
+        desc /= np.maximum(desc.sum(axis=1, keepdims=True), 1e-12)  # L1
+        desc = np.sqrt(desc)  # RootSIFT: unit L2 norm
+    return Features(xy, size, angle, desc)

@@ -1,0 +1,403 @@
+"""Georeferencing and the final adjustment of an oriented block: GNSS, GCPs, check points.
+
+1. **Start**: a similarity (Umeyama 1991) from the model's projection centres to the GNSS positions
+   (>= 3 images, not collinear), else from the triangulated GCPs to their coordinates (>= 3 GCPs).
+2. **Final bundle adjustment** on the engine with GNSS camera-centre priors (σ per image, lever arm in the
+   camera frame) and weighted GCPs (σ per coordinate, their image measurements with σ in px); the camera
+   is self-calibrated (the named parameters free) unless a calibrated camera was given. A first robust
+   (Huber) solve finds blunders: tie observations above ``max_error_px`` and GCP measurements above
+   ``max(gcp_reject_px, 5 σ)`` are removed (a GCP measured in an image where it cannot be seen ends
+   here, reported by image and id); the second, unweighted-loss solve gives σ0, the a-posteriori
+   covariance of every camera parameter and pose, and the residuals.
+3. **Check points never enter the adjustment**: each is intersected afterwards from its image
+   measurements with the adjusted cameras, and its covariance is the propagation of both the measurement
+   noise and the a-posteriori covariance of the poses and intrinsics involved::
+
+       Σ_X = N⁻¹ + G Σ_θ Gᵀ,   N = J_Xᵀ W J_X,   G = N⁻¹ J_Xᵀ W J_θ
+
+   (J by central differences in the engine's parameterisation: left rotation increment about the
+   camera axes, projection centre, camera parameters).
+
+References
+----------
+Umeyama, S. (1991). Least-squares estimation of transformation parameters between two point patterns.
+IEEE PAMI 13(4), 376-380.
+Khodaei, M., Samadzadegan, F., Dadras Javan, F., Hasani, H. (2019?). 3D surface generation from aerial
+thermal imagery (seed 003: GCPs for absolute orientation, check points, Table 3 accuracy layout).
+Förstner, W., Wrobel, B. P. (2016). Photogrammetric Computer Vision, §4.2.4 (propagation), §15.4.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry.rotations import matrix_from_axis_angle
+
+__all__ = ["ControlInputs", "FinalAdjustment", "similarity_start", "apply_similarity", "final_adjustment",
+           "intersect_check_points", "axis_statistics"]
+
+
+@dataclass
+class ControlInputs:
+    """What fixes the datum, per image index of the block.
+
+    Attributes
+    ----------
+    gnss_xyz : (n, 3) m in the CRS, NaN rows where an image has none
+    gnss_sigma : (n, 3) m
+    lever_arm_m : (3,) antenna offset in the camera frame
+    gcp_ids : list of str; gcp_xyz (G, 3); gcp_sigma (G, 3)
+    gcp_obs : list of (image index, gcp index, (2,) xy px, sigma px)
+    check_ids, check_xyz, check_obs : the same for check points (never adjusted)
+    """
+
+    gnss_xyz: np.ndarray
+    gnss_sigma: np.ndarray
+    lever_arm_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gcp_ids: list = field(default_factory=list)
+    gcp_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    gcp_sigma: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    gcp_obs: list = field(default_factory=list)
+    check_ids: list = field(default_factory=list)
+    check_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    check_obs: list = field(default_factory=list)
+
+
+def _collinear(P: np.ndarray) -> bool:
+    if len(P) < 3:
+        return True
+    s = np.linalg.svd(P - P.mean(0), compute_uv=False)
+    return s[1] < 0.02 * s[0]
+
+
+def similarity_start(rec, images, ctrl: ControlInputs):
+    """Similarity model -> CRS from GNSS centres or GCPs.
+
+    Returns
+    -------
+    (Similarity or None, how: str, notes: list of str)
+    """
+    from ..geometry import umeyama
+
+    notes = []
+    images = np.asarray(images)
+    C = rec.centers()[images]
+    g = ctrl.gnss_xyz[images]
+    have = np.all(np.isfinite(g), axis=1)
+    if have.sum() >= 3 and not _collinear(g[have]):
+        S = umeyama(C[have], g[have])
+        # robust: drop GNSS positions far from the fit (another flight, a wrong tag) and refit once
+        r = np.linalg.norm(S(C[have]) - g[have], axis=1)
+        med = np.median(r)
+        keep = r <= max(5 * med, 3 * float(np.median(ctrl.gnss_sigma[images][have])) + 1e-3, 0.5)
+        if keep.sum() >= 3 and (~keep).any():
+            S = umeyama(C[have][keep], g[have][keep])
+            notes.append(f"{int((~keep).sum())} GNSS position(s) far from the block's fit left out of the start")
+        return S, f"GNSS of {int(have.sum())} images", notes
+    if have.sum() >= 3:
+        notes.append("GNSS positions are nearly collinear (one straight line): the roll about the line is taken from GCPs if any")
+    # GCPs triangulated in the model frame
+    if len(ctrl.gcp_ids) >= 3:
+        from .reconstruction import triangulate_tracks
+
+        Xm, Xw = [], []
+        for g_i in range(len(ctrl.gcp_ids)):
+            obs = [(i, xy) for (i, gi, xy, s) in ctrl.gcp_obs if gi == g_i and rec.registered[i] and i in set(images.tolist())]
+            if len(obs) < 2:
+                continue
+            ii = np.array([o[0] for o in obs])
+            rays = np.concatenate([rec.cameras[rec.image_camera[i]].unproject(np.atleast_2d(xy))[:, :2] for i, xy in obs])
+            X, ang = triangulate_tracks(np.array([0]), np.zeros(len(ii), int), rec.R[ii], rec.t[ii], rays)
+            if np.isfinite(X).all():
+                Xm.append(X[0])
+                Xw.append(ctrl.gcp_xyz[g_i])
+        if len(Xm) >= 3 and not _collinear(np.array(Xw)):
+            return umeyama(np.array(Xm), np.array(Xw)), f"{len(Xm)} GCPs", notes
+    return None, "none", notes + ["no GNSS and fewer than 3 usable GCPs: the block stays in a local frame of arbitrary scale"]
+
+
+def apply_similarity(rec, images, S) -> None:
+    """Transform poses (of ``images``) and all points of the reconstruction by ``S`` in place."""
+    images = np.asarray(images)
+    C = rec.centers()[images]
+    Cn = S(C)
+    Rn = rec.R[images] @ S.R.T
+    rec.R[images] = Rn
+    rec.t[images] = -np.einsum("nij,nj->ni", Rn, Cn)
+    ok = np.isfinite(rec.points).all(1)
+    rec.points[ok] = S(rec.points[ok])
+
+
+@dataclass
+class FinalAdjustment:
+    """Outcome of :func:`final_adjustment` (the engine's result plus the bookkeeping of the survey)."""
+
+    result: object  # AdjustmentResult of the last solve
+    images: np.ndarray
+    view_of_image: dict
+    tie_residuals: np.ndarray  # (K, 2) px of the used tie observations
+    tie_obs_image: np.ndarray  # (K,) image index
+    gcp_residuals_m: np.ndarray  # (G, 3) adjusted - given, NaN for unused GCPs
+    gcp_used: np.ndarray  # (G,) bool
+    gcp_rejected: list  # (image index, gcp id, residual px)
+    gnss_residuals_m: np.ndarray  # (n_images_with_gnss, 3)
+    covariance: np.ndarray | None
+    param_names: list
+    center_std: np.ndarray  # (n, 3) m, NaN where unknown
+    rotation_std_deg: np.ndarray  # (n, 3)
+    notes: list
+
+
+def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_calibrate=(), tie_sigma_px: float = 1.0,
+                     max_error_px: float = 4.0, gcp_reject_px: float = 5.0, compute_covariance: bool = True,
+                     georeferenced: bool = True, max_iterations: int = 50) -> FinalAdjustment:
+    """Joint adjustment of the block with GNSS priors and weighted GCPs (see the module docstring).
+
+    ``rec`` is updated in place (cameras, poses, points).
+    """
+    from ..adjustment import BundleProblem, SolverOptions, solve
+
+    images = np.asarray(images)
+    notes: list[str] = []
+    tr = rec.tracks
+    in_block = np.zeros(len(rec.registered), bool)
+    in_block[images] = True
+    gcp_active = [True] * len(ctrl.gcp_obs)
+    rejected = []
+    res = None
+    for round_ in range(4):
+        obs = rec.obs_valid & in_block[tr.image] & np.isfinite(rec.points[tr.track]).all(1)
+        cnt = np.bincount(tr.track[obs], minlength=len(rec.points))
+        obs &= cnt[tr.track] >= 2
+        pts = np.unique(tr.track[obs])
+        have_gnss = np.all(np.isfinite(ctrl.gnss_xyz[images]), axis=1)
+        use_gcp = [k for k, (i, gi, xy, s) in enumerate(ctrl.gcp_obs) if in_block[i] and gcp_active[k]]
+        gcps_in = sorted({ctrl.gcp_obs[k][1] for k in use_gcp})
+        control = georeferenced and (have_gnss.sum() >= 3 or len(gcps_in) >= 3)
+        pb = BundleProblem(gauge="control" if control else "inner")
+        cam_block = {}
+        for c in np.unique(rec.image_camera[images]):
+            cam = rec.cameras[c]
+            free = {n.lower() for n in self_calibrate}
+            fixed = [n for n in cam.param_names if n.lower() not in free]
+            cam_block[int(c)] = pb.add_camera(cam, fixed=fixed if fixed else False, name=f"camera{c}")
+        view = {int(i): pb.add_pose((rec.R[i], rec.t[i]), name=f"image{i}") for i in images}
+        pidx = pb.add_points(rec.points[pts]) if len(pts) else np.zeros(0, np.int64)
+        pmap = np.full(len(rec.points), -1, np.int64)
+        pmap[pts] = pidx
+        order = np.nonzero(obs)[0]
+        tie_rows = []
+        for i in images:
+            o = order[tr.image[order] == i]
+            if len(o) == 0:
+                continue
+            pb.add_image_points(cam_block[int(rec.image_camera[i])], view[int(i)], pmap[tr.track[o]],
+                                xy_by_image[i][tr.feature[o]], sigma_px=tie_sigma_px)
+            tie_rows.append(np.full(len(o), i))
+        n_tie = int(sum(len(r) for r in tie_rows))
+        # GCPs: weighted control points with their image measurements
+        gcp_point = {}
+        if gcps_in:
+            gp = pb.add_points(ctrl.gcp_xyz[gcps_in])
+            gcp_point = dict(zip(gcps_in, gp.tolist()))
+            pb.add_control(gp, ctrl.gcp_xyz[gcps_in], ctrl.gcp_sigma[gcps_in])
+            for k in use_gcp:
+                i, gi, xy, s = ctrl.gcp_obs[k]
+                pb.add_image_points(cam_block[int(rec.image_camera[i])], view[int(i)], np.array([gcp_point[gi]]),
+                                    np.atleast_2d(xy), sigma_px=s)
+        gnss_views = [view[int(i)] for i, h in zip(images, have_gnss) if h]
+        if georeferenced and gnss_views:
+            sel = images[have_gnss]
+            pb.add_gnss(np.array(gnss_views), ctrl.gnss_xyz[sel], ctrl.gnss_sigma[sel], ctrl.lever_arm_m)
+        robust = round_ == 0
+        opt = SolverOptions(loss="huber" if robust else "trivial", loss_scale=2.0, max_iterations=max_iterations,
+                            compute_covariance=(not robust) and compute_covariance, compute_redundancy=False,
+                            function_tolerance=1e-8 if not robust else 1e-6)
+        res = solve(pb, opt)
+        if not res.success:
+            notes.append(f"final adjustment (round {round_ + 1}) stopped: {res.reason}")
+            if res.problem is None:
+                break
+        p = res.problem
+        for c, b in cam_block.items():
+            rec.cameras[c] = p.cameras[b]
+        for i, v in view.items():
+            rec.R[i], rec.t[i] = p.view_transform(v)
+        rec.points[pts] = p.points[pidx]
+        v_img = res.image_residuals
+        changed = False
+        if robust:
+            # tie blunders
+            tie_v = v_img[:n_tie]
+            big = np.linalg.norm(tie_v, axis=1) > max_error_px
+            if big.any():
+                rec.obs_valid[order[big]] = False
+                changed = True
+            # GCP measurements: the worst one per GCP above the threshold is rejected
+            gv = v_img[n_tie:]
+            worst = {}
+            for r, k in enumerate(use_gcp):
+                i, gi, xy, s = ctrl.gcp_obs[k]
+                e = float(np.linalg.norm(gv[r]))
+                if e > max(gcp_reject_px, 5.0 * float(np.max(s))) and (gi not in worst or e > worst[gi][1]):
+                    worst[gi] = (k, e)
+            for gi, (k, e) in worst.items():
+                gcp_active[k] = False
+                rejected.append((int(ctrl.gcp_obs[k][0]), ctrl.gcp_ids[gi], e))
+                changed = True
+            continue  # always a second, non-robust solve
+        if not changed:
+            break
+    # bookkeeping of the last solve
+    p = res.problem
+    gcp_res = np.full((len(ctrl.gcp_ids), 3), np.nan)
+    for gi, pi in gcp_point.items():
+        gcp_res[gi] = p.points[pi] - ctrl.gcp_xyz[gi]
+    used = np.zeros(len(ctrl.gcp_ids), bool)
+    used[list(gcp_point)] = True
+    n = len(rec.registered)
+    cstd = np.full((n, 3), np.nan)
+    rstd = np.full((n, 3), np.nan)
+    if res.pose_std is not None:
+        for i, v in view.items():
+            pi = p.view_pose[v]
+            cstd[i] = res.pose_std[pi, 3:]
+            rstd[i] = np.degrees(res.pose_std[pi, :3])
+    return FinalAdjustment(res, images, view, res.image_residuals[:n_tie] if res.image_residuals is not None else np.zeros((0, 2)),
+                           np.concatenate(tie_rows) if tie_rows else np.zeros(0, int), gcp_res, used, rejected,
+                           res.gnss_residuals if res.gnss_residuals is not None else np.zeros((0, 3)),
+                           res.covariance, list(res.param_names or []), cstd, rstd, notes)
+
+
+def _project(cam, R, t, X):
+    return cam.project((R @ X + t)[None, :])[0]
+
+
+def intersect_check_points(rec, fa: FinalAdjustment, ctrl: ControlInputs, *, eps: float = 1e-6):
+    """Intersect each check point from its measurements in the adjusted block (never adjusted with it).
+
+    Returns
+    -------
+    list of dict: ``id``, ``xyz`` (3,), ``std`` (3,) m (measurement + pose/camera covariance), ``error`` (3,)
+    (estimate - given), ``n_images``; check points seen in fewer than 2 oriented images are listed with
+    ``xyz`` None and a ``reason``.
+    """
+    from .reconstruction import triangulate_tracks
+
+    out = []
+    block = set(fa.images.tolist())
+    names = fa.param_names
+    index = {nm: k for k, nm in enumerate(names)}
+    for ci, cid in enumerate(ctrl.check_ids):
+        obs = [(i, np.asarray(xy, float), float(np.max(s))) for (i, gi, xy, s) in ctrl.check_obs if gi == ci and i in block]
+        if len(obs) < 2:
+            out.append({"id": cid, "xyz": None, "std": None, "error": None, "n_images": len(obs),
+                        "reason": f"measured in {len(obs)} oriented image(s); 2 needed"})
+            continue
+        ii = np.array([o[0] for o in obs])
+        xy = np.array([o[1] for o in obs])
+        sig = np.array([o[2] for o in obs])
+        rays = np.concatenate([rec.cameras[rec.image_camera[i]].unproject(xy[k:k + 1])[:, :2] for k, i in enumerate(ii)])
+        X, _ = triangulate_tracks(np.array([0]), np.zeros(len(ii), int), rec.R[ii], rec.t[ii], rays)
+        X = X[0]
+        if not np.isfinite(X).all():
+            out.append({"id": cid, "xyz": None, "std": None, "error": None, "n_images": len(obs), "reason": "rays do not intersect"})
+            continue
+        w = np.repeat(1.0 / sig**2, 2)
+
+        def f(X, Rs, ts, cams):
+            return np.concatenate([_project(cams[k], Rs[k], ts[k], X) for k in range(len(ii))])
+
+        # work about a local origin: CRS coordinates (1e6 m) would eat the finite-difference steps
+        origin = X.copy()
+        Rs = [rec.R[i].copy() for i in ii]
+        ts = [rec.t[i] + rec.R[i] @ origin for i in ii]
+        cams = [rec.cameras[rec.image_camera[i]] for i in ii]
+        X = np.zeros(3)
+        for _ in range(10):  # Gauss-Newton on X
+            r = xy.ravel() - f(X, Rs, ts, cams)
+            J = np.empty((2 * len(ii), 3))
+            h = 1e-4
+            for a in range(3):
+                d = np.zeros(3)
+                d[a] = h
+                J[:, a] = (f(X + d, Rs, ts, cams) - f(X - d, Rs, ts, cams)) / (2 * h)
+            N = J.T @ (w[:, None] * J)
+            if not np.all(np.isfinite(N)) or np.linalg.cond(N) > 1e12:
+                break
+            dx = np.linalg.solve(N, J.T @ (w * r))
+            X = X + dx
+            if np.linalg.norm(dx) < 1e-9 * max(1.0, np.linalg.norm(X)):
+                break
+        if not np.all(np.isfinite(N)) or np.linalg.cond(N) > 1e12:
+            out.append({"id": cid, "xyz": None, "std": None, "error": None, "n_images": len(obs),
+                        "reason": "intersection undetermined (rays nearly parallel or projections invalid)"})
+            continue
+        Ninv = np.linalg.inv(N)
+        cov = Ninv.copy()
+        # propagation of the a-posteriori covariance of the camera-side parameters involved
+        if fa.covariance is not None:
+            cols, Jt = [], []
+            for k, i in enumerate(ii):
+                C = -Rs[k].T @ ts[k]
+                base = f"image{i}"
+                for a, nm in enumerate(("wx", "wy", "wz", "X0", "Y0", "Z0")):
+                    key = f"{base}.{nm}"
+                    if key not in index:
+                        continue
+                    col = np.zeros(2 * len(ii))
+                    h = 1e-7 if a < 3 else 1e-4
+                    vals = []
+                    for sgn in (1, -1):
+                        Rk, Ck = Rs[k], C.copy()
+                        if a < 3:
+                            dw = np.zeros(3)
+                            dw[a] = sgn * h
+                            Rk = matrix_from_axis_angle(dw) @ Rs[k]
+                        else:
+                            Ck[a - 3] += sgn * h
+                        vals.append(_project(cams[k], Rk, -Rk @ Ck, X))
+                    col[2 * k:2 * k + 2] = (vals[0] - vals[1]) / (2 * h)
+                    cols.append(index[key])
+                    Jt.append(col)
+            for c in sorted({int(rec.image_camera[i]) for i in ii}):
+                cam = rec.cameras[c]
+                for pn in cam.param_names:
+                    key = f"camera{c}.{pn}"
+                    if key not in index:
+                        continue
+                    h = 1e-6 * max(1.0, abs(cam[pn]))
+                    col = np.zeros(2 * len(ii))
+                    for k, i in enumerate(ii):
+                        if rec.image_camera[i] != c:
+                            continue
+                        cp = cam.replace(**{pn: cam[pn] + h})
+                        cm = cam.replace(**{pn: cam[pn] - h})
+                        col[2 * k:2 * k + 2] = (_project(cp, Rs[k], ts[k], X) - _project(cm, Rs[k], ts[k], X)) / (2 * h)
+                    cols.append(index[key])
+                    Jt.append(col)
+            if cols:
+                Jt = np.array(Jt).T  # (2k, p): d(projection)/d(theta)
+                G = Ninv @ J.T @ (w[:, None] * Jt)  # dX/d(observation shift) applied to -J_theta
+                S = fa.covariance[np.ix_(cols, cols)]
+                cov = cov + G @ S @ G.T
+        std = np.sqrt(np.diag(cov))
+        X = X + origin
+        out.append({"id": cid, "xyz": X, "std": std, "cov": cov, "error": X - ctrl.check_xyz[ci], "n_images": len(obs), "reason": ""})
+    return out
+
+
+def axis_statistics(errors) -> dict:
+    """Seed 003 Table 3 layout: n, min, max, MAE, RMSE per axis (metres); nulls when n = 0."""
+    E = np.asarray([e for e in errors if e is not None and np.all(np.isfinite(e))], float).reshape(-1, 3)
+    d = {"n": int(len(E))}
+    for k, ax in enumerate("xyz"):
+        if len(E):
+            v = E[:, k]
+            d.update({f"rmse_{ax}": float(np.sqrt(np.mean(v**2))), f"mae_{ax}": float(np.mean(np.abs(v))),
+                      f"min_{ax}": float(v.min()), f"max_{ax}": float(v.max())})
+        else:
+            d.update({f"rmse_{ax}": None, f"mae_{ax}": None, f"min_{ax}": None, f"max_{ax}": None})
+    return d

@@ -1,0 +1,248 @@
+"""Image pairs, descriptor matching and geometric verification.
+
+- **Pairs** (:func:`select_pairs`): with GNSS, each image is paired with its ``k`` nearest neighbours in
+  plan (and all images within ``radius_m``); without GNSS, with its ``window`` sequence neighbours, and
+  all pairs when the block is small (``exhaustive_up_to`` images). Never a blind all-pairs search
+  beyond that.
+- **Matching** (:func:`match_descriptors`): nearest two neighbours both ways, Lowe's ratio test and a
+  mutual (cross) check.
+- **Verification** (:func:`verify_pair`): OpenCV's USAC MAGSAC++ essential matrix on the normalised
+  (undistorted) image coordinates of the current camera model, with the RANSAC seed fixed; the
+  inliers of the essential matrix are the verified matches. Where no camera is known the
+  fundamental matrix (MAGSAC++) in pixels is used instead.
+
+References
+----------
+Lowe, D. G. (2004). Distinctive image features from scale-invariant keypoints. IJCV 60(2), 91-110.
+Barath, D., Noskova, J., Ivashechkin, M., Matas, J. (2020). MAGSAC++, a fast, reliable and accurate
+robust estimator. CVPR.
+Nistér, D. (2004). An efficient solution to the five-point relative pose problem. IEEE PAMI 26(6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+
+__all__ = ["MatchOptions", "PairMatches", "select_pairs", "match_descriptors", "verify_pair"]
+
+
+@dataclass(frozen=True)
+class MatchOptions:
+    """How pairs are chosen and matched (typed; unknown keys refused by :meth:`from_dict`).
+
+    Attributes
+    ----------
+    ratio : float
+        Lowe's ratio (second-nearest / nearest distance must exceed 1/ratio).
+    neighbours : int
+        GNSS nearest neighbours per image.
+    window : int
+        Sequence neighbours per image (each side) without GNSS.
+    exhaustive_up_to : int
+        All pairs when the block has at most this many images and no GNSS.
+    max_error_px : float
+        Inlier threshold of the verification (px on the image, converted with the focal length).
+    min_inliers : int
+        A pair with fewer verified matches is dropped.
+    max_ransac_iterations : int
+        MAGSAC++ iterations at most (4000 finds a 5-point sample free of outliers with 99.99 %
+        confidence down to an inlier ratio of ~0.3).
+    seed : int
+        RANSAC seed (``cv2.setRNGSeed``).
+    """
+
+    ratio: float = 0.85
+    neighbours: int = 12
+    window: int = 8
+    exhaustive_up_to: int = 120
+    max_error_px: float = 2.0
+    min_inliers: int = 20
+    max_ransac_iterations: int = 4000
+    seed: int = 0
+
+    def __post_init__(self):
+        if not 0 < self.ratio < 1:
+            raise ConfigError(f"MatchOptions.ratio={self.ratio!r}: expected a number in (0, 1)")
+        if self.min_inliers < 8:
+            raise ConfigError(f"MatchOptions.min_inliers={self.min_inliers!r}: expected >= 8")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "MatchOptions":
+        from dataclasses import fields
+
+        known = {f.name for f in fields(cls)}
+        bad = sorted(set(d) - known)
+        if bad:
+            raise ConfigError(f"MatchOptions: unknown key(s) {bad}; valid: {sorted(known)}")
+        return cls(**d)
+
+
+@dataclass
+class PairMatches:
+    """Verified matches of an image pair.
+
+    Attributes
+    ----------
+    i, j : int
+        Image indices (i < j).
+    idx : (M, 2) int32, feature indices in image i and j
+    n_putative : int
+    model : str, "essential" | "fundamental" | "none"
+    reason : str, why the pair was dropped ("" when kept)
+    """
+
+    i: int
+    j: int
+    idx: np.ndarray
+    n_putative: int
+    model: str = "essential"
+    reason: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.reason
+
+
+def select_pairs(n_images: int, centers=None, *, options: MatchOptions | None = None, order=None) -> list[tuple[int, int]]:
+    """Candidate pairs ``(i, j)``, ``i < j``, sorted.
+
+    Parameters
+    ----------
+    n_images : int
+    centers : (n, 3) array or None
+        Approximate positions (GNSS, metres in a projected CRS); rows of NaN = unknown.
+    options : MatchOptions
+    order : (n,) int or None
+        Acquisition order (sequence neighbours); default the index order.
+    """
+    opt = options or MatchOptions()
+    pairs: set[tuple[int, int]] = set()
+    order = np.arange(n_images) if order is None else np.asarray(order)
+    have = np.zeros(n_images, bool) if centers is None else np.all(np.isfinite(np.asarray(centers, float)), axis=1)
+    if n_images <= opt.exhaustive_up_to and have.sum() < 0.5 * n_images:
+        return [(i, j) for i in range(n_images) for j in range(i + 1, n_images)]
+    # sequence neighbours always (video frames, frames without GNSS)
+    for a in range(n_images):
+        for b in range(a + 1, min(a + 1 + opt.window, n_images)):
+            i, j = int(order[a]), int(order[b])
+            pairs.add((min(i, j), max(i, j)))
+    if have.sum() >= 2:
+        from scipy.spatial import cKDTree
+
+        idx = np.nonzero(have)[0]
+        xy = np.asarray(centers, float)[idx, :2]
+        tree = cKDTree(xy)
+        k = min(opt.neighbours + 1, len(idx))
+        _, nn = tree.query(xy, k=k)
+        for a, row in enumerate(np.atleast_2d(nn)):
+            for b in row[1:]:
+                i, j = int(idx[a]), int(idx[b])
+                pairs.add((min(i, j), max(i, j)))
+    return sorted(pairs)
+
+
+def match_descriptors(d1: np.ndarray, d2: np.ndarray, *, ratio: float = 0.85) -> np.ndarray:
+    """Ratio-test + mutual nearest-neighbour matches.
+
+    Parameters
+    ----------
+    d1, d2 : (N1, D), (N2, D) float32 (L2) or uint8 (Hamming) descriptors
+
+    Returns
+    -------
+    (M, 2) int32 index pairs into d1 and d2
+    """
+    if len(d1) < 2 or len(d2) < 2:
+        return np.zeros((0, 2), np.int32)
+    if d1.dtype == np.uint8:
+        import cv2
+
+        bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+        D = None
+
+        def best(a, b):
+            knn = bf.knnMatch(a, b, k=2)
+            m = np.full(len(a), -1, np.int64)
+            for q, pair in enumerate(knn):
+                if len(pair) == 2 and pair[0].distance < ratio * pair[1].distance:
+                    m[q] = pair[0].trainIdx
+            return m
+
+        m12, m21 = best(d1, d2), best(d2, d1)
+    else:
+        # squared Euclidean distances by one matrix product (float64 accumulation of float32 inputs)
+        a = np.asarray(d1, np.float32)
+        b = np.asarray(d2, np.float32)
+        D = a @ b.T
+        D *= -2.0
+        D += (a * a).sum(1)[:, None]
+        D += (b * b).sum(1)[None, :]
+        np.maximum(D, 0.0, out=D)
+
+        def best(D, axis):
+            # nearest and second-nearest along ``axis`` without copying or transposing D
+            first = np.argmin(D, axis=axis)
+            r = np.arange(D.shape[1 - axis])
+            at = (r, first) if axis == 1 else (first, r)
+            dmin = D[at].copy()
+            D[at] = np.inf
+            dsec = D.min(axis=axis)
+            D[at] = dmin
+            ok = np.sqrt(dmin) < ratio * np.sqrt(dsec)
+            return np.where(ok, first, -1)
+
+        m12 = best(D, 1)
+        m21 = best(D, 0)
+    q = np.nonzero(m12 >= 0)[0]
+    keep = q[m21[m12[q]] == q]
+    return np.stack([keep, m12[keep]], axis=1).astype(np.int32)
+
+
+def verify_pair(xy1: np.ndarray, xy2: np.ndarray, matches: np.ndarray, *, camera1=None, camera2=None,
+                rays1=None, rays2=None, options: MatchOptions | None = None) -> tuple[np.ndarray, str, str]:
+    """Geometric verification of putative matches.
+
+    Parameters
+    ----------
+    xy1, xy2 : (N1, 2), (N2, 2) px keypoints
+    matches : (M, 2) int putative index pairs
+    camera1, camera2 : thermogrammetry.Camera or None
+        When given, the essential matrix is estimated on normalised coordinates (distortion removed).
+    rays1, rays2 : (N1, 2), (N2, 2) or None
+        Normalised coordinates of all keypoints, precomputed once per image (``camera.unproject``);
+        used instead of unprojecting again.
+
+    Returns
+    -------
+    inliers : (K, 2) int32 verified index pairs
+    model : "essential" | "fundamental"
+    reason : "" or why the pair failed
+    """
+    import cv2
+
+    opt = options or MatchOptions()
+    if len(matches) < opt.min_inliers:
+        return np.zeros((0, 2), np.int32), "none", f"{len(matches)} putative matches < {opt.min_inliers}"
+    p1 = xy1[matches[:, 0]]
+    p2 = xy2[matches[:, 1]]
+    cv2.setRNGSeed(int(opt.seed))
+    if camera1 is not None and camera2 is not None:
+        n1 = rays1[matches[:, 0]] if rays1 is not None else camera1.unproject(p1)[:, :2]
+        n2 = rays2[matches[:, 1]] if rays2 is not None else camera2.unproject(p2)[:, :2]
+        f = 0.5 * (float(np.mean(np.diag(camera1.K)[:2])) + float(np.mean(np.diag(camera2.K)[:2])))
+        E, mask = cv2.findEssentialMat(np.ascontiguousarray(n1), np.ascontiguousarray(n2), np.eye(3), method=cv2.USAC_MAGSAC,
+                                       prob=0.9999, threshold=opt.max_error_px / f, maxIters=opt.max_ransac_iterations)
+        model = "essential"
+    else:
+        E, mask = cv2.findFundamentalMat(p1, p2, cv2.USAC_MAGSAC, opt.max_error_px, 0.9999, opt.max_ransac_iterations)
+        model = "fundamental"
+    if E is None or mask is None:
+        return np.zeros((0, 2), np.int32), model, "no geometric model found"
+    inl = matches[mask.ravel().astype(bool)]
+    if len(inl) < opt.min_inliers:
+        return np.zeros((0, 2), np.int32), model, f"{len(inl)} verified matches < {opt.min_inliers}"
+    return inl.astype(np.int32), model, ""
