@@ -1,0 +1,191 @@
+"""Semi-global matching of a rectified pair on the full dynamic range of thermal frames.
+
+:func:`disparity` is the plain function for rectified pairs. OpenCV's SGBM (Hirschmüller 2008) works on
+8-bit codes; a thermal frame's texture (tenths of a kelvin on a range of tens of kelvin, or a few hundred
+counts out of 16 bits) would be flattened to a few grey levels by a global 8-bit rendering. We therefore
+normalise each image *locally* in float (Wallis-type filter: subtract the local mean, divide by the local
+standard deviation over ``window_px``), so that every neighbourhood uses the whole 8-bit range before the
+quantisation, and only then run SGBM (3-way mode) with its sub-pixel parabola fit, a left-right
+consistency check (``disp12MaxDiff``), a uniqueness test and a speckle filter. A coarse-to-fine variant
+(:func:`disparity_range`) finds the disparity search range of a pair at a quarter resolution.
+
+References
+----------
+Hirschmüller H. (2008), Stereo processing by semiglobal matching and mutual information, IEEE PAMI 30(2).
+Wallis R. (1976), An approach to the space variant restoration and enhancement of images.
+Khodaei, Samadzadegan, Dadras Javan, Hasani (seed 003): multi-resolution dense matching of UAV thermal video.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InvalidInputError
+
+__all__ = ["disparity", "normalise_for_matching", "disparity_range", "sgbm_matcher"]
+
+
+def _grey(img, name: str) -> np.ndarray:
+    a = np.asarray(img)
+    if a.ndim == 3 and a.shape[2] in (3, 4):
+        a = a[..., :3].astype(np.float64).mean(axis=2)
+    elif a.ndim != 2:
+        raise InvalidInputError(f"{name}: expected a (H, W) grey or (H, W, 3) colour image, got shape {a.shape}")
+    if a.dtype.kind not in "uif" and a.dtype != bool:
+        raise InvalidInputError(f"{name}: expected an integer or float image, got dtype {a.dtype}")
+    return a.astype(np.float64)
+
+
+def normalise_for_matching(img, *, window_px: int = 15, clip_sigma: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+    """Local (Wallis-type) normalisation of a grey image to 8-bit codes, computed in float.
+
+    Parameters
+    ----------
+    img : (H, W) array of any numeric dtype (float kelvin, uint16 counts, uint8), NaN = invalid
+    window_px : side of the box window of the local mean and standard deviation (px)
+    clip_sigma : local z-scores are clipped to ±clip_sigma and mapped linearly onto 0..255
+
+    Returns
+    -------
+    codes : (H, W) uint8; valid : (H, W) bool (finite input)
+    """
+    import cv2
+
+    a = np.asarray(img, np.float64)
+    valid = np.isfinite(a)
+    if not valid.any():
+        return np.zeros(a.shape, np.uint8), valid
+    fill = float(np.mean(a[valid]))
+    x = np.where(valid, a, fill) - fill
+    k = (int(window_px), int(window_px))
+    w = cv2.blur(valid.astype(np.float64), k, borderType=cv2.BORDER_REFLECT)
+    m = cv2.blur(np.where(valid, x, 0.0), k, borderType=cv2.BORDER_REFLECT) / np.maximum(w, 1e-9)
+    x = np.where(valid, x, m)
+    d = x - m
+    v = np.maximum(cv2.blur(d * d, k, borderType=cv2.BORDER_REFLECT), 0.0)
+    floor = max(float(np.median(v)) * 1e-4, 1e-20)  # flat areas: no amplification of pure quantisation
+    z = d / np.sqrt(v + floor)
+    codes = np.clip(np.rint((z / clip_sigma + 1.0) * 127.5), 0, 255).astype(np.uint8)
+    return codes, valid
+
+
+def sgbm_matcher(min_disparity: int, num_disparities: int, *, block_size: int = 5, consistency: bool = True):
+    """The OpenCV SGBM object with this module's settings (3-way mode; ``num_disparities`` a multiple of 16).
+
+    ``consistency=False`` gives the plain matcher (no left-right check, uniqueness or speckle filter).
+    """
+    import cv2
+
+    cn = 1
+    kw = dict(minDisparity=int(min_disparity), numDisparities=int(num_disparities), blockSize=block_size,
+              P1=8 * cn * block_size**2, P2=32 * cn * block_size**2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    if consistency:
+        kw.update(disp12MaxDiff=1, uniquenessRatio=10, speckleWindowSize=100, speckleRange=2)
+    return cv2.StereoSGBM_create(**kw)
+
+
+def disparity(left, right, min_disparity: int = 0, num_disparities: int = 64, *, block_size: int = 5,
+              window_px: int = 15) -> np.ndarray:
+    """Disparity of the left image of a rectified pair, sub-pixel, NaN where invalid.
+
+    ``x_right = x_left − d`` on the same row (rows are epipolar lines).
+
+    Parameters
+    ----------
+    left, right : (H, W) or (H, W, 3) arrays, uint8 / uint16 / float (NaN = no data); the full dynamic range
+        is used (local normalisation in float before SGBM, see the module docstring)
+    min_disparity : smallest disparity searched (px, may be negative)
+    num_disparities : size of the search range (px; rounded up to a multiple of 16 internally, results
+        outside ``[min_disparity, min_disparity + num_disparities)`` are set invalid)
+    block_size : SGBM matching block (odd, px)
+    window_px : window of the local normalisation (px)
+
+    Returns
+    -------
+    (H, W) float32 disparity in px, NaN where invalid (failed left-right check, not unique, speckle, outside the
+    search range, no data, or the left border where the range leaves the right image)
+
+    References
+    ----------
+    Hirschmüller (2008); seed 003 (multi-resolution dense matching of thermal frames).
+    """
+    import cv2
+
+    L = _grey(left, "left")
+    R = _grey(right, "right")
+    if L.shape != R.shape:
+        raise InvalidInputError(f"left {L.shape} and right {R.shape}: a rectified pair must have the same size")
+    num = int(num_disparities)
+    if num < 1:
+        raise InvalidInputError(f"num_disparities={num_disparities!r}: expected a positive number of pixels")
+    if block_size < 1 or block_size % 2 == 0:
+        raise InvalidInputError(f"block_size={block_size!r}: expected an odd number of pixels")
+    num16 = -(-num // 16) * 16
+    if num16 + block_size >= L.shape[1]:
+        raise InvalidInputError(f"num_disparities={num_disparities!r}: the search range (rounded to {num16}) must be "
+                                f"smaller than the image width {L.shape[1]} px")
+    cl, vl = normalise_for_matching(L, window_px=window_px)
+    cr, vr = normalise_for_matching(R, window_px=window_px)
+    raw = sgbm_matcher(int(min_disparity), num16, block_size=block_size).compute(cl, cr)
+    d = raw.astype(np.float32) / 16.0
+    bad = (raw < (int(min_disparity)) * 16) | (d >= min_disparity + num) | ~vl
+    d[bad] = np.nan
+    # the matched right pixel must hold data too
+    h, w = d.shape
+    ok = np.isfinite(d)
+    if ok.any() and not vr.all():
+        yy, xx = np.nonzero(ok)
+        xr = np.rint(xx - d[ok]).astype(int)
+        inside = (xr >= 0) & (xr < w)
+        good = np.zeros(len(xr), bool)
+        good[inside] = vr[yy[inside], xr[inside]]
+        d[yy[~good], xx[~good]] = np.nan
+    del cv2
+    return d
+
+
+def disparity_range(left, right, *, factor: int = 4, min_disparity: int = 0, max_disparity: int | None = None,
+                    margin_px: int = 16) -> tuple[int, int, float] | None:
+    """Search range of a rectified pair from matching at 1/``factor`` resolution.
+
+    Parameters
+    ----------
+    left, right : rectified pair (full resolution)
+    min_disparity, max_disparity : bounds of the coarse search at full resolution (px; default 0 .. width)
+
+    Returns
+    -------
+    ``(min_disparity, num_disparities, valid_fraction)`` at full resolution (``num`` a multiple of 16);
+    ``valid_fraction`` is the share of left pixels with data, inside the searchable columns, that matched.
+    None where the coarse level found too few matches (< 5 %: no overlap).
+    """
+    import cv2
+
+    L = _grey(left, "left")
+    R = _grey(right, "right")
+    h, w = L.shape
+
+    def down(a):
+        v = np.isfinite(a)
+        size = (max(1, w // factor), max(1, h // factor))
+        s = cv2.resize(np.where(v, a, 0.0), size, interpolation=cv2.INTER_AREA)
+        c = cv2.resize(v.astype(np.float64), size, interpolation=cv2.INTER_AREA)
+        return np.where(c > 0.5, s / np.maximum(c, 1e-9), np.nan)
+
+    Ls, Rs = down(L), down(R)
+    lo_c = int(np.floor(min_disparity / factor))
+    hi_c = int(np.ceil((w if max_disparity is None else max_disparity) / factor))
+    num = int(min(max(16, -(-(hi_c - lo_c) // 16) * 16), 256, ((Ls.shape[1] - 8) // 16) * 16))
+    if num < 16:
+        return None
+    d = disparity(Ls, Rs, lo_c, num, window_px=9)
+    ok = np.isfinite(d)
+    searchable = np.isfinite(Ls)
+    searchable[:, : max(0, lo_c + num)] = False
+    frac = float(ok.sum() / max(1, searchable.sum()))
+    if frac < 0.05 or ok.sum() < 20:
+        return None
+    lo, hi = np.percentile(d[ok], [1, 99]) * factor
+    mn = int(np.floor(lo)) - margin_px
+    n = int(np.ceil(hi)) + margin_px - mn
+    return mn, -(-n // 16) * 16, min(frac, 1.0)

@@ -1,0 +1,243 @@
+"""``thermogrammetry dense`` over a survey folder: depth maps per reference image → fused cloud → DSM.
+
+Unit of work: one reference image (rank its partners, match its pairs, fuse its depth maps). Work units
+run in this process (``workers=1``), on a local dask.distributed cluster (``workers > 1``) or on an
+existing scheduler (``scheduler="tcp://..."``); results are collected in image order, so the cloud and the
+DSM are identical whichever way they ran. Points are spilled to per-tile files; the DSM and the cloud
+files are then written tile by tile (memory bounded by the tile size).
+
+Outputs in ``out``: ``cloud.las``, ``cloud.ply``, ``dsm.tif`` (COG; band 1 height in m, nodata NaN; with
+``fill=True`` a band 2 flags filled cells), ``dense.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, DataFileError
+from .fusion import POINT_DTYPE, DenseConfig, rank_pairs, reference_points
+
+__all__ = ["SurveyFrames", "run_dense", "open_client"]
+
+
+class SurveyFrames:
+    """The oriented thermal images of a survey folder with a small frame cache (callable index → frame)."""
+
+    def __init__(self, survey_dir, cache: int = 12):
+        from ..io.oriented import OrientedCameras
+
+        self.root = Path(survey_dir)
+        self.oc = OrientedCameras.load(self.root)
+        self.images = [im for im in self.oc.images if im.frame is not None and im.sensor.value == "thermal"]
+        if len(self.images) < 3:
+            raise DataFileError(f"{self.root / 'cameras.json'}: {len(self.images)} oriented thermal image(s) with a "
+                                "decoded frame; expected at least 3 for dense matching")
+        units = sorted({im.unit.value for im in self.images})
+        if len(units) != 1:
+            raise DataFileError(f"{self.root / 'cameras.json'}: frames of mixed units {units}; expected one unit")
+        self.unit = units[0]
+        self.names = [im.name for im in self.images]
+        self.cameras = [self.oc.camera_of(im) for im in self.images]
+        self.poses = [(im.R, im.t) for im in self.images]
+        self.crs = self.oc.crs
+        self._cache: dict[int, np.ndarray] = {}
+        self._max = int(cache)
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def __call__(self, i: int) -> np.ndarray:
+        if i not in self._cache:
+            a = self.oc.read_frame(self.images[i])
+            cam = self.cameras[i]
+            if a.shape[:2] != (cam.image_size[1], cam.image_size[0]):
+                raise DataFileError(f"{self.oc.frame_path(self.images[i])}: frame is {a.shape[1]}x{a.shape[0]} px; "
+                                    f"camera {self.images[i].camera_id!r} expects {cam.image_size[0]}x{cam.image_size[1]}")
+            if len(self._cache) >= self._max:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[i] = a
+        return self._cache[i]
+
+
+_WORKER_SURVEYS: dict[str, SurveyFrames] = {}
+
+
+def _survey(path: str) -> SurveyFrames:
+    if path not in _WORKER_SURVEYS:
+        _WORKER_SURVEYS.clear()
+        _WORKER_SURVEYS[path] = SurveyFrames(path)
+    return _WORKER_SURVEYS[path]
+
+
+def _reference_task(survey_path: str, i: int, config: DenseConfig):
+    sv = _survey(survey_path)
+    cands = rank_pairs(i, sv.cameras, sv.poses, sv, config)
+    pts, info = reference_points(i, sv.cameras, sv.poses, sv, config, pairs=cands)
+    depth = info.get("depth_m", float("nan"))
+    if np.isfinite(depth):
+        cam = sv.cameras[i]
+        R, t = sv.poses[i]
+        w, h = cam.image_size
+        rays = np.asarray(cam.unproject(np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], float)))
+        info["footprint"] = ((rays * depth) @ R + (-R.T @ t))[:, :2].tolist()
+    return pts, info
+
+
+def open_client(workers: int = 1, scheduler: str | None = None):
+    """A dask.distributed client (local cluster of ``workers`` processes, or ``scheduler``), or None for in-process."""
+    if scheduler:
+        from distributed import Client
+
+        return Client(scheduler)
+    if workers and workers > 1:
+        from distributed import Client, LocalCluster
+
+        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None)
+        return Client(cluster)
+    return None
+
+
+def _in_quad(px, py, quad) -> np.ndarray:
+    q = np.asarray(quad, float)
+    inside = np.ones(px.shape, bool)
+    sgn = None
+    for k in range(4):
+        a, b = q[k], q[(k + 1) % 4]
+        cr = (b[0] - a[0]) * (py - a[1]) - (b[1] - a[1]) * (px - a[0])
+        s = np.sign(np.sum(np.cross(q[1] - q[0], q[2] - q[1])))
+        sgn = s if sgn is None else sgn
+        inside &= cr * sgn >= 0
+    return inside
+
+
+def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseConfig | None = None,
+              workers: int = 1, scheduler: str | None = None, fill: bool = False, tile: int = 512,
+              on_image=None) -> dict:
+    """Dense cloud and DSM of a survey folder (see the module docstring). Returns the ``dense.json`` dict."""
+    from .._atomic import write_atomic_text
+    from ..products.cloud import CloudWriter, value_dimension
+    from ..products.dsm import TileSpill, fill_holes, grid_median
+    from ..products.raster import Grid
+    from ..products.raster import write_cog
+
+    t0 = time.perf_counter()
+    cfg = config or DenseConfig()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    sv = SurveyFrames(survey_dir)
+    n = len(sv)
+    if gsd is not None and not (np.isfinite(gsd) and gsd > 0):
+        raise ConfigError(f"--gsd {gsd!r}: expected a positive ground sampling distance in metres")
+    client = open_client(workers, scheduler)
+    results: list = []
+    infos: list[dict] = []
+    spill = None
+    try:
+        path = str(Path(survey_dir).resolve())
+        if client is not None:
+            futs = client.map(_reference_task, [path] * n, list(range(n)), [cfg] * n, pure=False)
+            it = (f.result() for f in futs)
+        else:
+            it = (_reference_task(path, i, cfg) for i in range(n))
+        # the DSM gsd needs the image GSD: collect the first results before spilling
+        pending = []
+        for i, (pts, info) in enumerate(it):
+            infos.append(info)
+            if spill is None:
+                pending.append(pts)
+                depths = [x["depth_m"] for x in infos if np.isfinite(x.get("depth_m", np.nan))]
+                if depths and (len(pending) >= min(n, 3) or i == n - 1):
+                    f_px = float(np.mean([c.K[0, 0] for c in sv.cameras]))
+                    image_gsd = float(np.median(depths)) / f_px
+                    gsd = float(gsd) if gsd is not None else float(np.round(2.0 * image_gsd, 3))
+                    spill = TileSpill(out / ".dense_tiles", POINT_DTYPE, gsd, tile)
+                    for p in pending:
+                        spill.append(p)
+                    pending = []
+            else:
+                spill.append(pts)
+            if on_image:
+                on_image(i)
+    finally:
+        if client is not None:
+            client.close()
+    if spill is None or spill.count == 0:
+        raise DataFileError(f"{survey_dir}: dense matching produced no consistent points (no image had ≥ "
+                            f"{cfg.min_consistent} usable partners); check overlap and orientation")
+    feet = [x["footprint"] for x in infos if "footprint" in x]
+    # extent: the points' box clipped to the images' footprints (stray points far outside are not gridded)
+    fx = np.array([p for q in feet for p in q])
+    xmin, ymin, xmax, ymax = spill.bbox
+    if len(fx):
+        xmin, ymin = max(xmin, fx[:, 0].min()), max(ymin, fx[:, 1].min())
+        xmax, ymax = min(xmax, fx[:, 0].max()), min(ymax, fx[:, 1].max())
+    grid = Grid.covering(xmin, ymin, xmax, ymax, spill.gsd, tile)
+    offset = (0.5 * (xmin + xmax), 0.5 * (ymin + ymax), 0.0)
+    cw = CloudWriter(out / "cloud.las", out / "cloud.ply", unit=sv.unit, crs=sv.crs, offset_xyz=offset)
+    stats = {"valid": 0, "covered": 0, "valid_covered": 0, "filled": 0}
+
+    def dsm_tile(r0, c0, rows, cols):
+        pts = spill.read_window(grid, r0, c0, rows, cols)
+        z = grid_median(pts["x"], pts["y"], pts["z"], grid, r0, c0, rows, cols)
+        X, Y = grid.cell_centres(r0, c0, rows, cols)
+        cover = np.zeros((rows, cols), np.int32)
+        for q in feet:
+            cover += _in_quad(X, Y, q)
+        covered = cover >= 1 + cfg.min_consistent
+        ok = np.isfinite(z)
+        stats["valid"] += int(ok.sum())
+        stats["covered"] += int(covered.sum())
+        stats["valid_covered"] += int((ok & covered).sum())
+        if fill:
+            zf, m = fill_holes(z, max_distance_px=8)
+            zf = np.where(covered, zf, z)
+            m = np.where(covered, m, 0)
+            stats["filled"] += int(m.sum())
+            return np.stack([zf, m.astype(float)]).astype(np.float32)
+        return z.astype(np.float32)
+
+    try:
+        for key in sorted(spill.keys):
+            cw.write(spill.read(key))
+        write_cog(out / "dsm.tif", grid, np.float32, dsm_tile, crs=sv.crs, nodata=float("nan"), unit="m",
+                  bands=2 if fill else 1,
+                  description=["height (m), median of the dense points per cell", "1 = filled (not measured)"]
+                  if fill else "height (m), median of the dense points per cell",
+                  tags={"product": "thermogrammetry dense DSM", "gsd_m": grid.gsd})
+        cw.close()
+    except BaseException:
+        cw.abort()
+        raise
+    finally:
+        spill.cleanup()
+    completeness = stats["valid_covered"] / max(1, stats["covered"])
+    notes = []
+    if sv.unit == "dn":
+        notes.append("frames are display numbers of an 8-bit rendering: the cloud carries geometry only, no temperature")
+    if sv.unit == "counts":
+        notes.append("frames are raw sensor counts: the cloud's value dimension is raw_counts, not a temperature")
+    report = {
+        "points": int(cw.count),
+        "gsd_m": grid.gsd,
+        "completeness": round(float(completeness), 4),
+        "seconds": round(time.perf_counter() - t0, 2),
+        "unit": sv.unit,
+        "value_dimension": value_dimension(sv.unit),
+        "crs": sv.crs,
+        "dsm": {"width": grid.width, "height": grid.height, "x0": grid.x0, "y0": grid.y0, "valid_cells": stats["valid"],
+                "filled_cells": stats["filled"] if fill else None},
+        "completeness_definition": "share of DSM cells inside >= min_consistent + 1 (default 3) image footprints (at each image's matched depth) "
+                                   "that hold a measured height",
+        "images": sv.names,
+        "pairs": infos,
+        "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
+        "workers": int(workers) if not scheduler else None,
+        "scheduler": scheduler,
+        "notes": notes,
+    }
+    write_atomic_text(out / "dense.json", json.dumps(report, indent=1, default=float) + "\n")
+    return report

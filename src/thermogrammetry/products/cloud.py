@@ -1,0 +1,118 @@
+"""Point clouds with the exact frame value of every point: LAS 1.4 (laspy) and binary PLY, written in chunks.
+
+Every point carries the value of its source frame at its pixel, copied (not resampled): a float
+``temperature_k`` extra dimension for kelvin frames, ``raw_counts`` for raw sensor counts (never labelled
+as a temperature), nothing for display-number frames (geometry only). Also: unit normal (``normal_x/y/z``),
+number of consistent views (``views``) and the source image index (``source_image``; the lookup table of
+names is in ``dense.json``). LAS coordinates are scaled integers (1 mm) about an offset; the CRS is written
+as a WKT VLR. PLY is binary little-endian with double coordinates (read by plyfile, CloudCompare, MeshLab).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["value_dimension", "CloudWriter"]
+
+
+def value_dimension(unit: str) -> str | None:
+    """Name of the per-point value dimension for a frame unit: ``temperature_k``, ``raw_counts`` or None."""
+    return {"K": "temperature_k", "counts": "raw_counts"}.get(str(unit))
+
+
+class CloudWriter:
+    """Write LAS and PLY side by side from chunks of :data:`thermogrammetry.dense.fusion.POINT_DTYPE` records.
+
+    The PLY vertex count is patched into a fixed-width header at :meth:`close`; both files are written to
+    temporary names and renamed into place at the end (atomic).
+    """
+
+    def __init__(self, las_path, ply_path, *, unit: str, crs: str | None, offset_xyz, scale_m: float = 0.001):
+        import laspy
+
+        self.las_path, self.ply_path = Path(las_path), Path(ply_path)
+        self.dim = value_dimension(unit)
+        hdr = laspy.LasHeader(point_format=6, version="1.4")
+        extra = [laspy.ExtraBytesParams(name=n, type=np.float32) for n in ("normal_x", "normal_y", "normal_z")]
+        extra += [laspy.ExtraBytesParams(name="views", type=np.uint8),
+                  laspy.ExtraBytesParams(name="source_image", type=np.int32)]
+        if self.dim:
+            extra.insert(0, laspy.ExtraBytesParams(name=self.dim, type=np.float32,
+                                                   description="kelvin" if self.dim == "temperature_k" else "raw sensor counts"))
+        hdr.add_extra_dims(extra)
+        hdr.offsets = np.round(np.asarray(offset_xyz, float), 0)
+        hdr.scales = np.array([scale_m] * 3)
+        if crs:
+            import pyproj
+
+            hdr.add_crs(pyproj.CRS.from_user_input(crs))
+        self.header = hdr
+        self.las_path.parent.mkdir(parents=True, exist_ok=True)
+        fd, self._las_tmp = tempfile.mkstemp(prefix=f".{self.las_path.name}.", suffix=".tmp", dir=self.las_path.parent)
+        os.close(fd)
+        self._las = laspy.open(self._las_tmp, mode="w", header=hdr)
+        fd, self._ply_tmp = tempfile.mkstemp(prefix=f".{self.ply_path.name}.", suffix=".tmp", dir=self.ply_path.parent)
+        self._ply = os.fdopen(fd, "wb")
+        props = [("double", "x"), ("double", "y"), ("double", "z")]
+        if self.dim:
+            props.append(("float", self.dim))
+        props += [("float", "nx"), ("float", "ny"), ("float", "nz"), ("uchar", "views"), ("int", "source_image")]
+        self._ply_props = props
+        self._header_text = lambda n: ("ply\nformat binary_little_endian 1.0\ncomment thermogrammetry dense cloud"
+                                       + (f"\ncomment crs {crs}" if crs else "") + (f"\ncomment unit {unit}")
+                                       + f"\nelement vertex {n:>15d}\n"
+                                       + "".join(f"property {t} {p}\n" for t, p in props) + "end_header\n")
+        self._ply.write(self._header_text(0).encode("ascii"))
+        self.count = 0
+        self._ply_dtype = np.dtype([(p, {"double": "<f8", "float": "<f4", "uchar": "u1", "int": "<i4"}[t]) for t, p in props])
+
+    def write(self, pts) -> None:
+        import laspy
+
+        n = len(pts)
+        if n == 0:
+            return
+        rec = laspy.ScaleAwarePointRecord.zeros(n, header=self.header)
+        rec.x, rec.y, rec.z = pts["x"], pts["y"], pts["z"]
+        if self.dim:
+            rec[self.dim] = pts["value"]
+        rec["normal_x"], rec["normal_y"], rec["normal_z"] = pts["nx"], pts["ny"], pts["nz"]
+        rec["views"] = pts["views"]
+        rec["source_image"] = pts["source"]
+        self._las.write_points(rec)
+        out = np.zeros(n, self._ply_dtype)
+        for name in ("x", "y", "z"):
+            out[name] = pts[name]
+        if self.dim:
+            out[self.dim] = pts["value"]
+        out["nx"], out["ny"], out["nz"] = pts["nx"], pts["ny"], pts["nz"]
+        out["views"] = pts["views"]
+        out["source_image"] = pts["source"]
+        self._ply.write(out.tobytes())
+        self.count += n
+
+    def close(self) -> None:
+        self._las.close()
+        self._ply.seek(0)
+        self._ply.write(self._header_text(self.count).encode("ascii"))
+        self._ply.flush()
+        os.fsync(self._ply.fileno())
+        self._ply.close()
+        os.replace(self._las_tmp, self.las_path)
+        os.replace(self._ply_tmp, self.ply_path)
+
+    def abort(self) -> None:
+        for f in (self._las, self._ply):
+            try:
+                f.close()
+            except Exception:
+                pass
+        for t in (self._las_tmp, self._ply_tmp):
+            try:
+                os.unlink(t)
+            except OSError:
+                pass

@@ -1,0 +1,55 @@
+"""Test helper: a survey folder (cameras.json + frames/<name>.tif) built from the synthetic scene's TRUE poses.
+
+Tests that use it start from true poses, not from ``thermogrammetry survey``; they test dense/ortho alone.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def small_survey_config(**kw):
+    from thermogrammetry.synthetic.survey import SurveyConfig
+    from thermogrammetry.synthetic.terrain import TerrainConfig
+
+    terrain = TerrainConfig(width_m=64.0, height_m=48.0, n_buildings=2, n_trees=3, n_roads=1)
+    base = dict(terrain=terrain, image_size=(320, 256), focal_mm=12.5, flight_height_m=45.0, overlap=0.8,
+                sidelap=0.6, n_gcp=3, n_check=2, seed=3)
+    base.update(kw)
+    return SurveyConfig(**base)
+
+
+def write_true_survey(folder, config=None, *, unit: str = "K", sensor: bool = True, frames=None):
+    """Render the frames and write a survey folder with the true poses. Returns ``(scene, folder)``.
+
+    ``unit="counts"`` writes uint16 frames (kelvin × 100, a stand-in for raw counts: the products must keep
+    the values and never call them temperatures).
+    """
+    import tifffile
+
+    from thermogrammetry.io.oriented import OrientedCameras, OrientedImage
+    from thermogrammetry.synthetic.survey import make_survey, render_frame
+
+    folder = Path(folder)
+    sc = make_survey(config or small_survey_config())
+    (folder / "frames").mkdir(parents=True, exist_ok=True)
+    images = []
+    idx = range(len(sc.frames)) if frames is None else frames
+    for k in idx:
+        fr = sc.frames[k]
+        img = render_frame(sc, k, sensor=sensor)["image_k"].astype(np.float32)
+        if unit == "counts":
+            img = np.clip(np.rint(img * 100.0), 0, 65535).astype(np.uint16)
+        tifffile.imwrite(folder / "frames" / f"{fr.name}.tif", img)
+        images.append(OrientedImage(fr.name, "thermal", fr.pose.R, fr.pose.t, frame=f"frames/{fr.name}.tif", unit=unit))
+    OrientedCameras({"thermal": sc.camera}, images, crs=f"EPSG:{sc.terrain.epsg}",
+                    notes="TRUE poses of the synthetic scene (test helper)").save(folder / "cameras.json")
+    return sc, folder
+
+
+def true_height(scene, x, y):
+    """True DSM height (m) at world (x, y)."""
+    loc = scene.terrain.to_local(np.column_stack([x, y, np.zeros_like(x)]))
+    return scene.terrain.height_at(loc[:, 0], loc[:, 1])
