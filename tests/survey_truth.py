@@ -53,3 +53,19 @@ def true_height(scene, x, y):
     """True DSM height (m) at world (x, y)."""
     loc = scene.terrain.to_local(np.column_stack([x, y, np.zeros_like(x)]))
     return scene.terrain.height_at(loc[:, 0], loc[:, 1])
+
+
+def write_true_dsm(path, scene, gsd: float, *, margin_m: float = 2.0):
+    """The scene's true DSM resampled (bilinear) at ``gsd`` as a COG GeoTIFF; returns its Grid."""
+    from thermogrammetry.products.raster import Grid, write_cog
+
+    ter = scene.terrain
+    x0, y0 = ter.origin_en
+    grid = Grid.covering(x0 + margin_m, y0 + margin_m, x0 + ter.width_m - margin_m, y0 + ter.height_m - margin_m, gsd)
+
+    def tile(r0, c0, rows, cols):
+        X, Y = grid.cell_centres(r0, c0, rows, cols)
+        return true_height(scene, X.ravel(), Y.ravel()).reshape(rows, cols).astype("float32")
+
+    write_cog(path, grid, "float32", tile, crs=f"EPSG:{ter.epsg}", nodata=float("nan"), unit="m")
+    return grid

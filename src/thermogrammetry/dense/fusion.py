@@ -46,8 +46,8 @@ POINT_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("value", "f4"), 
 class DenseConfig:
     """Options of dense matching (typed; unknown keys are errors in :meth:`from_dict`)."""
 
-    pairs_per_image: int = 4
-    candidates: int = 8
+    pairs_per_image: int = 8
+    candidates: int = 10
     min_bh: float = 0.05
     max_bh: float = 0.8
     bh_target: float = 0.3
@@ -261,14 +261,20 @@ def reference_points(i, cameras, poses, frames, config: DenseConfig | None = Non
     w, h = cam.image_size
     rays = pixel_rays(cam).reshape(h, w, 3)
     Xc = rays * depth[..., None]  # camera frame (z = depth)
-    # normals from the depth map's neighbours (central differences), towards the camera
-    dx = np.full_like(Xc, np.nan)
-    dy = np.full_like(Xc, np.nan)
-    dx[:, 1:-1] = Xc[:, 2:] - Xc[:, :-2]
-    dy[1:-1] = Xc[2:] - Xc[:-2]
-    n = np.cross(dx, dy)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    # normals from the depth map's neighbours (central differences over ±3 px), towards the camera
+    def _normals(q):
+        dx = np.full_like(Xc, np.nan)
+        dy = np.full_like(Xc, np.nan)
+        dx[:, q:-q] = Xc[:, 2 * q:] - Xc[:, : -2 * q]
+        dy[q:-q] = Xc[2 * q:] - Xc[: -2 * q]
+        nn = np.cross(dx, dy)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return nn / np.linalg.norm(nn, axis=-1, keepdims=True)
+
+    # ±3 px: a longer base than the depth noise; ±1 px where the wider neighbours are missing
+    n = _normals(3)
+    n = np.where(np.isfinite(n).all(axis=-1, keepdims=True), n, _normals(1))
+    with np.errstate(invalid="ignore"):
         flip = np.sum(n * Xc, axis=-1) > 0
     n[flip] *= -1
     s = max(1, int(cfg.stride_px))

@@ -102,15 +102,14 @@ def open_client(workers: int = 1, scheduler: str | None = None):
 
 
 def _in_quad(px, py, quad) -> np.ndarray:
+    """Points inside a convex quadrilateral (either orientation)."""
     q = np.asarray(quad, float)
-    inside = np.ones(px.shape, bool)
-    sgn = None
+    area2 = sum(q[k, 0] * q[(k + 1) % 4, 1] - q[(k + 1) % 4, 0] * q[k, 1] for k in range(4))
+    sgn = 1.0 if area2 >= 0 else -1.0
+    inside = np.ones(np.shape(px), bool)
     for k in range(4):
         a, b = q[k], q[(k + 1) % 4]
-        cr = (b[0] - a[0]) * (py - a[1]) - (b[1] - a[1]) * (px - a[0])
-        s = np.sign(np.sum(np.cross(q[1] - q[0], q[2] - q[1])))
-        sgn = s if sgn is None else sgn
-        inside &= cr * sgn >= 0
+        inside &= ((b[0] - a[0]) * (py - a[1]) - (b[1] - a[1]) * (px - a[0])) * sgn >= 0
     return inside
 
 

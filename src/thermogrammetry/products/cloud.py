@@ -2,7 +2,7 @@
 
 Every point carries the value of its source frame at its pixel, copied (not resampled): a float
 ``temperature_k`` extra dimension for kelvin frames, ``raw_counts`` for raw sensor counts (never labelled
-as a temperature), nothing for display-number frames (geometry only). Also: unit normal (``normal_x/y/z``),
+as a temperature), nothing for display-number frames (geometry only). Also: unit normal (``normal_x/y/z``; 0, 0, 0 where the depth map had no neighbours to estimate it),
 number of consistent views (``views``) and the source image index (``source_image``; the lookup table of
 names is in ``dense.json``). LAS coordinates are scaled integers (1 mm) about an offset; the CRS is written
 as a WKT VLR. PLY is binary little-endian with double coordinates (read by plyfile, CloudCompare, MeshLab).

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import DataFileError
 
-__all__ = ["Grid", "write_cog", "read_raster", "read_window"]
+__all__ = ["Grid", "RasterSpec", "write_cog", "write_cogs", "read_raster", "read_window"]
 
 
 @dataclass(frozen=True)
@@ -76,11 +76,98 @@ def _crs(crs):
     return CRS.from_user_input(crs)
 
 
+@dataclass
+class RasterSpec:
+    """One output raster of :func:`write_cogs`: path, dtype, bands and band metadata."""
+
+    path: Path
+    dtype: object
+    bands: int = 1
+    nodata: float | int | None = None
+    unit: str = ""
+    description: str | list = ""
+    tags: dict | None = None
+    scale: float | None = None
+    offset: float | None = None
+    resampling: str = "average"
+
+
+def write_cogs(grid: Grid, specs: dict, tile_fn: Callable[[int, int, int, int], dict], *, crs=None,
+               tiles=None) -> None:
+    """Write several rasters of one grid tile by tile, then copy each to a COG with overviews (atomic).
+
+    ``tile_fn(r0, c0, rows, cols)`` returns ``{key: (rows, cols) or (bands, rows, cols) array}`` for the
+    keys of ``specs`` (:class:`RasterSpec`); ``tiles`` optionally gives the per-tile results as an iterator
+    in :meth:`Grid.tiles` order instead (for results computed elsewhere, e.g. on a dask cluster).
+    """
+    import rasterio
+    import rasterio.shutil
+    from rasterio.windows import Window
+
+    tmps, dsts = {}, {}
+    blk = 256 if min(grid.width, grid.height) >= 256 else 16 * max(1, min(grid.width, grid.height) // 16)
+    try:
+        for key, sp in specs.items():
+            sp.path = Path(sp.path)
+            sp.path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{sp.path.name}.", suffix=".tmp.tif", dir=sp.path.parent)
+            os.close(fd)
+            tmps[key] = tmp
+            dsts[key] = rasterio.open(tmp, "w", driver="GTiff", width=grid.width, height=grid.height, count=sp.bands,
+                                      dtype=np.dtype(sp.dtype).name, transform=grid.transform, crs=_crs(crs),
+                                      nodata=sp.nodata, tiled=True, blockxsize=max(16, blk), blockysize=max(16, blk),
+                                      compress="deflate", BIGTIFF="IF_SAFER")
+        src = tiles if tiles is not None else (tile_fn(*w) for w in grid.tiles())
+        for (r0, c0, rows, cols), res in zip(grid.tiles(), src):
+            for key, sp in specs.items():
+                a = np.asarray(res[key]).astype(sp.dtype, copy=False)
+                dsts[key].write(a[None] if a.ndim == 2 else a, window=Window(c0, r0, cols, rows))
+        for key, sp in specs.items():
+            dst = dsts[key]
+            descs = [sp.description] * sp.bands if isinstance(sp.description, str) else list(sp.description)
+            for b in range(sp.bands):
+                if descs[b]:
+                    dst.set_band_description(b + 1, descs[b])
+                if sp.unit:
+                    dst.update_tags(b + 1, unit=sp.unit)
+            if sp.unit:
+                dst.units = tuple([sp.unit] * sp.bands)
+            if sp.scale is not None:
+                dst.scales = tuple([float(sp.scale)] * sp.bands)
+                dst.offsets = tuple([float(sp.offset or 0.0)] * sp.bands)
+            if sp.tags:
+                dst.update_tags(**{k: str(v) for k, v in sp.tags.items()})
+            dst.close()
+        for key, sp in specs.items():
+            fd, tmp2 = tempfile.mkstemp(prefix=f".{sp.path.name}.", suffix=".cog.tif", dir=sp.path.parent)
+            os.close(fd)
+            try:
+                rasterio.shutil.copy(tmps[key], tmp2, driver="COG", COMPRESS="DEFLATE", OVERVIEWS="AUTO",
+                                     OVERVIEW_RESAMPLING=sp.resampling.upper(), BLOCKSIZE=256, BIGTIFF="IF_SAFER")
+                os.replace(tmp2, sp.path)
+            finally:
+                if os.path.exists(tmp2):
+                    os.unlink(tmp2)
+    except rasterio.errors.RasterioError as exc:
+        raise DataFileError(f"{', '.join(str(sp.path) for sp in specs.values())}: cannot write GeoTIFF ({exc})") from None
+    finally:
+        for key, d in dsts.items():
+            try:
+                d.close()
+            except Exception:
+                pass
+        for t in tmps.values():
+            try:
+                os.unlink(t)
+            except OSError:
+                pass
+
+
 def write_cog(path, grid: Grid, dtype, tile_fn: Callable[[int, int, int, int], np.ndarray], *, crs=None,
               nodata=None, unit: str = "", description: str | list[str] = "", bands: int = 1,
               tags: dict | None = None, scale: float | None = None, offset: float | None = None,
               resampling: str = "average") -> Path:
-    """Write a raster tile by tile as a COG with overviews.
+    """Write one raster tile by tile as a COG with overviews (see :func:`write_cogs`).
 
     Parameters
     ----------
@@ -94,51 +181,9 @@ def write_cog(path, grid: Grid, dtype, tile_fn: Callable[[int, int, int, int], n
     scale, offset : GDAL band scale/offset (``value = code · scale + offset``)
     resampling : overview resampling ("average", "nearest", "mode")
     """
-    import rasterio
-    import rasterio.shutil
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    descs = [description] * bands if isinstance(description, str) else list(description)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.tif", dir=path.parent)
-    os.close(fd)
-    fd2, tmp2 = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".cog.tif", dir=path.parent)
-    os.close(fd2)
-    blk = 256 if min(grid.width, grid.height) >= 256 else 16 * max(1, min(grid.width, grid.height) // 16)
-    profile = dict(driver="GTiff", width=grid.width, height=grid.height, count=bands, dtype=np.dtype(dtype).name,
-                   transform=grid.transform, crs=_crs(crs), nodata=nodata, tiled=True, blockxsize=max(16, blk),
-                   blockysize=max(16, blk), compress="deflate", BIGTIFF="IF_SAFER")
-    try:
-        with rasterio.open(tmp, "w", **profile) as dst:
-            for r0, c0, rows, cols in grid.tiles():
-                a = np.asarray(tile_fn(r0, c0, rows, cols)).astype(dtype, copy=False)
-                if a.ndim == 2:
-                    a = a[None]
-                dst.write(a, window=rasterio.windows.Window(c0, r0, cols, rows))
-            for b in range(bands):
-                if descs[b]:
-                    dst.set_band_description(b + 1, descs[b])
-                if unit:
-                    dst.update_tags(b + 1, unit=unit)
-            if unit:
-                dst.units = tuple([unit] * bands)
-            if scale is not None:
-                dst.scales = tuple([float(scale)] * bands)
-                dst.offsets = tuple([float(offset or 0.0)] * bands)
-            if tags:
-                dst.update_tags(**{k: str(v) for k, v in tags.items()})
-        rasterio.shutil.copy(tmp, tmp2, driver="COG", COMPRESS="DEFLATE", OVERVIEWS="AUTO",
-                             OVERVIEW_RESAMPLING=resampling.upper(), BLOCKSIZE=256, BIGTIFF="IF_SAFER")
-        os.replace(tmp2, path)
-    except rasterio.errors.RasterioError as exc:
-        raise DataFileError(f"{path}: cannot write GeoTIFF ({exc})") from None
-    finally:
-        for t in (tmp, tmp2):
-            try:
-                os.unlink(t)
-            except OSError:
-                pass
-    return path
+    spec = RasterSpec(Path(path), dtype, bands, nodata, unit, description, tags, scale, offset, resampling)
+    write_cogs(grid, {"a": spec}, lambda *w: {"a": tile_fn(*w)}, crs=crs)
+    return Path(path)
 
 
 def read_raster(path, band: int = 1) -> tuple[np.ndarray, Grid, str | None, dict]:

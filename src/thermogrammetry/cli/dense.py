@@ -1,0 +1,42 @@
+"""``thermogrammetry dense SURVEY_DIR -o OUT``: fused point cloud with temperatures (LAS/PLY) and a DSM."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from .app import app
+
+
+def _fail(console, msg, code=2):
+    console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+@app.command("dense")
+def dense(
+    survey_dir: Path = typer.Argument(..., help="Output folder of `thermogrammetry survey` (cameras.json + frames/)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output folder: cloud.las cloud.ply dsm.tif dense.json."),
+    gsd: Optional[float] = typer.Option(None, "--gsd", help="DSM cell size in metres (default: 2 × the images' GSD)."),
+    fill: bool = typer.Option(False, "--fill", help="Fill DSM holes from the nearest cell (flagged in band 2)."),
+    workers: int = typer.Option(2, "--workers", help="Local dask worker processes (0 or 1 = in this process)."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
+) -> None:
+    """Dense matching of an oriented survey: point cloud with each point's frame value, and a DSM GeoTIFF."""
+    from rich.console import Console
+
+    from ..dense.workflow import run_dense
+    from ..errors import ThermogrammetryError
+
+    console = Console(stderr=True)
+    try:
+        rep = run_dense(survey_dir, out, gsd=gsd, workers=workers, scheduler=scheduler, fill=fill)
+    except (ThermogrammetryError, OSError, ValueError) as exc:
+        _fail(console, str(exc))
+    console.print(f"{rep['points']} points, DSM {rep['dsm']['width']}×{rep['dsm']['height']} cells at {rep['gsd_m']} m, "
+                  f"completeness {100 * rep['completeness']:.1f} %, {rep['seconds']:.1f} s", highlight=False)
+    for n in rep["notes"]:
+        console.print(f"note: {n}", highlight=False)
+    console.print(f"outputs in {out}: cloud.las cloud.ply dsm.tif dense.json", highlight=False)

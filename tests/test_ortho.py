@@ -1,0 +1,182 @@
+"""ortho and evaluate on survey folders built from TRUE poses and the TRUE DSM (tests/survey_truth.py):
+they test the mosaic alone, not orientation or dense matching."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import rasterio
+import tifffile
+
+from survey_truth import small_survey_config, true_height, write_true_dsm, write_true_survey
+from thermogrammetry.cli.main import main
+
+FRAMES = [k for line in (1, 2) for k in range(14 * line + 4, 14 * line + 9)]  # 2 lines x 5 frames
+
+
+@pytest.fixture(scope="module")
+def ortho_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ortho")
+    sc, sv = write_true_survey(root / "survey", frames=FRAMES)
+    write_true_dsm(root / "dsm.tif", sc, 0.1)
+    assert main(["ortho", str(sv), "--dsm", str(root / "dsm.tif"), "-o", str(root / "o"), "--workers", "0"]) == 0
+    return sc, sv, root
+
+
+def _read(p, band=None):
+    from types import SimpleNamespace
+
+    with rasterio.open(p) as s:
+        a = s.read() if band is None else s.read(band)
+        tr = s.transform
+        meta = SimpleNamespace(units=s.units, nodata=s.nodata, crs=s.crs, overviews=s.overviews(1), dtypes=s.dtypes,
+                               scales=s.scales, offsets=s.offsets, descriptions=s.descriptions, res=s.res,
+                               width=s.width, block=s.block_shapes[0],
+                               xy=lambda r, c: (tr.c + (c + 0.5) * tr.a, tr.f + (r + 0.5) * tr.e))
+    return a, meta
+
+
+def test_ortho_values_are_bitwise_copies_of_their_source_pixels(ortho_run):
+    sc, sv, root = ortho_run
+    o = root / "o"
+    v, s = _read(o / "ortho.tif", 1)
+    assert s.units == ("K",) and np.isnan(s.nodata) and s.crs.to_epsg() == 32633 and s.overviews
+    assert s.block == (256, 256)
+    src, s2 = _read(o / "ortho_source.tif")
+    assert s2.dtypes[0] == "int32" and s2.nodata == -1
+    rep = json.loads((o / "ortho.json").read_text())
+    ok = src[0] >= 0
+    assert ok.sum() > 50_000 and np.array_equal(ok, np.isfinite(v))  # 10 frames cover ~30 % of the scene
+    for k in np.unique(src[0][ok]):
+        m = src[0] == k
+        fr = tifffile.imread(sv / "frames" / f"{rep['images'][str(k)]}.tif")
+        assert np.array_equal(fr[src[1][m], src[2][m]].view(np.uint32), v[m].view(np.uint32))
+
+
+def test_ortho_source_pixel_is_the_projection_of_the_cell_and_choice_is_near_nadir(ortho_run):
+    from thermogrammetry.io.oriented import OrientedCameras
+
+    sc, sv, root = ortho_run
+    o = root / "o"
+    src, s = _read(o / "ortho_source.tif")
+    ang, _ = _read(o / "ortho_angle.tif", 1)
+    dist, _ = _read(o / "ortho_distance.tif", 1)
+    rep = json.loads((o / "ortho.json").read_text())
+    oc = OrientedCameras.load(sv)
+    rr, cc = np.nonzero(src[0] >= 0)
+    pick = np.random.default_rng(0).choice(len(rr), 200, replace=False)
+    for p in pick:
+        r, c = rr[p], cc[p]
+        x, y = s.xy(r, c)  # cell centre
+        z = true_height(sc, np.array([x]), np.array([y]))[0]
+        im = oc.image(rep["images"][str(src[0, r, c])])
+        Xc = im.R @ np.array([x, y, z]) + im.t
+        u, w = oc.camera_of(im).project(Xc[None])[0]
+        assert (int(round(w)), int(round(u))) == (src[1, r, c], src[2, r, c])
+        assert dist[r, c] == pytest.approx(np.linalg.norm(Xc), rel=1e-5)
+    # flight 45 m, attitude 1 deg, footprint ±10 m, relief: median angle below 20 deg, none beyond the 60 deg limit
+    assert np.nanmedian(ang) < 20 and np.nanmax(ang) < 60
+    assert 44 < np.nanmedian(dist) < 50
+
+
+def test_ortho_u16_encoding_inverts_within_half_a_step(ortho_run):
+    sc, sv, root = ortho_run
+    v, _ = _read(root / "o" / "ortho.tif", 1)
+    u, s = _read(root / "o" / "ortho_u16.tif", 1)
+    rep = json.loads((root / "o" / "ortho.json").read_text())
+    assert s.scales[0] == rep["scale"] and s.offsets[0] == rep["offset"] and s.nodata == 0
+    dec = np.where(u > 0, u * rep["scale"] + rep["offset"], np.nan)
+    assert np.array_equal(np.isnan(dec), np.isnan(v))
+    assert np.nanmax(np.abs(dec - v)) <= rep["scale"] / 2 + 1e-4
+
+
+def test_ortho_gradient_matches_central_differences(ortho_run):
+    sc, sv, root = ortho_run
+    v, s = _read(root / "o" / "ortho.tif", 1)
+    g, sg = _read(root / "o" / "ortho_gradient.tif")
+    gsd = s.res[0]
+    v = v.astype(float)
+    ex = (v[1:-1, 2:] - v[1:-1, :-2]) / (2 * gsd)
+    ny = (v[:-2, 1:-1] - v[2:, 1:-1]) / (2 * gsd)
+    mag = np.hypot(ex, ny)
+    ok = np.isfinite(mag)
+    assert np.allclose(g[0, 1:-1, 1:-1][ok], mag[ok], rtol=1e-5, atol=1e-4)
+    d = np.degrees(np.arctan2(ex, ny)) % 360
+    sel = ok & (mag > 1)
+    diff = np.abs((g[1, 1:-1, 1:-1][sel] - d[sel] + 180) % 360 - 180)
+    assert np.max(diff) < 1e-2
+
+
+def test_ortho_in_celsius_is_labelled_and_dask_gives_identical_rasters(ortho_run, tmp_path):
+    sc, sv, root = ortho_run
+    assert main(["ortho", str(sv), "--dsm", str(root / "dsm.tif"), "-o", str(tmp_path / "c"), "--unit", "C",
+                 "--workers", "2"]) == 0
+    vc, s = _read(tmp_path / "c" / "ortho.tif", 1)
+    assert s.units == ("°C",)
+    vk, _ = _read(root / "o" / "ortho.tif", 1)
+    assert np.allclose(vc, vk - 273.15, atol=1e-4, equal_nan=True)
+    a, _ = _read(tmp_path / "c" / "ortho_source.tif")
+    b, _ = _read(root / "o" / "ortho_source.tif")
+    assert np.array_equal(a, b)  # the same choices from a 2-worker local dask cluster
+
+
+def test_ortho_of_raw_counts_is_labelled_counts_never_celsius(tmp_path):
+    sc, sv = write_true_survey(tmp_path / "s", frames=FRAMES[:3] + FRAMES[5:8], unit="counts")
+    write_true_dsm(tmp_path / "dsm.tif", sc, 0.15)
+    assert main(["ortho", str(sv), "--dsm", str(tmp_path / "dsm.tif"), "-o", str(tmp_path / "o"), "--workers", "0"]) == 0
+    v, s = _read(tmp_path / "o" / "ortho.tif", 1)
+    assert s.units == ("counts",) and "not a temperature" in s.descriptions[0]
+    src, _ = _read(tmp_path / "o" / "ortho_source.tif")
+    rep = json.loads((tmp_path / "o" / "ortho.json").read_text())
+    assert rep["unit"] == "counts" and any("counts" in n for n in rep["notes"])
+    k = int(np.unique(src[0][src[0] >= 0])[0])
+    m = src[0] == k
+    fr = tifffile.imread(sv / "frames" / f"{rep['images'][str(k)]}.tif")
+    assert fr.dtype == np.uint16 and np.array_equal(fr[src[1][m], src[2][m]].astype(np.float32), v[m])
+    assert main(["ortho", str(sv), "--dsm", str(tmp_path / "dsm.tif"), "-o", str(tmp_path / "c"), "--unit", "C",
+                 "--workers", "0"]) == 2
+    assert not (tmp_path / "c" / "ortho.tif").exists()
+
+
+def test_ortho_correct_raises_temperatures_of_low_emissivity_views(ortho_run, tmp_path):
+    sc, sv, root = ortho_run
+    assert main(["ortho", str(sv), "--dsm", str(root / "dsm.tif"), "-o", str(tmp_path / "k"), "--correct",
+                 "--ambient-c", "-38", "--emissivity", "fresnel", "--workers", "0"]) == 0
+    vk, _ = _read(tmp_path / "k" / "ortho.tif", 1)
+    v0, _ = _read(root / "o" / "ortho.tif", 1)
+    ok = np.isfinite(vk) & np.isfinite(v0)
+    # cold sky (235 K) reflected by an emissivity < 1 surface: the corrected temperature is above the apparent one
+    assert np.median(vk[ok] - v0[ok]) > 0.5
+    assert json.loads((tmp_path / "k" / "ortho.json").read_text())["corrected"] is True
+
+
+def test_evaluate_dsm_against_reference_and_checkpoints(ortho_run, tmp_path):
+    from thermogrammetry.products.raster import Grid, write_cog
+
+    sc, sv, root = ortho_run
+    ref = root / "dsm.tif"
+    with rasterio.open(ref) as s:
+        z = s.read(1).astype(float)
+        tr = s.transform
+    g = Grid(tr.c, tr.f, tr.a, z.shape[1], z.shape[0])
+    rng = np.random.default_rng(5)
+    noisy = z + rng.normal(0.05, 0.1, z.shape)  # +5 cm bias, 10 cm noise
+    write_cog(tmp_path / "test_dsm.tif", g, "float32", lambda r0, c0, h, w: noisy[r0:r0 + h, c0:c0 + w],
+              crs="EPSG:32633", nodata=float("nan"))
+    cps = [(n, *p) for n, p in sc.checks.items()] + [(n, *p) for n, p in sc.gcps.items()]
+    (tmp_path / "cp.csv").write_text("id,X,Y,Z\n" + "".join(f"{n},{x},{y},{zz}\n" for n, x, y, zz in cps))
+    assert main(["evaluate", "--dsm", str(tmp_path / "test_dsm.tif"), "--reference", str(ref), "--checkpoints",
+                 str(tmp_path / "cp.csv"), "-o", str(tmp_path / "e")]) == 0
+    rep = json.loads((tmp_path / "e" / "evaluate.json").read_text())
+    d = rep["dsm_vs_reference"]
+    # float32 storage and bilinear sampling at the same cell centres: only the injected error remains
+    assert d["n"] > 0.9 * z.size
+    assert 0.045 < d["mean"] < 0.055 and 0.095 < d["std"] < 0.105
+    assert d["rmse"] == pytest.approx(np.hypot(0.05, 0.1), rel=0.05)
+    assert d["p95_abs"] > d["mae"]
+    c = rep["checkpoints"]
+    assert c["n"] >= 1 and c["rmse_z"] < 0.5 and c["rmse_x"] is None
+    assert (tmp_path / "e" / "evaluate_histogram.png").exists()
+    assert main(["evaluate", "--dsm", str(ref), "-o", str(tmp_path / "f")]) == 2
