@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thermogrammetry.closerange.correction import correct_temperature, dT_deps, eq8_correction
+from thermogrammetry.products.correction import correct_temperature, dT_deps, eq8_correction
 from thermogrammetry.closerange.workflow import CloseRangeConfig, correct_oriented_image
 from thermogrammetry.synthetic.closerange import make_closerange_scene, render_thermal
 
@@ -113,7 +113,7 @@ def _on_plane(P, n, d):
 def test_mesh_surface_matches_planes(scene_img):
     # the faces as a triangle mesh (corners projected onto the true planes) give the same per-pixel
     # angle and eq. 8 correction as the planes, away from the edges
-    from thermogrammetry.closerange.correction import convex_inset
+    from thermogrammetry.products.correction import convex_inset
 
     s, img = scene_img
     cam = s.camera("thermal")
@@ -141,7 +141,7 @@ def test_mesh_surface_matches_planes(scene_img):
 
 
 def test_dsm_surface_matches_analytic_plane():
-    from thermogrammetry.closerange.surfaces import dsm_to_mesh
+    from thermogrammetry.products.surfaces import dsm_to_mesh
     from thermogrammetry.geometry import Pose
 
     # tilted planar DSM z = 0.1 x + 0.2 y + 1 on a 1 m grid (corner-addressed transform), camera 10 m above

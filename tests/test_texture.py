@@ -150,7 +150,7 @@ def test_estimate_offsets_needs_overlap():
 
 
 def test_correction_uses_texel_angle_and_distance(scene, views):
-    from thermogrammetry.closerange.correction import correct_temperature
+    from thermogrammetry.products.correction import correct_temperature
     from thermogrammetry.radiometry.atmosphere import atmospheric_transmission
     from thermogrammetry.radiometry.directional import fresnel_emissivity
 

@@ -76,7 +76,8 @@ def correct(
 
     from ..closerange import network as nw
     from ..closerange.pipeline import _tif_bytes
-    from ..closerange.workflow import CloseRangeConfig, correct_oriented_image
+    from ..closerange.workflow import CloseRangeConfig
+    from ..products.correction import correct_oriented_image
     from ..errors import ConfigError, ThermogrammetryError
     from ..io import read_thermal
     from ..pipeline import FolderProject
@@ -144,7 +145,7 @@ def correct(
         if dsm is not None:
             import rasterio
 
-            from ..closerange.surfaces import dsm_to_mesh
+            from ..products.surfaces import dsm_to_mesh
 
             with rasterio.open(dsm) as src:
                 z = src.read(1, masked=True).astype(float).filled(np.nan)

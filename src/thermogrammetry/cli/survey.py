@@ -141,8 +141,8 @@ def survey(
         if failed:
             r = failed[0]
             first = r.error.strip().splitlines()[-1] if r.error else "failed"
-            if r.name == "inputs" or "Error:" in first and r.name in ("features",):
-                fail(f"step {r.name}: {first}")
+            if r.name == "inputs":  # unusable input: exit 2
+                fail(first.split(": ", 1)[-1] if first.startswith(("DataFileError", "UnsupportedFormatError")) else first)
             fail(f"step {r.name} failed: {first}", code=1)
         s = project.read_json("survey.json")
         _publish(stage, out)

@@ -13,7 +13,15 @@ import numpy as np
 
 from ..enums import StrChoice
 from ..errors import ConfigError, InvalidInputError
-from . import correction as corr
+from ..products import correction as corr
+from ..products.correction import (
+    AngleMode,
+    CorrectionConfig,
+    CorrectionResult,
+    EmissivityModelName,
+    camera_rays,
+    correct_oriented_image,
+)
 from . import network as nw
 from .planes import PlaneEstimate, angle_to_axis, check_plane_points, fit_plane, plane_jacobian
 from .solve import NetworkResult
@@ -29,16 +37,6 @@ __all__ = [
     "camera_rays",
     "correct_oriented_image",
 ]
-
-
-class AngleMode(StrChoice):
-    LOS = "los"  # per-pixel line of sight (default)
-    AXIS = "axis"  # seed 000: the camera axis (eq. 6) for the whole plane
-
-
-class EmissivityModelName(StrChoice):
-    COSINE = "cosine"  # seed 000 eq. 7-8
-    FRESNEL = "fresnel"  # dielectric, refractive index n
 
 
 @dataclass(frozen=True)
@@ -120,6 +118,14 @@ class CloseRangeConfig:
         return out
 
     @property
+    def correction(self) -> CorrectionConfig:
+        """The per-pixel correction options (:class:`thermogrammetry.products.correction.CorrectionConfig`)."""
+        return CorrectionConfig(ambient_c=self.ambient_c, angle_mode=self.angle_mode, emissivity=self.emissivity,
+                                refractive_index=self.refractive_index, transmission=self.transmission,
+                                relative_humidity=self.relative_humidity, air_c=self.air_c,
+                                max_angle_deg=self.max_angle_deg, edge_margin_px=self.edge_margin_px)
+
+    @property
     def ambient_k(self) -> float:
         return self.ambient_c + 273.15
 
@@ -128,12 +134,7 @@ class CloseRangeConfig:
         return (self.ambient_c if self.air_c is None else self.air_c) + 273.15
 
     def emissivity_function(self) -> Callable[[np.ndarray], np.ndarray]:
-        if self.emissivity == EmissivityModelName.COSINE:
-            return corr.cosine_emissivity
-        from ..radiometry import fresnel_emissivity
-
-        n = self.refractive_index
-        return lambda th: fresnel_emissivity(np.clip(th, 0.0, np.pi / 2), n)
+        return self.correction.emissivity_function()
 
 
 def thermal_geometry(net: NetworkResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -213,32 +214,6 @@ def estimate_planes(net: NetworkResult, planes: Mapping[str, Sequence[str]]) -> 
     return out
 
 
-@dataclass
-class CorrectionResult:
-    """Per-pixel rasters of the thermal image (h, w).
-
-    corrected_k : corrected temperature where valid, the measured one elsewhere (K)
-    valid : bool mask where the correction applies
-    sigma_k : 1-σ uncertainty of the correction from the propagated angle precision (K; NaN off mask)
-    angle_rad : angle used (line of sight or axis), NaN off the planes
-    sigma_angle_rad : its σ
-    distance_m : line-of-sight distance to the surface (NaN off the planes)
-    plane : index into the plane list (−1 none)
-    emissivity, transmission : values used
-    """
-
-    corrected_k: np.ndarray
-    valid: np.ndarray
-    sigma_k: np.ndarray
-    angle_rad: np.ndarray
-    sigma_angle_rad: np.ndarray
-    distance_m: np.ndarray
-    plane: np.ndarray
-    emissivity: np.ndarray
-    transmission: np.ndarray
-    notes: list[str] = field(default_factory=list)
-
-
 def _rays_from_L(L, frame, image_size, pix):
     P = nw.dlt_matrix(L) @ frame.world_matrix()
     if np.linalg.det(P[:, :3]) < 0:
@@ -313,20 +288,10 @@ def correct_thermal_image(
             G[:, 3 + k] = (theta(n0, cam.L + e) - theta(n0, cam.L - e)) / (2 * hk)
         Sp = net.cov(np.vstack([p.J_nd[:3], cam.J]))
         sig_angle[sel] = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", G, Sp, G), 0))
-    emis_f = cfg.emissivity_function()
-    eps = np.where(on, emis_f(np.where(on, angle, 0.0)), np.nan)
-    if cfg.transmission:
-        tau = np.where(on, _transmission(np.where(on, pr.distance_m, 0.0), cfg.air_k, cfg.relative_humidity), np.nan)
-    else:
-        tau = np.where(on, 1.0, np.nan)
-    Tc = corr.correct_temperature(T0, eps, cfg.ambient_k, transmission=np.where(on, tau, 1.0), atmosphere_k=cfg.air_k)
+    Tc, eps, tau, valid = corr.apply_correction(T0, angle, pr.distance_m, on, cfg)
     with np.errstate(invalid="ignore"):
-        valid = (on & np.isfinite(T0) & np.isfinite(Tc) & (angle < np.radians(cfg.max_angle_deg))
-                 & (pr.inset_px >= cfg.edge_margin_px) & (pr.cover == 1))
-    # dε/dθ by central difference of the model (analytic −sin θ for the cosine law)
-    hth = 1e-6
-    a0 = np.where(valid, angle, 0.5)
-    deps = (emis_f(a0 + hth) - emis_f(np.maximum(a0 - hth, 0))) / (a0 + hth - np.maximum(a0 - hth, 0))
+        valid &= (pr.inset_px >= cfg.edge_margin_px) & (pr.cover == 1)
+    deps = corr.emissivity_slope(cfg, angle, valid)
     sigma_k = np.where(valid, np.abs(corr.dT_deps(np.where(valid, Tc, 300.0), np.where(valid, eps, 1.0),
                                                   cfg.ambient_k) * deps) * sig_angle, np.nan)
     if cfg.max_sigma_k is not None:
@@ -343,120 +308,4 @@ def correct_thermal_image(
         corrected_k=np.where(valid, Tc, T0), valid=valid, sigma_k=sigma_k, angle_rad=angle,
         sigma_angle_rad=sig_angle, distance_m=pr.distance_m, plane=pr.plane, emissivity=eps, transmission=tau,
         notes=notes,
-    )
-
-
-def _transmission(distance_m, air_k, rh):
-    from ..radiometry import atmospheric_transmission
-
-    return atmospheric_transmission(distance_m, air_k, rh)
-
-
-def camera_rays(camera, R, t, image_size=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Projection centre, viewing axis and unit world rays (h, w, 3) of every pixel of an oriented camera.
-
-    Parameters
-    ----------
-    camera : ``thermogrammetry.Camera`` (distortion honoured through ``unproject``) or a (3, 3) ``K``
-    R, t : pose ``cam_from_world``
-    image_size : (w, h); default ``camera.image_size``
-    """
-    R = np.asarray(R, float)
-    t = np.asarray(t, float).reshape(3)
-    if hasattr(camera, "unproject"):
-        w, h = image_size or camera.image_size
-        unproject = camera.unproject
-    else:
-        K = np.asarray(camera, float)
-        if image_size is None:
-            raise InvalidInputError("image_size: required when the camera is given as a K matrix")
-        w, h = image_size
-
-        def unproject(xy):
-            return np.column_stack([xy, np.ones(len(xy))]) @ np.linalg.inv(K).T
-
-    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
-    d_cam = np.asarray(unproject(np.column_stack([u.ravel(), v.ravel()])), float)
-    d = d_cam @ R  # R^T d_cam for every row
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return -R.T @ t, R[2].copy(), d.reshape(h, w, 3)
-
-
-def correct_oriented_image(
-    temperature_k,
-    camera,
-    R,
-    t,
-    planes: Sequence[tuple[Sequence[float], float]] | None,
-    config: CloseRangeConfig | None = None,
-    *,
-    polygons_world: Sequence[np.ndarray] | None = None,
-    mesh: tuple[np.ndarray, np.ndarray] | None = None,
-    sigma_angle_rad=None,
-) -> CorrectionResult:
-    """General case: correct a thermal image of an oriented camera over planes or a triangle mesh.
-
-    Parameters
-    ----------
-    temperature_k : (h, w) apparent temperatures, K
-    camera, R, t : see :func:`camera_rays`
-    planes : sequence of (normal (3,), d) with ``normal · X + d = 0`` (m), or None with ``mesh``
-    polygons_world : optional (N_i ≥ 3, 3) outlines of each plane (m); default: the whole image
-    mesh : optional (vertices (V, 3) m, faces (F, 3)) instead of planes (a DSM: :func:`.surfaces.dsm_to_mesh`);
-        ``plane`` in the result then holds the face index
-    sigma_angle_rad : optional per-pixel or scalar angle σ for the uncertainty map
-    """
-    cfg = config or CloseRangeConfig()
-    T0 = np.asarray(temperature_k, float)
-    if T0.ndim != 2:
-        raise InvalidInputError(f"temperature_k: expected a 2D image, got shape {T0.shape}")
-    h, w = T0.shape
-    C, axis, rays = camera_rays(camera, R, t, (w, h))
-    if (planes is None) == (mesh is None):
-        raise InvalidInputError("give either planes or a mesh as the surface")
-    if mesh is not None:
-        from .surfaces import mesh_rasters
-
-        pr = mesh_rasters(C, rays, axis, *mesh)
-        polygons_world = None
-    elif polygons_world is None:
-        big = np.array([[-1e6, -1e6], [1e6 + w, -1e6], [1e6 + w, 1e6 + h], [-1e6, 1e6 + h]])
-        polys = [big] * len(planes)
-    else:
-        Rm = np.asarray(R, float)
-        tv = np.asarray(t, float).reshape(3)
-        polys = []
-        for Pw in polygons_world:
-            Xc = np.asarray(Pw, float) @ Rm.T + tv
-            if hasattr(camera, "project"):
-                polys.append(np.asarray(camera.project(Xc), float))
-            else:
-                uvw = Xc @ np.asarray(camera, float).T
-                polys.append(uvw[:, :2] / uvw[:, 2:3])
-    if mesh is None:
-        planes = [(np.asarray(n, float) / np.linalg.norm(n), float(d) / np.linalg.norm(n)) for n, d in planes]
-        pr = corr.plane_rasters(C, rays, axis, planes, polys, margin_px=cfg.edge_margin_px)
-    on = pr.plane >= 0
-    angle = pr.angle_rad if cfg.angle_mode == AngleMode.LOS else pr.axis_angle_rad
-    emis_f = cfg.emissivity_function()
-    eps = np.where(on, emis_f(np.where(on, angle, 0.0)), np.nan)
-    tau = (np.where(on, _transmission(np.where(on, pr.distance_m, 0.0), cfg.air_k, cfg.relative_humidity), np.nan)
-           if cfg.transmission else np.where(on, 1.0, np.nan))
-    Tc = corr.correct_temperature(T0, eps, cfg.ambient_k, transmission=np.where(on, tau, 1.0), atmosphere_k=cfg.air_k)
-    margin_ok = pr.inset_px >= (cfg.edge_margin_px if polygons_world is not None else -np.inf)
-    with np.errstate(invalid="ignore"):
-        valid = on & np.isfinite(T0) & np.isfinite(Tc) & (angle < np.radians(cfg.max_angle_deg)) & margin_ok
-        if polygons_world is not None:
-            valid &= pr.cover == 1
-    sig_a = np.full((h, w), np.nan) if sigma_angle_rad is None else np.broadcast_to(
-        np.asarray(sigma_angle_rad, float), (h, w)).copy()
-    a0 = np.where(valid, angle, 0.5)
-    hth = 1e-6
-    deps = (emis_f(a0 + hth) - emis_f(np.maximum(a0 - hth, 0))) / (a0 + hth - np.maximum(a0 - hth, 0))
-    sigma_k = np.where(valid, np.abs(corr.dT_deps(np.where(valid, Tc, 300.0), np.where(valid, eps, 1.0),
-                                                  cfg.ambient_k) * deps) * sig_a, np.nan)
-    return CorrectionResult(
-        corrected_k=np.where(valid, Tc, T0), valid=valid, sigma_k=sigma_k, angle_rad=angle,
-        sigma_angle_rad=np.where(valid, sig_a, np.nan), distance_m=pr.distance_m, plane=pr.plane, emissivity=eps,
-        transmission=tau, notes=[],
     )

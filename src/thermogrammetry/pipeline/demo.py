@@ -653,7 +653,7 @@ def _section_facade(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
     import trimesh
 
     from ..camera import Camera
-    from ..closerange.workflow import CloseRangeConfig, correct_oriented_image
+    from ..products.correction import CorrectionConfig, correct_oriented_image
     from ..synthetic.facade import (
         FacadeConfig,
         make_facade,
@@ -673,7 +673,7 @@ def _section_facade(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
     mesh = trimesh.load(io.BytesIO(project.read_bytes("facade/mesh.obj")), file_type="obj", force="mesh", process=False)
     img = tifffile.imread(io.BytesIO(project.read_bytes(f"facade/thermal/{st['name']}.tif"))).astype(float)
     c = scene.config
-    cfg = CloseRangeConfig(ambient_c=c.sky_k - 273.15, emissivity="fresnel", refractive_index=1.5, transmission=True,
+    cfg = CorrectionConfig(ambient_c=c.sky_k - 273.15, emissivity="fresnel", refractive_index=1.5, transmission=True,
                            relative_humidity=c.relative_humidity, air_c=c.air_k - 273.15)
     cr = correct_oriented_image(img, cam, R, t, None, cfg, mesh=(np.asarray(mesh.vertices, float), np.asarray(mesh.faces, int)))
     truth = render_facade_thermal(scene, 0, sensor=False, with_truth=True)

@@ -352,6 +352,9 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
                            "camera_guess": guess, "note": note})
         if progress:
             progress(k + 1, len(items))
+    if not images:
+        raise DataFileError("no usable input image: " + "; ".join(f["reason"] for f in failed[:5])
+                            + (f" (and {len(failed) - 5} more)" if len(failed) > 5 else ""))
     project.write_json("work/inputs.json", {"images": images, "failed": failed, "notes": notes})
     return {"images": len(images), "failed": len(failed), "seconds": time.perf_counter() - t0}
 
@@ -542,6 +545,9 @@ def _gnss_xyz(inputs: dict, opt: SurveyOptions, crs_out: str | None):
             sig[k] = g.std[r] if g.std is not None else np.array([0.05, 0.05, 0.10])
         if g.std is None:
             notes.append(f"{g.source}: no sX,sY,sZ columns: σ 0.05 m horizontal, 0.10 m vertical assumed")
+        miss = [im["name"] for k, im in enumerate(inputs["images"]) if not np.isfinite(xyz[k]).all()]
+        if miss:
+            notes.append(f"{len(miss)} image(s) without a GNSS position in {g.source}: {', '.join(miss[:5])}{' ...' if len(miss) > 5 else ''}")
         if unknown:
             notes.append(f"{g.source}: {len(unknown)} image name(s) not among the inputs, ignored: {', '.join(unknown[:5])}")
     if opt.gnss_sigma_m is not None:

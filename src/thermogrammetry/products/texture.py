@@ -571,10 +571,7 @@ def _correct(T, angle_deg, dist, cc: CorrectionConfig):
     from ..radiometry.atmosphere import atmospheric_transmission
     from ..radiometry.directional import fresnel_emissivity
 
-    try:  # the products layer's correction once it exists, else the closerange one (same function)
-        from .correction import correct_temperature
-    except ImportError:  # pragma: no cover
-        from ..closerange.correction import correct_temperature
+    from .correction import correct_temperature
     fin = np.isfinite(angle_deg) & np.isfinite(T)
     th = np.deg2rad(np.where(fin, angle_deg, 0.0))
     if cc.directional == "fresnel":

@@ -166,6 +166,27 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
     in_block[images] = True
     gcp_active = [True] * len(ctrl.gcp_obs)
     rejected = []
+    if georeferenced and ctrl.gcp_obs:
+        # gross errors first: a GCP "measured" in an image where it cannot be (wrong identification) is
+        # found by projecting its coordinates with the georeferenced start, before it can bend the block
+        res_px = np.full(len(ctrl.gcp_obs), np.nan)
+        for k, (i, gi, xy, s_) in enumerate(ctrl.gcp_obs):
+            if not in_block[i]:
+                continue
+            Xc = rec.R[i] @ ctrl.gcp_xyz[gi] + rec.t[i]
+            if Xc[2] <= 0:
+                res_px[k] = np.inf
+                continue
+            with np.errstate(all="ignore"):
+                pr = rec.cameras[rec.image_camera[i]].project(Xc[None, :])[0]
+            res_px[k] = float(np.linalg.norm(pr - np.asarray(xy, float))) if np.all(np.isfinite(pr)) else np.inf
+        fin = res_px[np.isfinite(res_px)]
+        if len(fin):
+            gate = max(gcp_reject_px * 5.0, 5.0 * float(np.median(fin)))
+            for k in np.nonzero(res_px > gate)[0]:
+                i, gi = ctrl.gcp_obs[k][0], ctrl.gcp_obs[k][1]
+                gcp_active[k] = False
+                rejected.append((int(i), ctrl.gcp_ids[gi], float(res_px[k])))
     res = None
     for round_ in range(4):
         obs = rec.obs_valid & in_block[tr.image] & np.isfinite(rec.points[tr.track]).all(1)
@@ -232,6 +253,16 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
             # tie blunders
             tie_v = v_img[:n_tie]
             big = np.linalg.norm(tie_v, axis=1) > max_error_px
+            # variance component of the tie points (Helmert, one step): their a-priori σ is replaced by
+            # the estimate from their residuals and redundancy, so that GNSS and GCP weights stay in
+            # proportion and σ0 of the final solve tests the whole model
+            good = ~big
+            n_obs = 2 * int(good.sum())
+            n_unk = 3 * len(pts) + 6 * len(images) + int(sum((~np.asarray(f)).sum() for f in pb.camera_fixed))
+            if n_obs > n_unk + 10:
+                sig_hat = float(np.sqrt(np.sum(tie_v[good] ** 2) / (n_obs - n_unk)))
+                notes.append(f"tie-point σ estimated from the residuals: {sig_hat:.3f} px (a priori {tie_sigma_px:g} px)")
+                tie_sigma_px = float(np.clip(sig_hat, 0.02, 10.0))
             if big.any():
                 rec.obs_valid[order[big]] = False
                 changed = True
