@@ -14,7 +14,8 @@ import json
 import numpy as np
 import pytest
 
-from thermogrammetry.products.texture import (CorrectionConfig, TextureConfig, TextureView, estimate_offsets,
+from thermogrammetry.products.correction import CorrectionConfig
+from thermogrammetry.products.texture import (TextureConfig, TextureView, estimate_offsets,
                                               face_view_scores, texture_mesh, thermal_poses_from_rig)
 from thermogrammetry.synthetic.building import (GROUPS, BuildingConfig, apparent_temperature, make_building,
                                                 render_building_thermal)
@@ -154,7 +155,8 @@ def test_correction_uses_texel_angle_and_distance(scene, views):
     from thermogrammetry.radiometry.atmosphere import atmospheric_transmission
     from thermogrammetry.radiometry.directional import fresnel_emissivity
 
-    cc = CorrectionConfig(emissivity=0.9, reflected_k=260.0, air_k=281.0, relative_humidity=0.6)
+    cc = CorrectionConfig(emissivity="fresnel", refractive_index=1.8, ambient_c=260.0 - 273.15, air_c=281.0 - 273.15,
+                          transmission=True, relative_humidity=0.6)
     raw = texture_mesh(scene.vertices, scene.faces, views, TextureConfig(texel_size_m=0.1))
     cor = texture_mesh(scene.vertices, scene.faces, views, TextureConfig(texel_size_m=0.1, correct=True, correction=cc))
     s0, tx = raw.texel_selection, raw.texels
@@ -164,7 +166,7 @@ def test_correction_uses_texel_angle_and_distance(scene, views):
     n = scene.face_normals[tx.face[ok]]
     d = np.linalg.norm(C - P, axis=1)
     theta = np.arccos(np.einsum("ij,ij->i", n, (C - P) / d[:, None]))
-    eps = 0.9 * fresnel_emissivity(theta, 1.5) / fresnel_emissivity(0.0, 1.5)
+    eps = fresnel_emissivity(theta, 1.8)
     expect = correct_temperature(s0.temperature_k[ok], eps, 260.0, transmission=atmospheric_transmission(d, 281.0, 0.6),
                                  atmosphere_k=281.0)
     np.testing.assert_allclose(cor.texel_selection.temperature_k[ok], expect, atol=1e-6)

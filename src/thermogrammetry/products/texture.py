@@ -40,8 +40,8 @@ Optional steps (both change values and say so in ``texture.json``):
   (seam levelling for images with drifting offsets; it alters every temperature of the other images
   by its ``o_k``).
 * ``correct=True``: per-texel inversion ``T0⁴ = τ[εT⁴ + (1−ε)Ta⁴] + (1−τ)Tatm⁴`` with ε(θ) from the
-  mesh normal at the texel and τ over the real camera-to-texel distance (the products layer's
-  per-pixel correction, seed 000 extended).
+  mesh normal at the texel and τ over the real camera-to-texel distance: the products layer's
+  per-pixel correction (:mod:`thermogrammetry.products.correction`, its :class:`CorrectionConfig`).
 
 Rig mode: when only the RGB images were oriented, :func:`thermal_poses_from_rig` derives the thermal
 poses through the constant relative orientation (seed 002 eq. 4–5, in our ``cam_from_world`` terms:
@@ -64,8 +64,9 @@ import numpy as np
 
 from ..enums import StrChoice
 from ..errors import ConfigError, InvalidInputError, ShapeError
+from .correction import CorrectionConfig
 
-__all__ = ["Levelling", "TextureConfig", "CorrectionConfig", "TextureView", "TextureResult", "face_view_scores",
+__all__ = ["Levelling", "TextureConfig", "TextureView", "TextureResult", "face_view_scores",
            "build_atlas", "rasterize_atlas", "PixelSurface", "pixel_surfaces", "usable_in_view", "select_and_sample",
            "estimate_offsets", "texture_mesh", "thermal_poses_from_rig"]
 
@@ -73,31 +74,6 @@ __all__ = ["Levelling", "TextureConfig", "CorrectionConfig", "TextureView", "Tex
 class Levelling(StrChoice):
     NONE = "none"
     OFFSETS = "offsets"
-
-
-@dataclass(frozen=True)
-class CorrectionConfig:
-    """Parameters of the per-texel correction (kelvin, fraction, metres)."""
-
-    emissivity: float = 0.93  # normal emissivity of the surface
-    directional: str = "fresnel"  # fresnel | constant
-    refractive_index: float = 1.5
-    reflected_k: float = 273.15
-    air_k: float = 283.15
-    relative_humidity: float = 0.5
-    max_angle_deg: float = 75.0
-
-    def __post_init__(self):
-        if not 0 < self.emissivity <= 1:
-            raise ConfigError(f"CorrectionConfig.emissivity={self.emissivity!r}: expected a number in (0, 1]")
-        if self.directional not in ("fresnel", "constant"):
-            raise ConfigError(f"CorrectionConfig.directional={self.directional!r}: expected 'fresnel' or 'constant'")
-        if not 0 <= self.relative_humidity <= 1:
-            raise ConfigError(f"CorrectionConfig.relative_humidity={self.relative_humidity!r}: expected a fraction in [0, 1]")
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "CorrectionConfig":
-        return _from_dict(cls, d)
 
 
 @dataclass(frozen=True)
@@ -568,20 +544,14 @@ def estimate_offsets(selection: Selection, n_views: int, *, max_pairs: int = 200
 
 
 def _correct(T, angle_deg, dist, cc: CorrectionConfig):
-    from ..radiometry.atmosphere import atmospheric_transmission
-    from ..radiometry.directional import fresnel_emissivity
+    """The products layer's per-pixel kernel (:func:`~thermogrammetry.products.correction.apply_correction`)
+    at the texels: angle from the mesh normal, distance from the source camera."""
+    from .correction import apply_correction
 
-    from .correction import correct_temperature
-    fin = np.isfinite(angle_deg) & np.isfinite(T)
-    th = np.deg2rad(np.where(fin, angle_deg, 0.0))
-    if cc.directional == "fresnel":
-        eps = cc.emissivity * fresnel_emissivity(np.clip(th, 0, np.pi / 2), cc.refractive_index) / \
-            float(fresnel_emissivity(0.0, cc.refractive_index))
-    else:
-        eps = np.full_like(th, cc.emissivity)
-    tau = atmospheric_transmission(np.nan_to_num(dist, nan=0.0), cc.air_k, cc.relative_humidity)
-    out = correct_temperature(np.where(fin, T, 300.0), eps, cc.reflected_k, transmission=tau, atmosphere_k=cc.air_k)
-    return np.where(fin & (np.nan_to_num(angle_deg, nan=90.0) <= cc.max_angle_deg), out, np.nan)
+    on = np.isfinite(angle_deg) & np.isfinite(T)
+    Tc, _, _, valid = apply_correction(np.where(on, T, 300.0), np.deg2rad(np.where(on, angle_deg, 0.0)),
+                                       np.where(on, dist, 0.0), on, cc)
+    return np.where(valid, Tc, np.nan)
 
 
 # ---------------------------------------------------------------------------------------------- driver

@@ -195,7 +195,8 @@ def texture_json(result, unit: str, *, mesh_source: str = "", survey_source: str
         "values_note": ("temperatures as sampled (bilinear) from one image per texel; nothing blended or filled"
                         + ("; per-image offsets ADDED (levelling=offsets)" if cfg.levelling.value == "offsets" else "")
                         + ("; per-texel angle/emissivity/transmission correction applied" if cfg.correct else "")),
-        "correction": None if not cfg.correct else cfg.correction.__dict__,
+        "correction": None if not cfg.correct else {k: (v.value if hasattr(v, "value") else v)
+                                                    for k, v in cfg.correction.__dict__.items()},
         "texel_size_m": s["texel_size_m"],
         "texture_size": s["texture_size"],
         "score": "f cos(theta) / d * min(1, b / b0), b0 = %.3g * min(W, H)" % cfg.border_fraction,
