@@ -282,3 +282,46 @@ def test_cli_texture_bad_input(cli_out, tmp_path, capsys):
     assert main(["texture", str(tmp_path), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o")]) == 2
     assert "cameras.json" in capsys.readouterr().err
     assert main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o"), "--levelling", "blend"]) == 2
+
+
+# ------------------------------------------------------------------------------------------- browser
+def _chromium():
+    import shutil
+
+    for name in ("chromium-headless-shell", "chromium", "chromium-browser", "google-chrome", "headless_shell"):
+        p = shutil.which(name)
+        if p:
+            return p
+    return None
+
+
+def test_textured_glb_renders_in_headless_chromium(cli_out, tmp_path):
+    """The GLB in a real browser: viewer.html (plain WebGL, GLB embedded) in headless Chromium with
+    SwiftShader; the screenshot must show textured pixels (palette colours) over the green background."""
+    import os
+    import shutil
+    import subprocess
+
+    import cv2
+
+    exe = _chromium()
+    if exe is None:
+        pytest.skip("no Chromium binary on PATH (apt-get install chromium-headless-shell); the GLB browser check needs one")
+    survey, out = cli_out
+    shot = tmp_path / "texture_browser.png"
+    cmd = [exe, "--headless", "--no-sandbox", "--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+           "--window-size=800,600", "--virtual-time-budget=5000", f"--screenshot={shot}", (out / "viewer.html").as_uri()]
+    subprocess.run(cmd, cwd=tmp_path, capture_output=True, timeout=120)
+    assert shot.is_file(), "chromium wrote no screenshot"
+    img = cv2.cvtColor(cv2.imread(str(shot)), cv2.COLOR_BGR2RGB).astype(int)
+    green = (img[..., 0] < 30) & (img[..., 1] > 225) & (img[..., 2] < 30)
+    grey = np.all(np.abs(img - 128) <= 3, axis=-1)  # untextured texels in the preview
+    textured = ~green & ~grey
+    assert green.mean() > 0.3  # the background is there: the page drew a model, not a full-screen quad
+    assert textured.mean() > 0.03
+    # the textured pixels carry the palette's range of colours (not one flat colour)
+    lum = img[textured].mean(axis=1)
+    assert np.percentile(lum, 95) - np.percentile(lum, 5) > 60
+    keep = os.environ.get("THERMOGRAMMETRY_SCREENSHOT_DIR")
+    if keep:
+        shutil.copy(shot, keep)

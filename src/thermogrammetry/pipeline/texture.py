@@ -11,6 +11,7 @@ Reads through :class:`~thermogrammetry.io.oriented.OrientedCameras`, calls
     vertices.ply                 per-vertex temperature_k
     texture.json                 counts, index -> image name, unit, offsets, what altered the values
     report.html                  coverage, views per face, offsets, a rendered view in °C
+    viewer.html                  the GLB in a self-contained WebGL page (offline, no libraries)
 
 Only thermal images whose frames are in kelvin (``unit: K``) are used; RGB images and frames in raw
 counts or display numbers are listed as skipped. Rig mode (``rig``): thermal poses derived from the
@@ -246,7 +247,9 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str = "K", correct: boo
     t_unit = from_kelvin(result.temperature_k, u).astype(np.float32)
     preview = tx.preview_rgb(t_unit)
     store.write_bytes("textured.png", tx.png_bytes(preview))
-    store.write_bytes("textured.glb", tx.glb_bytes(result, preview))
+    glb = tx.glb_bytes(result, preview)
+    store.write_bytes("textured.glb", glb)
+    store.write_text("viewer.html", tx.viewer_html(glb))
     store.write_text("textured.obj", tx.obj_text(result))
     store.write_text("textured.mtl", tx.mtl_text("textured.png"))
     data, _ = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="float32")

@@ -23,7 +23,7 @@ import numpy as np
 from ..radiometry.encoding import from_kelvin
 
 __all__ = ["preview_rgb", "png_bytes", "glb_bytes", "obj_text", "mtl_text", "ply_bytes", "int32_tiff_bytes",
-           "float32_tiff_bytes", "render_view", "texture_json"]
+           "float32_tiff_bytes", "render_view", "texture_json", "viewer_html"]
 
 
 def _palette_range(t):
@@ -210,3 +210,85 @@ def texture_json(result, unit: str, *, mesh_source: str = "", survey_source: str
         d.update(extra)
     _ = from_kelvin
     return json.dumps(d, indent=1) + "\n"
+
+
+_VIEWER = r"""<!doctype html><html><head><meta charset="utf-8"><title>thermogrammetry texture viewer</title>
+<style>html,body{margin:0;height:100%;background:#00ff00}canvas{display:block;width:100%;height:100%}</style></head>
+<body><canvas id="c"></canvas><img id="tex" src="data:image/png;base64,__PNG__" style="display:none">
+<script>
+// Minimal WebGL viewer of a GLB (one mesh, POSITION + TEXCOORD_0 + indices, base-colour texture), no libraries.
+// z is up (the survey frame); the camera looks at the bounding-box centre from the south-east, above.
+const GLB = "__GLB__";
+function b64(s){const b=atob(s);const u=new Uint8Array(b.length);for(let i=0;i<b.length;i++)u[i]=b.charCodeAt(i);return u.buffer;}
+function parseGLB(buf){
+  const dv=new DataView(buf); if(dv.getUint32(0,true)!==0x46546C67) throw "not a GLB";
+  let off=12, json=null, bin=null;
+  while(off<buf.byteLength){const len=dv.getUint32(off,true), type=dv.getUint32(off+4,true);
+    if(type===0x4E4F534A) json=JSON.parse(new TextDecoder().decode(new Uint8Array(buf,off+8,len)));
+    else if(type===0x004E4942) bin=buf.slice(off+8,off+8+len);
+    off+=8+len;}
+  const T={5126:Float32Array,5125:Uint32Array,5123:Uint16Array,5121:Uint8Array};
+  const N={SCALAR:1,VEC2:2,VEC3:3,VEC4:4};
+  function acc(i){const a=json.accessors[i], v=json.bufferViews[a.bufferView];
+    return new T[a.componentType](bin,(v.byteOffset||0)+(a.byteOffset||0),a.count*N[a.type]);}
+  const p=json.meshes[0].primitives[0];
+  return {pos:acc(p.attributes.POSITION), uv:acc(p.attributes.TEXCOORD_0), idx:acc(p.indices)};
+}
+function sub(a,b){return [a[0]-b[0],a[1]-b[1],a[2]-b[2]];}
+function cross(a,b){return [a[1]*b[2]-a[2]*b[1],a[2]*b[0]-a[0]*b[2],a[0]*b[1]-a[1]*b[0]];}
+function norm(a){const l=Math.hypot(a[0],a[1],a[2]);return [a[0]/l,a[1]/l,a[2]/l];}
+function dot(a,b){return a[0]*b[0]+a[1]*b[1]+a[2]*b[2];}
+function lookAt(e,c,u){const z=norm(sub(e,c)),x=norm(cross(u,z)),y=cross(z,x);
+  return [x[0],y[0],z[0],0, x[1],y[1],z[1],0, x[2],y[2],z[2],0, -dot(x,e),-dot(y,e),-dot(z,e),1];}
+function persp(f,a,n,fa){const t=1/Math.tan(f/2);return [t/a,0,0,0, 0,t,0,0, 0,0,(fa+n)/(n-fa),-1, 0,0,2*fa*n/(n-fa),0];}
+function mul(a,b){const r=new Array(16).fill(0);for(let i=0;i<4;i++)for(let j=0;j<4;j++)for(let k=0;k<4;k++)r[j*4+i]+=a[k*4+i]*b[j*4+k];return r;}
+window.onload=function(){
+  const m=parseGLB(b64(GLB)), cv=document.getElementById("c");
+  cv.width=cv.clientWidth; cv.height=cv.clientHeight;
+  const gl=cv.getContext("webgl",{preserveDrawingBuffer:true}); if(!gl){document.title="no webgl";return;}
+  gl.getExtension("OES_element_index_uint");
+  const vs="attribute vec3 p;attribute vec2 t;uniform mat4 M;varying vec2 v;void main(){v=t;gl_Position=M*vec4(p,1.0);}";
+  const fs="precision mediump float;uniform sampler2D s;varying vec2 v;void main(){gl_FragColor=texture2D(s,v);}";
+  function sh(t,src){const o=gl.createShader(t);gl.shaderSource(o,src);gl.compileShader(o);return o;}
+  const pr=gl.createProgram();gl.attachShader(pr,sh(gl.VERTEX_SHADER,vs));gl.attachShader(pr,sh(gl.FRAGMENT_SHADER,fs));gl.linkProgram(pr);gl.useProgram(pr);
+  function buf(data,loc,n){const b=gl.createBuffer();gl.bindBuffer(gl.ARRAY_BUFFER,b);gl.bufferData(gl.ARRAY_BUFFER,data,gl.STATIC_DRAW);
+    const l=gl.getAttribLocation(pr,loc);gl.enableVertexAttribArray(l);gl.vertexAttribPointer(l,n,gl.FLOAT,false,0,0);}
+  buf(m.pos,"p",3); buf(m.uv,"t",2);
+  const ib=gl.createBuffer();gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER,ib);gl.bufferData(gl.ELEMENT_ARRAY_BUFFER,new Uint32Array(m.idx),gl.STATIC_DRAW);
+  const tx=gl.createTexture();gl.bindTexture(gl.TEXTURE_2D,tx);
+  gl.texImage2D(gl.TEXTURE_2D,0,gl.RGB,gl.RGB,gl.UNSIGNED_BYTE,document.getElementById("tex"));
+  gl.texParameteri(gl.TEXTURE_2D,gl.TEXTURE_MIN_FILTER,gl.LINEAR);gl.texParameteri(gl.TEXTURE_2D,gl.TEXTURE_MAG_FILTER,gl.LINEAR);
+  gl.texParameteri(gl.TEXTURE_2D,gl.TEXTURE_WRAP_S,gl.CLAMP_TO_EDGE);gl.texParameteri(gl.TEXTURE_2D,gl.TEXTURE_WRAP_T,gl.CLAMP_TO_EDGE);
+  let lo=[1e30,1e30,1e30],hi=[-1e30,-1e30,-1e30];
+  for(let i=0;i<m.pos.length;i+=3)for(let k=0;k<3;k++){lo[k]=Math.min(lo[k],m.pos[i+k]);hi[k]=Math.max(hi[k],m.pos[i+k]);}
+  const c=[(lo[0]+hi[0])/2,(lo[1]+hi[1])/2,(lo[2]+hi[2])/2], r=Math.hypot(hi[0]-lo[0],hi[1]-lo[1],hi[2]-lo[2])/2;
+  const dir=norm(__DIR__), e=[c[0]+dir[0]*r*1.9,c[1]+dir[1]*r*1.9,c[2]+dir[2]*r*1.9];
+  const M=mul(persp(0.9,cv.width/cv.height,r*0.05,r*10),lookAt(e,c,[0,0,1]));
+  gl.uniformMatrix4fv(gl.getUniformLocation(pr,"M"),false,new Float32Array(M));
+  gl.viewport(0,0,cv.width,cv.height);gl.clearColor(0,1,0,1);gl.enable(gl.DEPTH_TEST);
+  gl.clear(gl.COLOR_BUFFER_BIT|gl.DEPTH_BUFFER_BIT);
+  gl.drawElements(gl.TRIANGLES,m.idx.length,gl.UNSIGNED_INT,0);
+  document.title="drawn "+(m.idx.length/3)+" triangles";
+};
+</script></body></html>
+"""
+
+
+def viewer_html(glb: bytes, *, view_direction=(0.35, -1.0, 0.55)) -> str:
+    """A self-contained HTML page (plain WebGL, no libraries, works offline) showing a GLB written by
+    :func:`glb_bytes`: the GLB and its texture are embedded as base64, background pure green (0, 255, 0).
+    ``view_direction``: from the model's centre towards the eye (z up)."""
+    import base64
+    import struct
+
+    data = bytes(glb)
+    # the texture: first image of the GLB, for an <img> that the page loads before 'load' fires
+    jlen = struct.unpack_from("<I", data, 12)[0]
+    js = json.loads(data[20:20 + jlen])
+    bin_off = 20 + jlen + 8
+    img = js["images"][0]
+    bv = js["bufferViews"][img["bufferView"]]
+    png = data[bin_off + bv.get("byteOffset", 0): bin_off + bv.get("byteOffset", 0) + bv["byteLength"]]
+    d = ",".join(f"{float(x):.6g}" for x in view_direction)
+    return (_VIEWER.replace("__GLB__", base64.b64encode(data).decode()).replace("__PNG__", base64.b64encode(png).decode())
+            .replace("__DIR__", f"[{d}]"))
