@@ -12,7 +12,8 @@ import sys
 from .app import app
 
 #: verb modules, imported in this order (each adds its command(s) to ``app``)
-VERB_MODULES: tuple[str, ...] = ("convert", "closerange", "correct", "calibrate", "survey", "dense", "ortho", "evaluate", "demo")
+VERB_MODULES: tuple[str, ...] = ("convert", "closerange", "correct", "calibrate", "survey", "dense", "ortho", "evaluate",
+                                  "texture", "demo")
 
 
 def _register() -> None:

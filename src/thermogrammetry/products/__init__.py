@@ -7,7 +7,9 @@ Submodules are imported lazily (``thermogrammetry.products.X`` loads only what i
 - :mod:`.surfaces` — per-pixel geometry against a mesh or a DSM;
 - :mod:`.raster` — GeoTIFF (COG) writing and reading; :mod:`.dsm` — DSM gridding in tiles;
 - :mod:`.cloud` — LAS/PLY point clouds with ``temperature_k``; :mod:`.ortho` — true orthophoto mosaics;
-- :mod:`.evaluate` — DSM and check-point statistics.
+- :mod:`.evaluate` — DSM and check-point statistics;
+- :mod:`.texture` — thermal textures of meshes (best image per face, occlusion, source map),
+  :mod:`.texture_export` — GLB/OBJ/PLY/TIFF of a texture; :mod:`.facade` — facade mosaics without a mesh.
 """
 
 from __future__ import annotations
@@ -22,6 +24,10 @@ _LAZY = {
     "camera_rays": "correction",
     "dsm_to_mesh": "surfaces",
     "mesh_rasters": "surfaces",
+    "TextureConfig": "texture",
+    "TextureView": "texture",
+    "texture_mesh": "texture",
+    "thermal_poses_from_rig": "texture",
 }
 
 __all__ = sorted(_LAZY)

@@ -1,0 +1,271 @@
+"""``texture`` workflow: survey folder (``cameras.json`` + frames) + mesh file -> textured products.
+
+Reads through :class:`~thermogrammetry.io.oriented.OrientedCameras`, calls
+:func:`thermogrammetry.products.texture.texture_mesh` and writes, through a project store::
+
+    textured.glb, textured.obj, textured.mtl, textured.png   (palette preview; values in the TIFFs)
+    temperature_texture.tif      float32 in the chosen unit (K or °C), NaN = no texel
+    temperature_texture_u16.tif  16-bit codes, value = code * scale + offset (GDAL metadata), 0 = none
+    source_texture.tif           int32 image index (texture.json "index"), -1 = none
+    angle_texture.tif            float32 viewing angle of the source image (degrees)
+    vertices.ply                 per-vertex temperature_k
+    texture.json                 counts, index -> image name, unit, offsets, what altered the values
+    report.html                  coverage, views per face, offsets, a rendered view in °C
+    viewer.html                  the GLB in a self-contained WebGL page (offline, no libraries)
+
+Only thermal images whose frames are in kelvin (``unit: K``) are used; RGB images and frames in raw
+counts or display numbers are listed as skipped. Rig mode (``rig``): thermal poses derived from the
+oriented RGB images through the rig's relative orientation (seed 002 eq. 4–5).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, DataFileError, InvalidInputError, UnsupportedFormatError
+
+__all__ = ["read_mesh", "load_views", "load_rig_views", "run_texture", "texture_report_html"]
+
+
+def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) and triangles (F, 3) of an OBJ, PLY, STL, glTF/GLB or OFF file (trimesh).
+
+    Scenes are concatenated in their world placement; quads are split into triangles.
+    """
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise DataFileError(f"{p}: mesh file not found; expected an OBJ, PLY, glTF/GLB, STL or OFF mesh")
+    try:
+        m = trimesh.load(p, force="mesh", process=False)
+    except Exception as exc:
+        raise UnsupportedFormatError(f"{p}: cannot read a mesh ({type(exc).__name__}: {exc}); expected OBJ, PLY, glTF/GLB, STL or OFF") from None
+    V = np.asarray(getattr(m, "vertices", np.zeros((0, 3))), float)
+    F = np.asarray(getattr(m, "faces", np.zeros((0, 3))), np.int64)
+    if len(V) < 3 or len(F) < 1:
+        raise InvalidInputError(f"{p}: the mesh has {len(V)} vertices and {len(F)} faces; expected a triangle mesh")
+    return V, F
+
+
+def load_views(cameras, *, names=None):
+    """:class:`TextureView` of every thermal image in kelvin; returns ``(views, skipped[(name, reason)])``."""
+    from ..products.texture import TextureView
+
+    views, skipped = [], []
+    for im in cameras:
+        if names is not None and im.name not in names:
+            continue
+        if im.sensor.value != "thermal":
+            skipped.append((im.name, f"sensor {im.sensor.value}: only thermal images carry temperatures"))
+            continue
+        if im.unit.value != "K":
+            skipped.append((im.name, f"frame unit {im.unit.value!r}; expected kelvin (re-run survey with temperature frames)"))
+            continue
+        try:
+            img = cameras.read_frame(im)
+        except DataFileError as exc:
+            skipped.append((im.name, str(exc)))
+            continue
+        if img.ndim != 2:
+            skipped.append((im.name, f"frame shape {img.shape}; expected a single-band temperature image"))
+            continue
+        views.append(TextureView(im.name, cameras.camera_of(im), im.pose, img))
+    return views, skipped
+
+
+def load_rig_views(cameras, rig: dict, *, source: str = "rig.json"):
+    """Rig mode: thermal views from oriented RGB images (seed 002 eq. 4–5).
+
+    ``rig`` (JSON)::
+
+        {"format": "thermogrammetry/rig", "cam_thermal_from_cam_rgb": {"R": 3x3, "t": [3]},
+         "thermal_camera": <camera JSON>, "frames": {"<rgb image name>": "thermal/frame.tif", ...}}
+
+    Frame paths are relative to the cameras file's folder; frames are float32 kelvin TIFFs.
+    """
+    import tifffile
+
+    from ..camera import Camera
+    from ..geometry import Pose
+    from ..products.texture import TextureView, thermal_poses_from_rig
+
+    if not isinstance(rig, dict) or rig.get("format") != "thermogrammetry/rig":
+        raise UnsupportedFormatError(f"{source}: expected a JSON object with 'format': 'thermogrammetry/rig'")
+    unknown = sorted(set(rig) - {"format", "cam_thermal_from_cam_rgb", "thermal_camera", "frames", "notes"})
+    if unknown:
+        raise ConfigError(f"{source}: unknown key(s) {unknown}; expected format, cam_thermal_from_cam_rgb, thermal_camera, frames")
+    try:
+        rel = Pose(np.asarray(rig["cam_thermal_from_cam_rgb"]["R"], float), np.asarray(rig["cam_thermal_from_cam_rgb"]["t"], float))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"{source}: 'cam_thermal_from_cam_rgb' must hold 'R' (3x3) and 't' (3): {exc}") from None
+    cam = Camera.from_dict(rig.get("thermal_camera"), source=f"{source}: thermal_camera")
+    frames = rig.get("frames")
+    if not isinstance(frames, dict) or not frames:
+        raise ConfigError(f"{source}: 'frames' must map RGB image names to thermal frame files")
+    views, skipped = [], []
+    for name, rel_path in frames.items():
+        try:
+            im = cameras.image(name)
+        except KeyError:
+            skipped.append((name, "not in cameras.json"))
+            continue
+        pose = thermal_poses_from_rig([im.pose], rel)[0]
+        p = Path(rel_path)
+        p = p if p.is_absolute() or cameras.root is None else cameras.root / p
+        try:
+            img = tifffile.imread(p)
+        except FileNotFoundError:
+            skipped.append((name, f"{p}: thermal frame missing"))
+            continue
+        views.append(TextureView(f"{name}:thermal", cam, pose, img))
+    return views, skipped
+
+
+def _fig_png(fig) -> str:
+    import base64
+    import io
+
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return f'<img src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
+
+
+def _default_viewpoint(result, views):
+    """A virtual camera behind the best-covering image, pulled back 30 % to show context."""
+    V = result.vertices
+    counts = np.bincount(result.source[result.source >= 0], minlength=len(views))
+    k = int(np.argmax(counts)) if counts.sum() else 0
+    C = views[k].pose.center
+    used = np.unique(result.faces[result.face_source >= 0])
+    target = V[used].mean(axis=0) if len(used) else V.mean(axis=0)
+    C = target + 1.3 * (C - target)
+    return C, target
+
+
+def texture_report_html(result, views, skipped, unit: str) -> str:
+    import html
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = result.summary()
+    C, target = _default_viewpoint(result, views)
+    up = (0, 0, 1)
+    try:
+        from ..products.texture_export import render_view
+
+        rv = render_view(result, C, target, up=up)
+    except Exception as exc:  # a degenerate viewpoint must not lose the report
+        rv = None
+        skipped = list(skipped) + [("report view", f"not rendered: {exc}")]
+    figs = []
+    if rv is not None:
+        fig, ax = plt.subplots(figsize=(7, 5))
+        t_c = rv - 273.15  # the result's texture is in kelvin; the report shows °C
+        im = ax.imshow(t_c, cmap="inferno")
+        ax.set_axis_off()
+        ax.set_title("textured mesh (untextured and background: white)")
+        fig.colorbar(im, ax=ax, label="temperature (°C)")
+        figs.append(_fig_png(fig))
+    fig, ax = plt.subplots(figsize=(6, 3))
+    h = s["views_per_face_histogram"]
+    ax.bar(range(len(h)), h)
+    ax.set_xlabel("images with a positive score")
+    ax.set_ylabel("faces")
+    figs.append(_fig_png(fig))
+    cnt = np.bincount(result.source[result.source >= 0], minlength=len(views))
+    rows = "".join(f"<tr><td>{i}</td><td>{html.escape(v.name)}</td><td>{int(cnt[i])}</td><td>{int(result.occluded_texels[i])}</td>"
+                   f"<td>{result.offsets_k[i]:+.3f}</td></tr>" for i, v in enumerate(views))
+    sk = "".join(f"<li>{html.escape(n)}: {html.escape(r)}</li>" for n, r in skipped)
+    lev = result.config.levelling.value
+    lev_note = ("<p><b>Levelling: per-image offsets were estimated from the overlaps (least squares, image "
+                f"{html.escape(views[result.levelling_fixed].name)} held at 0) and ADDED to every texel of their image: "
+                "the values are altered.</b> RMS of overlap differences before/after: "
+                f"{result.levelling_rms_k[0]:.3f} / {result.levelling_rms_k[1]:.3f} K.</p>") if lev == "offsets" else \
+        "<p>No seam levelling: every texel holds the temperature of one image as sampled.</p>"
+    corr = "<p><b>Per-texel angle/emissivity/transmission correction applied.</b></p>" if result.config.correct else ""
+    share = s["faces_textured"] / max(s["faces_seen"], 1)
+    return f"""<!doctype html><html><head><meta charset="utf-8"><title>thermogrammetry texture</title>
+<style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}</style></head><body>
+<h1>Thermal texture</h1>
+<h2>Coverage</h2>
+<table><tr><th>faces</th><td>{s['faces_total']}</td></tr><tr><th>faces seen by an image</th><td>{s['faces_seen']}</td></tr>
+<tr><th>faces textured (≥ 1 texel)</th><td>{s['faces_textured']} ({100 * share:.1f} % of those seen)</td></tr>
+<tr><th>faces fully textured</th><td>{s['faces_fully_textured']}</td></tr>
+<tr><th>texels textured / inside faces</th><td>{s['texels_textured']} / {s['texels_total']}</td></tr>
+<tr><th>texel size</th><td>{s['texel_size_m'] * 100:.2f} cm ({s['texture_size'][0]} × {s['texture_size'][1]})</td></tr></table>
+<p>Untextured texels are NaN (source −1) in the TIFFs: nothing is filled.</p>
+{lev_note}{corr}
+<h2>Rendered view (colour scale in °C)</h2>{figs[0] if rv is not None else '<p>(no view)</p>'}
+<h2>Views per face</h2>{figs[-1]}
+<h2>Images</h2><table><tr><th>index</th><th>image</th><th>texels</th><th>texels occluded</th><th>offset (K)</th></tr>{rows}</table>
+{('<h2>Skipped</h2><ul>' + sk + '</ul>') if sk else ''}
+</body></html>"""
+
+
+def run_texture(survey_dir, mesh_path, out_dir, *, unit: str = "K", correct: bool = False, levelling: str = "none",
+                rig_path=None, config=None, progress=None) -> dict:
+    """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict."""
+    from dataclasses import replace
+
+    from ..io.oriented import OrientedCameras
+    from ..io.tiff import encode_temperature_tiff
+    from ..products import texture_export as tx
+    from ..products.texture import TextureConfig, texture_mesh
+    from ..radiometry.encoding import TemperatureUnit, from_kelvin
+    from .project import FolderProject
+
+    u = TemperatureUnit(unit)
+    cameras = OrientedCameras.load(survey_dir)
+    V, F = read_mesh(mesh_path)
+    if rig_path is not None:
+        try:
+            rig = json.loads(Path(rig_path).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise DataFileError(f"{rig_path}: rig file not found") from None
+        except json.JSONDecodeError as exc:
+            raise UnsupportedFormatError(f"{rig_path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+        views, skipped = load_rig_views(cameras, rig, source=str(rig_path))
+    else:
+        views, skipped = load_views(cameras)
+    if not views:
+        why = "; ".join(f"{n}: {r}" for n, r in skipped[:5])
+        raise InvalidInputError(f"{survey_dir}: no usable thermal image in kelvin ({why or 'cameras.json lists none'})")
+    cfg = config or TextureConfig()
+    cfg = replace(cfg, correct=bool(correct), levelling=levelling)
+    result = texture_mesh(V, F, views, cfg)
+    store = FolderProject(out_dir)
+    t_unit = from_kelvin(result.temperature_k, u).astype(np.float32)
+    preview = tx.preview_rgb(t_unit)
+    store.write_bytes("textured.png", tx.png_bytes(preview))
+    glb = tx.glb_bytes(result, preview)
+    store.write_bytes("textured.glb", glb)
+    store.write_text("viewer.html", tx.viewer_html(glb))
+    store.write_text("textured.obj", tx.obj_text(result))
+    store.write_text("textured.mtl", tx.mtl_text("textured.png"))
+    data, _ = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="float32")
+    store.write_bytes("temperature_texture.tif", data)
+    mapping = None
+    if np.any(np.isfinite(result.temperature_k)):
+        data16, mapping = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="uint16")
+        store.write_bytes("temperature_texture_u16.tif", data16)
+    store.write_bytes("source_texture.tif", tx.int32_tiff_bytes(result.source))
+    store.write_bytes("angle_texture.tif", tx.float32_tiff_bytes(result.angle_deg))
+    store.write_bytes("vertices.ply", tx.ply_bytes(V, F, result.vertex_temperature_k))
+    extra = {"skipped": [{"image": n, "reason": r} for n, r in skipped],
+             "uint16_mapping": None if mapping is None else {"scale": mapping.scale, "offset": mapping.offset, "unit": u.value,
+                                                             "nodata_code": 0},
+             "rig": None if rig_path is None else str(rig_path)}
+    text = tx.texture_json(result, u.value, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
+    store.write_text("texture.json", text)
+    store.write_text("report.html", texture_report_html(result, views, skipped, u.value))
+    return json.loads(text)

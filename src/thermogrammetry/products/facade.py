@@ -1,0 +1,326 @@
+"""Facade mosaics without a mesh: thermal orthoimages of a flat facade, temperatures kept, source map.
+
+Two ways to put images on a facade plane (plane coordinates ``(a, b)`` in metres: ``a`` along the facade,
+``b`` up; the output raster's row 0 is the TOP, cell ``(row, col)`` centred at
+``a = a0 + (col + 0.5)·cell_m``, ``b = b1 − (row + 0.5)·cell_m``):
+
+1. **Homography** (:func:`fit_facade_homography`, :func:`homography_mosaic`): from ≥ 4 points with known
+   plane coordinates measured in an image (no orientation needed). With a camera model the measured
+   points are undistorted first and the lens distortion is re-applied when sampling, so the plane
+   maps exactly through a 3×3 homography ``x_ideal ~ H (a, b, 1)``; the fit is the normalised DLT
+   (Hartley & Zisserman 2003, alg. 4.2) refined by Gauss–Newton on the image residuals, reported in px.
+2. **Ortho on a plane** (:func:`plane_mosaic`): from oriented images (``cameras.json``) and a plane;
+   every cell is projected into every image.
+
+Both choose the image of every cell with the rule of :mod:`thermogrammetry.products.texture`: the
+resolution on the surface (pixels per metre along the steepest direction) times a border weight
+``min(1, b/b0)``, evaluated per **tile** (``tile_m``, the analogue of a mesh face, so that an image
+covers whole tiles and seams follow tile edges unless an image cannot serve a cell). For a homography the
+resolution is the smallest singular value of the Jacobian of ``(a, b) -> x`` (equal to ``f cos θ / d`` of
+a pinhole camera); with poses it is ``f cos θ / d`` directly. Ortho on a plane can take occluding
+geometry (a mesh of what stands in front: the per-cell ray test and the mixed-pixel test of the texture
+module then apply); without it nothing in front of the plane is known and the homography/ortho mosaic
+cannot exclude occluders (stated in the result's ``notes``).
+
+Values are sampled bilinearly from one image per cell; nothing is blended or filled (NaN, source −1).
+
+References
+----------
+.. [1] Barazzetti, Erba, Previtali, Rosina, Scaioni (2013), seed 002: thermal orthophotos of facades,
+   rectification of planar facades and mosaics keeping the temperatures.
+.. [2] Hartley R., Zisserman A. (2003), *Multiple View Geometry*, 2nd ed., §4.1–4.2 (normalised DLT).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import ConfigError, InvalidInputError, ShapeError, TooFewPointsError
+
+__all__ = ["FacadeGrid", "FacadePlane", "FacadeMosaic", "HomographyFit", "fit_facade_homography", "homography_mosaic",
+           "plane_mosaic"]
+
+
+@dataclass(frozen=True)
+class FacadeGrid:
+    """Output raster on the plane: extent ``a0 <= a <= a1``, ``b0 <= b <= b1`` (m) and ``cell_m``."""
+
+    a0: float
+    a1: float
+    b0: float
+    b1: float
+    cell_m: float
+
+    def __post_init__(self):
+        if not (self.a1 > self.a0 and self.b1 > self.b0 and self.cell_m > 0):
+            raise ConfigError(f"FacadeGrid({self.a0}, {self.a1}, {self.b0}, {self.b1}, cell_m={self.cell_m}): "
+                              "expected a1 > a0, b1 > b0 and a positive cell size")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return int(np.ceil((self.b1 - self.b0) / self.cell_m - 1e-9)), int(np.ceil((self.a1 - self.a0) / self.cell_m - 1e-9))
+
+    def centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) arrays of plane coordinates a, b of the cell centres (row 0 at the top)."""
+        h, w = self.shape
+        a = self.a0 + (np.arange(w) + 0.5) * self.cell_m
+        b = self.b1 - (np.arange(h) + 0.5) * self.cell_m
+        return np.meshgrid(a, b)
+
+
+@dataclass(frozen=True)
+class FacadePlane:
+    """A plane in object space: ``X = origin + a·u + b·v`` with orthonormal ``u`` (along) and ``v`` (up);
+    its normal ``u × v`` points towards the cameras."""
+
+    origin: tuple
+    u: tuple
+    v: tuple
+
+    def __post_init__(self):
+        u, v = np.asarray(self.u, float), np.asarray(self.v, float)
+        if u.shape != (3,) or v.shape != (3,) or np.asarray(self.origin, float).shape != (3,):
+            raise ShapeError("FacadePlane: origin, u and v must be 3-vectors")
+        if abs(np.linalg.norm(u) - 1) > 1e-6 or abs(np.linalg.norm(v) - 1) > 1e-6 or abs(u @ v) > 1e-6:
+            raise ConfigError(f"FacadePlane: u={u.tolist()} and v={v.tolist()} must be orthonormal")
+
+    def points(self, a, b) -> np.ndarray:
+        return np.asarray(self.origin, float) + np.multiply.outer(a, self.u) + np.multiply.outer(b, self.v)
+
+    @property
+    def normal(self) -> np.ndarray:
+        return np.cross(self.u, self.v)
+
+
+@dataclass
+class FacadeMosaic:
+    """``temperature_k`` (H, W) float32, NaN = none; ``source`` (H, W) int32 image index, −1 = none;
+    ``resolution_px_per_m`` (H, W) of the source image; ``names`` index -> image; ``grid``; ``notes``."""
+
+    temperature_k: np.ndarray
+    source: np.ndarray
+    resolution_px_per_m: np.ndarray
+    names: list
+    grid: FacadeGrid
+    notes: str = ""
+    angle_deg: np.ndarray | None = None
+    fits: list = field(default_factory=list)
+
+
+# ------------------------------------------------------------------------------------------- homography
+@dataclass
+class HomographyFit:
+    """``H`` (3×3) maps plane (a, b, 1) to ideal (undistorted) pixels; ``residuals_px`` (N, 2); ``rms_px``."""
+
+    H: np.ndarray
+    residuals_px: np.ndarray
+    rms_px: float
+    camera: object = None
+
+    def to_pixels(self, a, b) -> np.ndarray:
+        """Pixel coordinates (..., 2) of plane points, lens distortion re-applied when a camera is known."""
+        a = np.asarray(a, float)
+        p = np.stack([a, np.asarray(b, float), np.ones_like(a)], -1) @ self.H.T
+        xy = p[..., :2] / p[..., 2:3]
+        if self.camera is not None:
+            flat = xy.reshape(-1, 2)
+            xy = self.camera.distort(flat).reshape(xy.shape)
+        return xy
+
+    def jacobian_min_sv(self, a, b) -> np.ndarray:
+        """Smallest singular value of d(x)/d(a, b) (ideal pixels per metre, worst direction)."""
+        H = self.H
+        a = np.asarray(a, float)
+        b = np.asarray(b, float)
+        w = H[2, 0] * a + H[2, 1] * b + H[2, 2]
+        x = (H[0, 0] * a + H[0, 1] * b + H[0, 2]) / w
+        y = (H[1, 0] * a + H[1, 1] * b + H[1, 2]) / w
+        J = np.stack([np.stack([(H[0, 0] - x * H[2, 0]) / w, (H[0, 1] - x * H[2, 1]) / w], -1),
+                      np.stack([(H[1, 0] - y * H[2, 0]) / w, (H[1, 1] - y * H[2, 1]) / w], -1)], -2)
+        return np.linalg.svd(J, compute_uv=False)[..., -1]
+
+
+def _normalise(p):
+    c = p.mean(axis=0)
+    s = np.sqrt(2) / max(np.mean(np.linalg.norm(p - c, axis=1)), 1e-12)
+    T = np.array([[s, 0, -s * c[0]], [0, s, -s * c[1]], [0, 0, 1]])
+    return T, (p - c) * s
+
+
+def fit_facade_homography(plane_ab, image_xy_px, *, camera=None, iterations: int = 10) -> HomographyFit:
+    """Homography from ≥ 4 plane points (N, 2) m to their measured pixels (N, 2) (module docstring).
+
+    Raises :class:`~thermogrammetry.errors.TooFewPointsError` below 4 points and
+    :class:`~thermogrammetry.errors.DegenerateInputError` when 3 of 4 are collinear (rank-deficient DLT).
+    """
+    from ..errors import DegenerateInputError
+
+    P = np.asarray(plane_ab, float)
+    X = np.asarray(image_xy_px, float)
+    if P.ndim != 2 or P.shape[1] != 2 or X.shape != P.shape:
+        raise ShapeError(f"plane points {P.shape} and image points {X.shape}: expected two (N, 2) arrays")
+    if len(P) < 4:
+        raise TooFewPointsError(f"facade homography: {len(P)} points given; expected at least 4 with known plane coordinates")
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(X))):
+        raise InvalidInputError("facade homography: non-finite coordinates")
+    Xi = camera.undistort(X) if camera is not None else X
+    Tp, p = _normalise(P)
+    Tx, x = _normalise(Xi)
+    A = []
+    for (a, b), (u, v) in zip(p, x):
+        A.append([a, b, 1, 0, 0, 0, -u * a, -u * b, -u])
+        A.append([0, 0, 0, a, b, 1, -v * a, -v * b, -v])
+    _, s, Vt = np.linalg.svd(np.asarray(A))
+    if s[-2] < 1e-9 * s[0]:
+        raise DegenerateInputError("facade homography: the points are degenerate (three or more collinear); "
+                                   "expected 4+ points spread over the facade")
+    Hn = Vt[-1].reshape(3, 3)
+    H = np.linalg.inv(Tx) @ Hn @ Tp
+    H /= H[2, 2]
+    h = H.ravel()[:8].copy()
+    for _ in range(iterations):  # Gauss-Newton on image residuals
+        Hm = np.append(h, 1.0).reshape(3, 3)
+        q = np.c_[P, np.ones(len(P))] @ Hm.T
+        w = q[:, 2]
+        pred = q[:, :2] / w[:, None]
+        r = (Xi - pred).ravel()
+        J = np.zeros((2 * len(P), 8))
+        a, b = P[:, 0], P[:, 1]
+        J[0::2, 0:3] = np.c_[a, b, np.ones_like(a)] / w[:, None]
+        J[1::2, 3:6] = np.c_[a, b, np.ones_like(a)] / w[:, None]
+        J[0::2, 6:8] = -pred[:, :1] * np.c_[a, b] / w[:, None]
+        J[1::2, 6:8] = -pred[:, 1:2] * np.c_[a, b] / w[:, None]
+        dh, *_ = np.linalg.lstsq(J, r, rcond=None)
+        h += dh
+        if np.linalg.norm(dh) < 1e-12 * max(1.0, np.linalg.norm(h)):
+            break
+    H = np.append(h, 1.0).reshape(3, 3)
+    q = np.c_[P, np.ones(len(P))] @ H.T
+    res = Xi - q[:, :2] / q[:, 2:3]
+    return HomographyFit(H, res, float(np.sqrt(np.mean(np.sum(res**2, axis=1)))), camera)
+
+
+def _bilinear(img, xy):
+    from .texture import _bilinear as b
+
+    return b(img, xy)
+
+
+def _tile_ids(grid: FacadeGrid, tile_m: float):
+    h, w = grid.shape
+    per = max(1, int(round(tile_m / grid.cell_m)))
+    r, c = np.mgrid[0:h, 0:w]
+    return (r // per) * ((w + per - 1) // per) + (c // per)
+
+
+def _choose(scores_cells, usable, tiles):
+    """Per-tile score (mean over the tile's usable cells) then per cell the best usable image."""
+    K = scores_cells.shape[0]
+    tid = tiles.ravel()
+    nt = tid.max() + 1
+    tile_score = np.zeros((K, nt))
+    for k in range(K):
+        s = np.where(usable[k].ravel(), scores_cells[k].ravel(), 0.0)
+        n = np.bincount(tid, weights=usable[k].ravel().astype(float), minlength=nt)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            tile_score[k] = np.where(n > 0, np.bincount(tid, weights=s, minlength=nt) / n, 0.0)
+    cell_score = np.where(usable.reshape(K, -1), tile_score[:, tid], -1.0)
+    best = np.argmax(cell_score, axis=0)
+    best = np.where(cell_score[best, np.arange(cell_score.shape[1])] > 0, best, -1)
+    return best.reshape(tiles.shape)
+
+
+def homography_mosaic(images: Sequence[np.ndarray], fits: Sequence[HomographyFit], grid: FacadeGrid, *, names=None,
+                      tile_m: float = 1.0, border_px: float = 2.0, border_fraction: float = 0.1) -> FacadeMosaic:
+    """Mosaic of rectified images (kelvin) on the facade grid; image choice by the module's rule."""
+    if len(images) != len(fits) or not len(images):
+        raise InvalidInputError(f"homography_mosaic: {len(images)} images and {len(fits)} homographies; expected the same number >= 1")
+    A, B = grid.centres()
+    h, w = A.shape
+    K = len(images)
+    scores = np.zeros((K, h, w))
+    usable = np.zeros((K, h, w), bool)
+    xys = []
+    for k, (img, fit) in enumerate(zip(images, fits)):
+        img = np.asarray(img)
+        H_, W_ = img.shape
+        xy = fit.to_pixels(A, B)
+        xys.append(xy)
+        bd = np.minimum(np.minimum(xy[..., 0] + 0.5, W_ - 0.5 - xy[..., 0]), np.minimum(xy[..., 1] + 0.5, H_ - 0.5 - xy[..., 1]))
+        q = np.stack([A, B, np.ones_like(A)], -1) @ fit.H.T
+        front = q[..., 2] > 0
+        ok = front & np.isfinite(bd) & (bd >= border_px + 0.5)
+        usable[k] = ok
+        b0 = border_fraction * min(W_, H_)
+        scores[k] = np.where(ok, fit.jacobian_min_sv(A, B) * np.minimum(1.0, np.maximum(bd, 0) / b0), 0.0)
+    best = _choose(scores, usable, _tile_ids(grid, tile_m))
+    T = np.full((h, w), np.nan, np.float32)
+    res = np.full((h, w), np.nan, np.float32)
+    for k in range(K):
+        m = best == k
+        if np.any(m):
+            T[m] = _bilinear(np.asarray(images[k], np.float32), xys[k][m])
+            res[m] = fits[k].jacobian_min_sv(A[m], B[m])
+    src = best.astype(np.int32)
+    return FacadeMosaic(T, src, res, list(names) if names is not None else [str(i) for i in range(K)], grid,
+                        notes="homography rectification: nothing in front of the plane is known; occluders are not excluded",
+                        fits=list(fits))
+
+
+def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None, tile_m: float = 1.0, config=None) -> FacadeMosaic:
+    """Ortho on a plane from oriented images (``views``: :class:`~thermogrammetry.products.texture.TextureView`).
+
+    ``occluders``: optional ``(vertices, faces)`` of geometry in front of the plane (e.g. a mesh of a
+    balcony or a tree); with it every cell gets the texture module's occlusion and mixed-pixel tests.
+    """
+    from .texture import TextureConfig, pixel_surfaces, select_and_sample, _intersector
+
+    cfg = config or TextureConfig()
+    A, B = grid.centres()
+    h, w = A.shape
+    # the plane as a tile mesh: two triangles per tile (the "faces" of the image-choice rule)
+    per = max(1, int(round(tile_m / grid.cell_m)))
+    nta, ntb = (w + per - 1) // per, (h + per - 1) // per
+    ea = grid.a0 + np.arange(nta + 1) * per * grid.cell_m
+    eb = grid.b1 - np.arange(ntb + 1) * per * grid.cell_m
+    EA, EB = np.meshgrid(ea, eb)
+    PV = plane.points(EA.ravel(), EB.ravel())
+    idx = np.arange(len(PV)).reshape(ntb + 1, nta + 1)
+    q00, q10, q01, q11 = idx[1:, :-1], idx[1:, 1:], idx[:-1, :-1], idx[:-1, 1:]  # row+1 is lower b
+    F = np.concatenate([np.stack([q00, q10, q11], -1).reshape(-1, 3), np.stack([q00, q11, q01], -1).reshape(-1, 3)])
+    nf_plane = len(F)
+    V = PV
+    if occluders is not None:
+        OV, OF = (np.asarray(occluders[0], float), np.asarray(occluders[1], np.int64))
+        F = np.concatenate([F, OF + len(V)])
+        V = np.concatenate([V, OV])
+    # which plane triangle holds each cell centre
+    r, c = np.mgrid[0:h, 0:w]
+    tr, tc = r // per, c // per
+    fa = (A - ea[tc]) / (per * grid.cell_m)  # in [0, 1) along a within the tile
+    fb = (eb[tr] - B) / (per * grid.cell_m)  # in [0, 1) downwards within the tile
+    lower = (1 - fb) <= fa  # triangle (q00, q10, q11) holds points with (1 - fb) <= fa
+    tile = tr * nta + tc
+    face = np.where(lower, tile, tile + nta * ntb)
+    P = plane.points(A.ravel(), B.ravel())
+    from .texture import face_view_scores
+
+    scores = face_view_scores(V, F, views, max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
+    inter = _intersector(V, F)
+    surfaces = [pixel_surfaces(inter, V, F, v) for v in views]
+    sel = select_and_sample(inter, V, F, views, surfaces, scores, P, face.ravel(), cfg)
+    T = sel.temperature_k.reshape(h, w).astype(np.float32)
+    src = sel.source.reshape(h, w).astype(np.int32)
+    ang = sel.angle_deg.reshape(h, w).astype(np.float32)
+    res = np.full((h, w), np.nan, np.float32)
+    ok = src >= 0
+    K = len(views)
+    fpx = np.array([0.5 * (v.camera.K[0, 0] + v.camera.K[1, 1]) for v in views])
+    res[ok] = (fpx[src[ok]] * np.cos(np.deg2rad(ang[ok])) / sel.distance_m.reshape(h, w)[ok]).astype(np.float32)
+    _ = nf_plane, K
+    notes = ("ortho on a plane with occluding geometry: occlusion and mixed-pixel tests applied" if occluders is not None else
+             "ortho on a plane without occluding geometry: only the plane is known; objects in front are not excluded")
+    return FacadeMosaic(T, src, res, [v.name for v in views], grid, notes=notes, angle_deg=ang)

@@ -1,0 +1,745 @@
+"""Thermal textures of meshes: the best image per face, occlusion by ray casting, float temperatures.
+
+Given a triangle mesh (any source: our dense cloud, an RGB photogrammetry package, a laser scanner, a
+CAD model) and oriented thermal images (``cameras.json`` + frames), every texel of a texture atlas gets
+the temperature of ONE image, sampled bilinearly at the texel's 3D point; which image is recorded in a
+source-id texture. Nothing is blended and nothing is filled: a texel that no image sees cleanly stays
+NaN with source −1, and the faces without any texel are listed.
+
+View selection (documented score, per face)
+-------------------------------------------
+For face ``f`` (unit normal ``n``, centroid ``c``) and image ``k`` (centre ``C_k``, focal length ``f_k``
+in pixels) with ``d = |C_k − c|`` and ``cos θ = n·(C_k − c)/d``:
+
+    score(f, k) = (f_k cos θ / d) · min(1, b / b0)
+
+``f_k cos θ / d`` is the image's resolution on the surface (pixels per metre along the steepest
+direction of the face: it falls with distance and with the viewing angle θ), ``b`` is the distance in
+pixels of the face's projected centroid from the nearest image border and
+``b0 = border_fraction · min(W, H)`` (distortion and vignetting are largest near the border).
+Faces seen at θ > ``max_angle_deg``, behind the camera or with the centroid outside the image get no
+score from that image (a face partly outside an image can still take texels from it: each texel is
+tested on its own). Every texel takes the highest-scoring image of its face **in which the texel itself
+is usable**, so a face keeps one image unless an occlusion forces a change inside it.
+
+A texel is usable in image ``k`` when
+(1) its point projects inside the image with ``border_px`` to spare;
+(2) it is in front and seen at θ ≤ ``max_angle_deg`` (θ from the face normal at the texel);
+(3) it is **not occluded**: the ray from ``C_k`` through the point, cast against the whole mesh
+    (trimesh with Embree), first hits the surface within ``occlusion_tol_m`` of the point;
+(4) the image's pixels that the bilinear sample touches (and ``clean_radius_px`` around them, for the
+    optics' blur) all see the texel's own surface: the same per-pixel ray casting gives each pixel's
+    surface point and face, the point must lie within ``surface_tol_m`` of the texel face's plane and
+    the face's normal within ``normal_tol_deg`` of the texel face's normal. This keeps mixed pixels at
+    occlusion edges (an occluder's silhouette) and at folds (a building corner) out of the texture.
+
+Optional steps (both change values and say so in ``texture.json``):
+
+* ``levelling="offsets"``: per-image additive offsets ``o_k`` from the overlaps, least squares over
+  texel pairs ``T_a(x) + o_a = T_b(x) + o_b`` with the image that supplies most texels held at 0
+  (seam levelling for images with drifting offsets; it alters every temperature of the other images
+  by its ``o_k``).
+* ``correct=True``: per-texel inversion ``T0⁴ = τ[εT⁴ + (1−ε)Ta⁴] + (1−τ)Tatm⁴`` with ε(θ) from the
+  mesh normal at the texel and τ over the real camera-to-texel distance: the products layer's
+  per-pixel correction (:mod:`thermogrammetry.products.correction`, its :class:`CorrectionConfig`).
+
+Rig mode: when only the RGB images were oriented, :func:`thermal_poses_from_rig` derives the thermal
+poses through the constant relative orientation (seed 002 eq. 4–5, in our ``cam_from_world`` terms:
+``R_IR = R_rel R_RGB``, ``t_IR = R_rel t_RGB + t_rel``; see :mod:`thermogrammetry.adjustment.problem`).
+
+References
+----------
+.. [1] Barazzetti L., Erba S., Previtali M., Rosina E., Scaioni M. (2013), seed 002: thermal textures of
+   building models from thermal + RGB images, bi-camera rig (eq. 4–5), best image per triangle.
+.. [2] Sawicki P., Stein R., Więcek B. (seed 000) eq. 7–8: directional correction.
+.. [3] Young J. et al., xatlas: mesh parameterisation and chart packing (github.com/jpcy/xatlas).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Sequence
+
+import numpy as np
+
+from ..enums import StrChoice
+from ..errors import ConfigError, InvalidInputError, ShapeError
+from .correction import CorrectionConfig
+
+__all__ = ["Levelling", "TextureConfig", "TextureView", "TextureResult", "face_view_scores",
+           "build_atlas", "rasterize_atlas", "PixelSurface", "pixel_surfaces", "usable_in_view", "select_and_sample",
+           "estimate_offsets", "texture_mesh", "thermal_poses_from_rig"]
+
+
+class Levelling(StrChoice):
+    NONE = "none"
+    OFFSETS = "offsets"
+
+
+@dataclass(frozen=True)
+class TextureConfig:
+    """How a mesh is textured. Unknown keys in :meth:`from_dict` are errors."""
+
+    texel_size_m: float | None = None  # None: half the median surface pixel size of the chosen images
+    max_texture_px: int = 4096
+    padding_texels: int = 2
+    max_angle_deg: float = 75.0
+    border_px: float = 2.0
+    border_fraction: float = 0.1
+    occlusion_tol_m: float = 0.02
+    surface_tol_m: float = 0.05
+    normal_tol_deg: float = 30.0
+    clean_radius_px: int = 1
+    levelling: Levelling = Levelling.NONE
+    offsets_max_pairs: int = 200_000
+    correct: bool = False
+    correction: CorrectionConfig = field(default_factory=CorrectionConfig)
+
+    def __post_init__(self):
+        object.__setattr__(self, "levelling", Levelling(self.levelling))
+        if self.texel_size_m is not None and not (np.isfinite(self.texel_size_m) and self.texel_size_m > 0):
+            raise ConfigError(f"TextureConfig.texel_size_m={self.texel_size_m!r}: expected a positive number of metres or None")
+        if not 0 < self.max_angle_deg < 90:
+            raise ConfigError(f"TextureConfig.max_angle_deg={self.max_angle_deg!r}: expected degrees in (0, 90)")
+        if int(self.max_texture_px) < 64:
+            raise ConfigError(f"TextureConfig.max_texture_px={self.max_texture_px!r}: expected at least 64")
+        for k in ("border_px", "occlusion_tol_m", "surface_tol_m"):
+            if not getattr(self, k) >= 0:
+                raise ConfigError(f"TextureConfig.{k}={getattr(self, k)!r}: expected a number >= 0")
+        if isinstance(self.correction, dict):
+            object.__setattr__(self, "correction", CorrectionConfig.from_dict(self.correction))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TextureConfig":
+        return _from_dict(cls, d)
+
+
+def _from_dict(cls, d):
+    if not isinstance(d, dict):
+        raise ConfigError(f"{cls.__name__}: expected a mapping, got {type(d).__name__}")
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(d) - names)
+    if unknown:
+        raise ConfigError(f"{cls.__name__}: unknown key(s) {unknown}; valid: {sorted(names)}")
+    return cls(**d)
+
+
+@dataclass
+class TextureView:
+    """One oriented thermal image: ``camera`` (a :class:`~thermogrammetry.Camera`), ``pose``
+    (``cam_from_world`` :class:`~thermogrammetry.geometry.Pose`) and ``image_k`` (H, W) kelvin."""
+
+    name: str
+    camera: object
+    pose: object
+    image_k: np.ndarray
+
+    def __post_init__(self):
+        img = np.asarray(self.image_k)
+        w, h = self.camera.image_size
+        if img.shape != (h, w):
+            raise ShapeError(f"view {self.name!r}: image shape {img.shape}; expected (H, W) = ({h}, {w}) from its camera")
+        self.image_k = img.astype(np.float32, copy=False)
+
+
+def _check_mesh(vertices, faces):
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) < 3:
+        raise ShapeError(f"mesh vertices: expected (V, 3) with V >= 3, got shape {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) < 1:
+        raise ShapeError(f"mesh faces: expected (F, 3) triangles, got shape {F.shape}")
+    F = F.astype(np.int64)
+    if F.min() < 0 or F.max() >= len(V):
+        raise InvalidInputError(f"mesh faces: vertex index out of range [0, {len(V) - 1}] (min {F.min()}, max {F.max()})")
+    if not np.all(np.isfinite(V)):
+        raise InvalidInputError("mesh vertices: non-finite coordinates")
+    return V, F
+
+
+def _face_geometry(V, F):
+    e1 = V[F[:, 1]] - V[F[:, 0]]
+    e2 = V[F[:, 2]] - V[F[:, 0]]
+    n = np.cross(e1, e2)
+    area2 = np.linalg.norm(n, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normals = n / area2[:, None]
+    return normals, 0.5 * area2, V[F].mean(axis=1)
+
+
+def _project(view: TextureView, X):
+    """Pixel coordinates (N, 2) and depth (N,) of world points; NaN pixels behind the camera."""
+    Xc = X @ view.pose.R.T + view.pose.t
+    z = Xc[:, 2]
+    xy = np.full((len(X), 2), np.nan)
+    front = z > 1e-6
+    if np.any(front):
+        xy[front] = view.camera.project(Xc[front])
+    return xy, z
+
+
+def _focal_px(camera) -> float:
+    K = camera.K
+    return 0.5 * (K[0, 0] + K[1, 1])
+
+
+def face_view_scores(vertices, faces, views: Sequence[TextureView], *, max_angle_deg: float = 75.0,
+                     border_fraction: float = 0.1) -> np.ndarray:
+    """The documented per-face score (module docstring) of every image: (F, K), 0 = unusable.
+
+    Parameters
+    ----------
+    vertices : (V, 3) metres; faces : (F, 3) vertex indices; views : K oriented images.
+
+    Returns
+    -------
+    (F, K) float64: ``f cos θ / d · min(1, b / b0)`` in pixels per metre; 0 where θ > ``max_angle_deg``,
+    behind the camera or the centroid projects outside the image. Occlusion is not part of the score (it is
+    tested per texel).
+    """
+    V, F = _check_mesh(vertices, faces)
+    normals, _, cen = _face_geometry(V, F)
+    cmax = np.cos(np.deg2rad(max_angle_deg))
+    S = np.zeros((len(F), len(views)))
+    for k, v in enumerate(views):
+        w, h = v.camera.image_size
+        C = v.pose.center
+        dvec = C - cen
+        d = np.linalg.norm(dvec, axis=1)
+        cos_t = np.einsum("ij,ij->i", normals, dvec) / d
+        ok = np.isfinite(cos_t) & (cos_t >= cmax)
+        xy, z = _project(v, cen)
+        bx = np.minimum(xy[:, 0] + 0.5, w - 0.5 - xy[:, 0])
+        by = np.minimum(xy[:, 1] + 0.5, h - 0.5 - xy[:, 1])
+        b = np.nan_to_num(np.where(z > 1e-6, np.minimum(bx, by), -np.inf), nan=-np.inf)
+        ok &= b > 0
+        b0 = max(1e-9, border_fraction * min(w, h))
+        S[:, k] = np.where(ok, _focal_px(v.camera) * np.clip(cos_t, 0, 1) / d * np.minimum(1.0, np.maximum(b, 0) / b0), 0.0)
+    return S
+
+
+# ---------------------------------------------------------------------------------------------- atlas
+@dataclass
+class Atlas:
+    """An xatlas parameterisation: ``vmapping`` (N,) original vertex of each atlas vertex, ``faces`` (F, 3)
+    atlas-vertex indices (same face order as the input), ``uv`` (N, 2) in [0, 1] with v measured from
+    the TOP row of the texture (row = v · height), ``size`` (width, height) in texels."""
+
+    vmapping: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    size: tuple[int, int]
+    texel_size_m: float
+
+
+def build_atlas(vertices, faces, texel_size_m: float, *, max_texture_px: int = 4096, padding: int = 2) -> Atlas:
+    """Charts and packing with xatlas at ``texel_size_m``; coarsened until the atlas fits ``max_texture_px``."""
+    import xatlas
+
+    V, F = _check_mesh(vertices, faces)
+    ts = float(texel_size_m)
+    for _ in range(12):
+        atlas = xatlas.Atlas()
+        atlas.add_mesh(V.astype(np.float32), F.astype(np.uint32))
+        po = xatlas.PackOptions()
+        po.texels_per_unit = 1.0 / ts
+        po.padding = int(padding)
+        po.bilinear = True
+        po.blockAlign = False
+        atlas.generate(xatlas.ChartOptions(), po)
+        w, h = int(atlas.width), int(atlas.height)
+        if max(w, h) <= max_texture_px and atlas.atlas_count == 1:
+            vmap, idx, uv = atlas[0]
+            idx = np.asarray(idx, np.int64)
+            if len(idx) != len(F) or not np.array_equal(np.asarray(vmap, np.int64)[idx], F):
+                raise InvalidInputError("xatlas changed the face order or topology; expected one atlas face per mesh face")
+            return Atlas(np.asarray(vmap, np.int64), idx, np.asarray(uv, np.float64), (w, h), ts)
+        ts *= max(1.25, max(w, h) / max_texture_px * 1.05)
+    raise InvalidInputError(f"mesh too large for a {max_texture_px}-texel atlas even at {ts:.3g} m per texel")
+
+
+@dataclass
+class Texels:
+    """Texel centres inside atlas triangles: ``rc`` (T, 2) row/col, ``face`` (T,), ``bary`` (T, 3), ``points`` (T, 3)."""
+
+    rc: np.ndarray
+    face: np.ndarray
+    bary: np.ndarray
+    points: np.ndarray
+
+
+def rasterize_atlas(atlas: Atlas, vertices, faces, *, chunk: int = 2_000_000) -> Texels:
+    """Texel centres ``((col + 0.5)/W, (row + 0.5)/H)`` that fall inside each atlas triangle (vectorised).
+
+    A texel on an edge shared by two triangles goes to the first; texels in the gutter belong to no face.
+    """
+    V, F = _check_mesh(vertices, faces)
+    W, H = atlas.size
+    P = atlas.uv[atlas.faces] * np.array([W, H])  # (F, 3, 2) in texel units
+    lo = np.floor(P.min(axis=1) - 0.5).astype(np.int64)
+    hi = np.ceil(P.max(axis=1) - 0.5).astype(np.int64)
+    lo = np.maximum(lo, 0)
+    hi = np.minimum(hi, [W - 1, H - 1])
+    nx = np.maximum(hi[:, 0] - lo[:, 0] + 1, 0)
+    ny = np.maximum(hi[:, 1] - lo[:, 1] + 1, 0)
+    n = nx * ny
+    out_f, out_rc, out_b = [], [], []
+    starts = np.concatenate([[0], np.cumsum(n)])
+    fi_all = np.arange(len(F))
+    pos = 0
+    while pos < len(F):
+        end = int(np.searchsorted(starts, starts[pos] + chunk, side="right")) - 1
+        end = max(end, pos + 1)
+        fs = fi_all[pos:end]
+        cnt = n[fs]
+        f_rep = np.repeat(fs, cnt)
+        local = np.arange(cnt.sum()) - np.repeat(starts[fs] - starts[pos], cnt)
+        col = lo[f_rep, 0] + local % np.maximum(nx[f_rep], 1)
+        row = lo[f_rep, 1] + local // np.maximum(nx[f_rep], 1)
+        p = np.stack([col + 0.5, row + 0.5], axis=1)
+        a, b, c = P[f_rep, 0], P[f_rep, 1], P[f_rep, 2]
+        v0, v1, v2 = b - a, c - a, p - a
+        den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            l1 = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
+            l2 = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
+        l0 = 1 - l1 - l2
+        eps = -1e-9
+        inside = (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & np.isfinite(l1)
+        out_f.append(f_rep[inside])
+        out_rc.append(np.stack([row[inside], col[inside]], axis=1))
+        out_b.append(np.stack([l0[inside], l1[inside], l2[inside]], axis=1))
+        pos = end
+    face = np.concatenate(out_f) if out_f else np.zeros(0, np.int64)
+    rc = np.concatenate(out_rc) if out_rc else np.zeros((0, 2), np.int64)
+    bary = np.concatenate(out_b) if out_b else np.zeros((0, 3))
+    key = rc[:, 0] * W + rc[:, 1]
+    _, first = np.unique(key, return_index=True)
+    first.sort()
+    face, rc, bary = face[first], rc[first], np.clip(bary[first], 0, 1)
+    bary /= bary.sum(axis=1, keepdims=True)
+    pts = np.einsum("tj,tjk->tk", bary, V[F[face]])
+    return Texels(rc, face, bary, pts)
+
+
+# ---------------------------------------------------------------------------------------------- visibility
+@dataclass
+class PixelSurface:
+    """Per-pixel ray casting of one image: ``points`` (H, W, 3) first surface hit (NaN = none), ``face`` (H, W)."""
+
+    points: np.ndarray
+    face: np.ndarray
+
+
+def _ray_first(intersector, V, F, origins, dirs):
+    """First hit of rays: (face (N,), distance along the unit direction (N,), NaN where none)."""
+    tri = np.asarray(intersector.intersects_first(ray_origins=origins, ray_directions=dirs), np.int64)
+    dist = np.full(len(dirs), np.nan)
+    hit = tri >= 0
+    if np.any(hit):
+        v0 = V[F[tri[hit], 0]]
+        n = np.cross(V[F[tri[hit], 1]] - v0, V[F[tri[hit], 2]] - v0)
+        den = np.einsum("ij,ij->i", dirs[hit], n)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dist[hit] = np.einsum("ij,ij->i", v0 - origins[hit], n) / den
+    return tri, dist
+
+
+def _intersector(V, F):
+    import trimesh
+
+    mesh = trimesh.Trimesh(V, F, process=False)
+    try:
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+        return RayMeshIntersector(mesh)
+    except Exception:  # pragma: no cover - embreex missing: trimesh's pure-python intersector
+        return mesh.ray
+
+
+def pixel_surfaces(intersector, vertices, faces, view: TextureView) -> PixelSurface:
+    """Cast the ray of every pixel centre of ``view`` against the whole mesh."""
+    V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
+    w, h = view.camera.image_size
+    gy, gx = np.mgrid[0:h, 0:w].astype(float)
+    rays_c = view.camera.unproject(np.stack([gx.ravel(), gy.ravel()], axis=1))
+    d = rays_c @ view.pose.R
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = np.broadcast_to(view.pose.center, d.shape).copy()
+    tri, dist = _ray_first(intersector, V, F, o, d)
+    pts = o + dist[:, None] * d
+    return PixelSurface(pts.reshape(h, w, 3), tri.reshape(h, w))
+
+
+def usable_in_view(intersector, vertices, faces, view: TextureView, surface: PixelSurface, points, face_index,
+                   cfg: TextureConfig):
+    """Which points (on faces ``face_index``) are usable in ``view`` (conditions 1–4 of the module docstring).
+
+    Returns
+    -------
+    usable : (N,) bool
+    xy : (N, 2) pixel coordinates
+    cos_theta : (N,) cosine of the viewing angle
+    distance_m : (N,) camera-to-point distance
+    occluded : (N,) bool, inside the image and facing the camera but hidden by other geometry
+    """
+    V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
+    X = np.asarray(points, float)
+    fi = np.asarray(face_index, np.int64)
+    normals, _, _ = _face_geometry(V, F)
+    n = normals[fi]
+    w, h = view.camera.image_size
+    C = view.pose.center
+    dvec = C - X
+    dist = np.linalg.norm(dvec, axis=1)
+    cos_t = np.einsum("ij,ij->i", n, dvec) / dist
+    xy, z = _project(view, X)
+    m = cfg.border_px
+    inside = (z > 1e-6) & np.isfinite(xy[:, 0]) & (xy[:, 0] >= m) & (xy[:, 0] <= w - 1 - m) & (xy[:, 1] >= m) & (xy[:, 1] <= h - 1 - m)
+    facing = cos_t >= np.cos(np.deg2rad(cfg.max_angle_deg))
+    cand = inside & facing
+    visible = np.zeros(len(X), bool)
+    idx = np.flatnonzero(cand)
+    if len(idx):
+        u = -dvec[idx] / dist[idx, None]
+        o = np.broadcast_to(C, u.shape).copy()
+        tri, tdist = _ray_first(intersector, V, F, o, u)
+        visible[idx] = np.isfinite(tdist) & (tdist >= dist[idx] - cfg.occlusion_tol_m)
+    occluded = cand & ~visible
+    usable = cand & visible
+    # (4) the pixels under the bilinear footprint (+ clean_radius_px) see the texel's plane
+    idx = np.flatnonzero(usable)
+    if len(idx):
+        r = int(cfg.clean_radius_px)
+        x0 = np.floor(xy[idx, 0]).astype(np.int64)
+        y0 = np.floor(xy[idx, 1]).astype(np.int64)
+        clean = np.ones(len(idx), bool)
+        d0 = np.einsum("ij,ij->i", n[idx], X[idx])
+        cmin = np.cos(np.deg2rad(cfg.normal_tol_deg))
+        for dy in range(-r, 2 + r):
+            for dx in range(-r, 2 + r):
+                yy = np.clip(y0 + dy, 0, h - 1)
+                xx = np.clip(x0 + dx, 0, w - 1)
+                p = surface.points[yy, xx]
+                pf = surface.face[yy, xx]
+                off = np.abs(np.einsum("ij,ij->i", n[idx], p) - d0)
+                agree = np.einsum("ij,ij->i", n[idx], normals[np.maximum(pf, 0)]) >= cmin
+                clean &= np.isfinite(off) & (off <= cfg.surface_tol_m) & (pf >= 0) & agree
+        usable[idx] = clean
+    return usable, xy, cos_t, dist, occluded
+
+
+def _bilinear(img, xy):
+    h, w = img.shape
+    x = np.clip(xy[:, 0], 0, w - 1)
+    y = np.clip(xy[:, 1], 0, h - 1)
+    x0 = np.clip(np.floor(x).astype(np.int64), 0, w - 2)
+    y0 = np.clip(np.floor(y).astype(np.int64), 0, h - 2)
+    fx, fy = x - x0, y - y0
+    a = img[y0, x0] * (1 - fx) + img[y0, x0 + 1] * fx
+    b = img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx
+    return a * (1 - fy) + b * fy
+
+
+@dataclass
+class Selection:
+    """Per point: ``source`` (N,) view index or −1, ``temperature_k`` (N,), ``angle_deg`` (N,),
+    ``distance_m`` (N,), ``n_usable`` (N,) number of usable views, ``occluded_in`` (N, K) bool, and the
+    values of every usable view ``all_k`` (N, K) (NaN where unusable), for levelling."""
+
+    source: np.ndarray
+    temperature_k: np.ndarray
+    angle_deg: np.ndarray
+    distance_m: np.ndarray
+    n_usable: np.ndarray
+    occluded_in: np.ndarray
+    all_k: np.ndarray
+
+
+def select_and_sample(intersector, vertices, faces, views, surfaces, scores, points, face_index,
+                      cfg: TextureConfig) -> Selection:
+    """For each point, the usable view with the highest face score and its bilinear temperature."""
+    N, K = len(points), len(views)
+    fi = np.asarray(face_index, np.int64)
+    best_score = np.zeros(N)
+    src = np.full(N, -1, np.int64)
+    T = np.full(N, np.nan)
+    ang = np.full(N, np.nan)
+    dist = np.full(N, np.nan)
+    n_ok = np.zeros(N, np.int64)
+    occl = np.zeros((N, K), bool)
+    all_k = np.full((N, K), np.nan, np.float32)
+    for k, v in enumerate(views):
+        s = scores[fi, k]
+        cand = np.flatnonzero(s > 0)
+        if not len(cand):
+            continue
+        ok, xy, cos_t, d, oc = usable_in_view(intersector, vertices, faces, v, surfaces[k], points[cand], fi[cand], cfg)
+        occl[cand, k] = oc
+        sel = cand[ok]
+        vals = _bilinear(v.image_k, xy[ok]).astype(np.float64)
+        finite = np.isfinite(vals)
+        sel, vals = sel[finite], vals[finite]
+        cs, ds = cos_t[ok][finite], d[ok][finite]
+        all_k[sel, k] = vals
+        n_ok[sel] += 1
+        better = s[sel] > best_score[sel]
+        b = sel[better]
+        best_score[b] = s[b]
+        src[b] = k
+        T[b] = vals[better]
+        ang[b] = np.degrees(np.arccos(np.clip(cs[better], -1, 1)))
+        dist[b] = ds[better]
+    return Selection(src, T, ang, dist, n_ok, occl, all_k)
+
+
+def estimate_offsets(selection: Selection, n_views: int, *, max_pairs: int = 200_000, seed: int = 0):
+    """Least-squares per-image offsets from overlaps (module docstring), one image held at 0.
+
+    Returns ``(offsets_k (K,), fixed index, pairs per image (K,), rms_before_k, rms_after_k)``; images
+    without overlap keep offset 0 (pairs = 0).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import lsqr
+
+    src = selection.source
+    rows = np.flatnonzero((src >= 0) & (selection.n_usable >= 2))
+    rng = np.random.default_rng(seed)
+    A = selection.all_k[rows].astype(np.float64)
+    a_idx, b_idx, diff = [], [], []
+    for k in range(n_views):
+        has = np.isfinite(A[:, k])
+        for j in range(k + 1, n_views):
+            both = has & np.isfinite(A[:, j])
+            if np.any(both):
+                a_idx.append(np.full(both.sum(), k))
+                b_idx.append(np.full(both.sum(), j))
+                diff.append(A[both, k] - A[both, j])
+    counts = np.bincount(src[src >= 0], minlength=n_views)
+    fixed = int(np.argmax(counts))
+    if not a_idx:
+        return np.zeros(n_views), fixed, np.zeros(n_views, np.int64), float("nan"), float("nan")
+    a = np.concatenate(a_idx)
+    b = np.concatenate(b_idx)
+    dd = np.concatenate(diff)
+    if len(dd) > max_pairs:
+        keep = np.sort(rng.choice(len(dd), max_pairs, replace=False))
+        a, b, dd = a[keep], b[keep], dd[keep]
+    pairs = np.bincount(a, minlength=n_views) + np.bincount(b, minlength=n_views)
+    # T_a + o_a = T_b + o_b  ->  o_a - o_b = -(T_a - T_b); unknowns: all but the fixed image
+    free = np.array([k for k in range(n_views) if k != fixed and pairs[k] > 0])
+    col = -np.ones(n_views, np.int64)
+    col[free] = np.arange(len(free))
+    r = np.arange(len(dd))
+    ra, rb = col[a] >= 0, col[b] >= 0
+    M = coo_matrix((np.concatenate([np.ones(ra.sum()), -np.ones(rb.sum())]),
+                    (np.concatenate([r[ra], r[rb]]), np.concatenate([col[a][ra], col[b][rb]]))),
+                   shape=(len(dd), max(len(free), 1))).tocsr()
+    x = lsqr(M, -dd, atol=1e-12, btol=1e-12)[0] if len(free) else np.zeros(0)
+    off = np.zeros(n_views)
+    off[free] = x
+    rms_before = float(np.sqrt(np.mean(dd**2)))
+    rms_after = float(np.sqrt(np.mean((dd + off[a] - off[b]) ** 2)))
+    return off, fixed, pairs, rms_before, rms_after
+
+
+def _correct(T, angle_deg, dist, cc: CorrectionConfig):
+    """The products layer's per-pixel kernel (:func:`~thermogrammetry.products.correction.apply_correction`)
+    at the texels: angle from the mesh normal, distance from the source camera."""
+    from .correction import apply_correction
+
+    on = np.isfinite(angle_deg) & np.isfinite(T)
+    Tc, _, _, valid = apply_correction(np.where(on, T, 300.0), np.deg2rad(np.where(on, angle_deg, 0.0)),
+                                       np.where(on, dist, 0.0), on, cc)
+    return np.where(valid, Tc, np.nan)
+
+
+# ---------------------------------------------------------------------------------------------- driver
+@dataclass
+class TextureResult:
+    """A textured mesh.
+
+    Attributes
+    ----------
+    vertices, faces : the input mesh
+    atlas : :class:`Atlas` (uv per atlas vertex, ``vmapping`` to the input vertices)
+    temperature_k : (H, W) float32 texture, NaN = no texel
+    source : (H, W) int32 texture, view index, −1 = none
+    angle_deg : (H, W) float32 viewing angle of the source image
+    vertex_temperature_k : (V,) float64, NaN where no image sees the vertex cleanly
+    face_coverage : (F,) fraction of each face's texels that are textured (NaN: face has no texel)
+    face_views : (F,) number of images with a positive score for the face
+    face_source : (F,) the view most of the face's texels came from (−1 = none)
+    view_names : list of K image names (source index -> name)
+    offsets_k : (K,) applied per-image offsets (zeros without levelling); ``levelling_fixed`` index
+    occluded_texels : (K,) texels inside view k and facing it but hidden by other geometry
+    texels_total : number of texel centres inside triangles
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    atlas: Atlas
+    temperature_k: np.ndarray
+    source: np.ndarray
+    angle_deg: np.ndarray
+    vertex_temperature_k: np.ndarray
+    face_coverage: np.ndarray
+    face_views: np.ndarray
+    face_source: np.ndarray
+    view_names: list
+    offsets_k: np.ndarray
+    levelling_fixed: int | None
+    levelling_rms_k: tuple | None
+    occluded_texels: np.ndarray
+    texels: Texels = field(repr=False)
+    texel_selection: Selection = field(repr=False)
+    config: TextureConfig = field(default_factory=TextureConfig)
+
+    @property
+    def faces_total(self) -> int:
+        return int(len(self.faces))
+
+    @property
+    def faces_textured(self) -> np.ndarray:
+        """(F,) bool: faces with at least one textured texel."""
+        return np.nan_to_num(self.face_coverage) > 0
+
+    def summary(self) -> dict:
+        tex = self.texel_selection.source >= 0
+        return {
+            "faces_total": self.faces_total,
+            "faces_textured": int(self.faces_textured.sum()),
+            "faces_fully_textured": int(np.sum(np.nan_to_num(self.face_coverage) >= 1.0)),
+            "faces_seen": int(np.sum(self.face_views > 0)),
+            "faces_untextured": np.flatnonzero(~self.faces_textured).tolist(),
+            "texels_total": int(len(tex)),
+            "texels_textured": int(tex.sum()),
+            "views_per_face_histogram": np.bincount(self.face_views, minlength=1).tolist(),
+            "texel_size_m": self.atlas.texel_size_m,
+            "texture_size": list(self.atlas.size),
+        }
+
+
+def _vertex_temperatures(intersector, V, F, views, surfaces, scores, cfg):
+    """Per-vertex temperature: every face corner (pulled 1e-3 of the way to the centroid so that the ray
+    test belongs to that face) is selected and sampled like a texel; a vertex averages its corners."""
+    cen = V[F].mean(axis=1)
+    corners = V[F] * (1 - 1e-3) + 1e-3 * cen[:, None, :]
+    pts = corners.reshape(-1, 3)
+    fi = np.repeat(np.arange(len(F)), 3)
+    sel = select_and_sample(intersector, V, F, views, surfaces, scores, pts, fi, cfg)
+    vid = F.reshape(-1)
+    ok = np.isfinite(sel.temperature_k)
+    s = np.bincount(vid[ok], weights=sel.temperature_k[ok], minlength=len(V))
+    c = np.bincount(vid[ok], minlength=len(V))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = s / c
+    return np.where(c > 0, out, np.nan), sel
+
+
+def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureConfig | None = None) -> TextureResult:
+    """Texture a mesh with temperatures from oriented thermal images (module docstring).
+
+    Parameters
+    ----------
+    vertices : (V, 3) metres, in the frame of the views' poses
+    faces : (F, 3) vertex indices (normals by the right-hand rule point towards the cameras)
+    views : K :class:`TextureView`, images in kelvin
+    config : :class:`TextureConfig`
+
+    Returns
+    -------
+    :class:`TextureResult`
+    """
+    cfg = config or TextureConfig()
+    V, F = _check_mesh(vertices, faces)
+    views = list(views)
+    if not views:
+        raise InvalidInputError("texture_mesh: no oriented images given; expected at least one view")
+    normals, area, cen = _face_geometry(V, F)
+    scores = face_view_scores(V, F, views, max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
+    ts = cfg.texel_size_m
+    if ts is None:  # half the median surface pixel size of each face's best image, area weighted
+        best = scores.max(axis=1)
+        seen = best > 0
+        if np.any(seen):
+            px = 1.0 / best[seen]
+            order = np.argsort(px)
+            cw = np.cumsum(area[seen][order])
+            ts = 0.5 * float(px[order][np.searchsorted(cw, 0.5 * cw[-1])])
+        else:
+            ts = float(np.sqrt(area.sum()) / 512)
+    atlas = build_atlas(V, F, ts, max_texture_px=cfg.max_texture_px, padding=cfg.padding_texels)
+    texels = rasterize_atlas(atlas, V, F)
+    inter = _intersector(V, F)
+    surfaces = [pixel_surfaces(inter, V, F, v) for v in views]
+    sel = select_and_sample(inter, V, F, views, surfaces, scores, texels.points, texels.face, cfg)
+    vtemp, vsel = _vertex_temperatures(inter, V, F, views, surfaces, scores, cfg)
+    K = len(views)
+    offsets = np.zeros(K)
+    fixed = None
+    rms = None
+    if cfg.levelling is Levelling.OFFSETS:
+        offsets, fixed, _, rb, ra = estimate_offsets(sel, K, max_pairs=cfg.offsets_max_pairs)
+        rms = (rb, ra)
+        ok = sel.source >= 0
+        sel.temperature_k[ok] += offsets[sel.source[ok]]
+        vok = vsel.source >= 0
+        vsel.temperature_k[vok] += offsets[vsel.source[vok]]
+        vid = F.reshape(-1)
+        fin = np.isfinite(vsel.temperature_k)
+        s = np.bincount(vid[fin], weights=vsel.temperature_k[fin], minlength=len(V))
+        c = np.bincount(vid[fin], minlength=len(V))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            vtemp = np.where(c > 0, s / c, np.nan)
+    if cfg.correct:
+        sel.temperature_k = _correct(sel.temperature_k, sel.angle_deg, sel.distance_m, cfg.correction)
+        vc = _correct(vsel.temperature_k, vsel.angle_deg, vsel.distance_m, cfg.correction)
+        vid = F.reshape(-1)
+        fin = np.isfinite(vc)
+        s = np.bincount(vid[fin], weights=vc[fin], minlength=len(V))
+        c = np.bincount(vid[fin], minlength=len(V))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            vtemp = np.where(c > 0, s / c, np.nan)
+    W, H = atlas.size
+    temp = np.full((H, W), np.nan, np.float32)
+    src = np.full((H, W), -1, np.int32)
+    angle = np.full((H, W), np.nan, np.float32)
+    r, c_ = texels.rc[:, 0], texels.rc[:, 1]
+    textured = (sel.source >= 0) & np.isfinite(sel.temperature_k)
+    temp[r[textured], c_[textured]] = sel.temperature_k[textured]
+    src[r[textured], c_[textured]] = sel.source[textured]
+    angle[r[textured], c_[textured]] = sel.angle_deg[textured]
+    n_tex = np.bincount(texels.face, minlength=len(F))
+    n_ok = np.bincount(texels.face[textured], minlength=len(F))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cov = np.where(n_tex > 0, n_ok / n_tex, np.nan)
+    face_source = np.full(len(F), -1, np.int64)
+    if np.any(textured):
+        pair = texels.face[textured] * (K + 1) + sel.source[textured]
+        cnt = np.bincount(pair, minlength=len(F) * (K + 1)).reshape(len(F), K + 1)
+        has = cnt.sum(axis=1) > 0
+        face_source[has] = np.argmax(cnt[has], axis=1)
+    occluded = sel.occluded_in.sum(axis=0)
+    return TextureResult(V, F, atlas, temp, src, angle, vtemp, cov, (scores > 0).sum(axis=1), face_source,
+                         [v.name for v in views], offsets, fixed, rms, occluded, texels, sel, cfg)
+
+
+def thermal_poses_from_rig(rgb_poses, relative):
+    """Thermal ``cam_from_world`` poses from RGB poses and the rig (seed 002 eq. 4–5).
+
+    Parameters
+    ----------
+    rgb_poses : sequence of :class:`~thermogrammetry.geometry.Pose` (cam_from_world of the RGB camera)
+    relative : Pose ``cam_thermal_from_cam_rgb`` (``R_rel``, ``t_rel``); seed 002's ``R*`` is ``R_rel^T``
+        and its base vector ``b`` (the thermal centre in the RGB camera frame) is ``-R_rel^T t_rel``.
+
+    Returns
+    -------
+    list of Pose: ``R_IR = R_rel R_RGB``, ``t_IR = R_rel t_RGB + t_rel``
+    (so ``C_IR = C_RGB + R_RGB^T b``, eq. 5).
+    """
+    from ..geometry import Pose
+
+    rel = relative if isinstance(relative, Pose) else Pose(*relative)
+    return [rel.compose(p) for p in rgb_poses]

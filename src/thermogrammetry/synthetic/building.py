@@ -1,0 +1,370 @@
+"""A box building with an occluder in front of one facade: mesh, temperature field, thermal stations.
+
+Scene (world frame: x east, y north, z up; metres). A rectangular building ``length_m`` (x) ×
+``depth_m`` (y) × ``height_m`` (z) stands on a ground plane; its four walls and the flat roof are
+triangulated on a regular grid of ``cell_m`` (so a facade has many faces and a face can be partly
+occluded). In front of the south facade (y = 0, facing −y) stands a free-standing **occluder** (a
+square column, ``occluder_size_m``, its centre ``occluder_distance_m`` in front of the wall), which
+hides a different part of the facade from every station. Thermal stations stand on a ring around the
+building at ``standoff_m`` from the walls, ``camera_height_m`` above ground, looking at the building.
+
+True surface temperatures (K), continuous across the building's vertical edges (walls use the arc
+length ``s`` around the perimeter, counter-clockwise from the south-west corner):
+
+* walls: a vertical gradient, warm floor slabs (thermal bridges every ``height_m / floors``), a cool
+  damp patch near the ground on the south facade and a fixed random sum of smooth plane waves
+  (wavelengths 0.7–3 m, a few tenths of a kelvin; gives texture for tie points);
+* roof 276 K + waves; ground 279 K + waves; occluder 286 K + a vertical gradient (warm, so that a
+  texel taken through the occluder would stand out by several kelvin).
+
+Radiometry: by default the surfaces are black bodies seen through no atmosphere
+(``emissivity = 1``, ``atmosphere = False``), so that the noise-free apparent temperature of a surface
+point equals its true temperature whatever the view; with ``emissivity < 1`` the walls' directional
+emissivity is ε_n F(θ)/F(0) (Fresnel, n = 1.5) reflecting a sky at ``sky_k``, and with ``atmosphere``
+the FLIR transmission over the path. :func:`apparent_temperature` gives the noise-free value a camera
+at a centre sees at any surface point (the truth texels are compared with).
+
+Rendering (:func:`render_building_thermal`): ``supersample``² sub-pixel rays per pixel are cast against
+the mesh (trimesh with Embree), the exact intersection with the hit triangle's plane is taken, the
+band signal (FLIR curve) is averaged over the pixel and the sensor effects (PSF, NETD, FPN) applied
+unless ``sensor=False``. :func:`write_building_survey` writes a survey folder (``cameras.json`` in the
+:class:`~thermogrammetry.io.oriented.OrientedCameras` schema with the TRUE poses, ``frames/<name>.tif``
+float32 K, ``mesh.obj``) through a project store.
+
+References
+----------
+.. [1] Barazzetti, Erba, Previtali, Rosina, Scaioni (seed 002): thermal textures of building models,
+   occlusions and the choice of the image per triangle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from ..errors import ConfigError
+from .facade import _cast_mesh, _sample_rays
+from .radiance import FlirCurve, fresnel_emissivity
+from .sensor import SensorEffects, apply_sensor_effects
+
+__all__ = ["BuildingConfig", "BuildingScene", "make_building", "render_building_thermal", "apparent_temperature",
+           "write_building_survey", "surface_temperature"]
+
+GROUPS = ("wall", "roof", "ground", "occluder")
+
+
+@dataclass(frozen=True)
+class BuildingConfig:
+    length_m: float = 12.0
+    depth_m: float = 8.0
+    height_m: float = 7.0
+    floors: int = 2
+    cell_m: float = 1.0
+    occluder_size_m: tuple[float, float, float] = (1.2, 1.2, 5.0)  # x, y, z extent
+    occluder_x_m: float = 4.5  # centre along the south facade
+    occluder_distance_m: float = 2.5  # centre in front of the south wall
+    ground_margin_m: float = 6.0
+    standoff_m: float = 9.0
+    camera_height_m: float = 1.7
+    n_stations: int = 14
+    thermal_size: tuple[int, int] = (320, 240)
+    thermal_focal_px: float = 285.0
+    emissivity: float = 1.0
+    atmosphere: bool = False
+    sky_k: float = 250.0
+    air_k: float = 280.15
+    relative_humidity: float = 0.6
+    supersample: int = 2
+    sensor: SensorEffects = field(default_factory=lambda: SensorEffects(psf_sigma_px=0.5, netd_k=0.04, fpn_k=0.02, fpn_seed=7))
+    seed: int = 0
+
+    def __post_init__(self):
+        for f in ("length_m", "depth_m", "height_m", "cell_m", "standoff_m", "thermal_focal_px", "occluder_distance_m"):
+            v = float(getattr(self, f))
+            if not np.isfinite(v) or v <= 0:
+                raise ConfigError(f"BuildingConfig.{f}={getattr(self, f)!r}: expected a positive number")
+        if not 0 < self.emissivity <= 1:
+            raise ConfigError(f"BuildingConfig.emissivity={self.emissivity!r}: expected a number in (0, 1]")
+        if self.occluder_distance_m - self.occluder_size_m[1] / 2 <= 0:
+            raise ConfigError("BuildingConfig: the occluder must stand in front of the south wall "
+                              f"(occluder_distance_m={self.occluder_distance_m} <= half its depth)")
+        if self.n_stations < 2:
+            raise ConfigError(f"BuildingConfig.n_stations={self.n_stations!r}: expected at least 2")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "BuildingConfig":
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ConfigError(f"BuildingConfig: unknown key(s) {unknown}; valid: {sorted(names)}")
+        return cls(**d)
+
+
+@dataclass
+class BuildingScene:
+    config: BuildingConfig
+    vertices: np.ndarray  # (V, 3)
+    faces: np.ndarray  # (F, 3), counter-clockwise seen from outside (normals point out)
+    face_group: np.ndarray  # (F,) index into GROUPS
+    thermal: object  # Camera
+    stations: list  # [(name, Pose cam_from_world)]
+    waves: np.ndarray  # (K, 4): kx, ky, phase, amplitude of the texture waves
+    _mesh: object = field(default=None, repr=False)
+
+    def mesh(self):
+        if self._mesh is None:
+            import trimesh
+
+            self._mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)
+        return self._mesh
+
+    @property
+    def face_normals(self) -> np.ndarray:
+        V, F = self.vertices, self.faces
+        n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def _grid_quad(V, F, G, origin, u, v, nu, nv, group):
+    """Triangulate the parallelogram origin + a u + b v (a, b in [0, 1]) on an nu × nv grid; normal u × v."""
+    base = len(V)
+    a = np.linspace(0, 1, nu + 1)
+    b = np.linspace(0, 1, nv + 1)
+    for bj in b:
+        for ai in a:
+            V.append(np.asarray(origin, float) + ai * np.asarray(u, float) + bj * np.asarray(v, float))
+    for j in range(nv):
+        for i in range(nu):
+            p00 = base + j * (nu + 1) + i
+            p10, p01, p11 = p00 + 1, p00 + nu + 1, p00 + nu + 2
+            F.extend([[p00, p10, p11], [p00, p11, p01]])
+            G.extend([group, group])
+
+
+def _box(V, F, G, lo, hi, cell, group, *, bottom: bool = False, walls_only: bool = False):
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    lx, ly, lz = x1 - x0, y1 - y0, z1 - z0
+    n = lambda L: max(1, int(round(L / cell)))  # noqa: E731
+    _grid_quad(V, F, G, (x0, y0, z0), (lx, 0, 0), (0, 0, lz), n(lx), n(lz), group)  # south, normal -y
+    _grid_quad(V, F, G, (x1, y0, z0), (0, ly, 0), (0, 0, lz), n(ly), n(lz), group)  # east, +x
+    _grid_quad(V, F, G, (x1, y1, z0), (-lx, 0, 0), (0, 0, lz), n(lx), n(lz), group)  # north, +y
+    _grid_quad(V, F, G, (x0, y1, z0), (0, -ly, 0), (0, 0, lz), n(ly), n(lz), group)  # west, -x
+    if not walls_only:
+        _grid_quad(V, F, G, (x0, y0, z1), (lx, 0, 0), (0, ly, 0), n(lx), n(ly), "roof" if group == "wall" else group)
+    if bottom:
+        _grid_quad(V, F, G, (x0, y1, z0), (lx, 0, 0), (0, -ly, 0), n(lx), n(ly), group)
+
+
+def make_building(config: BuildingConfig | None = None) -> BuildingScene:
+    """Build the mesh, the temperature field's waves and the station ring (deterministic)."""
+    from ..camera import Camera
+    from ..geometry import Pose
+
+    c = config or BuildingConfig()
+    rng = np.random.default_rng([c.seed, 0xB1D])
+    V: list = []
+    F: list = []
+    G: list = []
+    L, D, H = c.length_m, c.depth_m, c.height_m
+    _box(V, F, G, (0, 0, 0), (L, D, H), c.cell_m, "wall")
+    ox, oy, oz = c.occluder_size_m
+    xc, yc = c.occluder_x_m, -c.occluder_distance_m
+    _box(V, F, G, (xc - ox / 2, yc - oy / 2, 0), (xc + ox / 2, yc + oy / 2, oz), 0.5 * c.cell_m, "occluder")
+    # ground: a frame around the building (the footprint itself is not part of the mesh)
+    m = c.ground_margin_m + c.standoff_m
+    gc = 2.0 * c.cell_m
+    _grid_quad(V, F, G, (-m, -m, 0), (L + 2 * m, 0, 0), (0, m, 0), int(round((L + 2 * m) / gc)), int(round(m / gc)), "ground")
+    _grid_quad(V, F, G, (-m, D, 0), (L + 2 * m, 0, 0), (0, m, 0), int(round((L + 2 * m) / gc)), int(round(m / gc)), "ground")
+    _grid_quad(V, F, G, (-m, 0, 0), (m, 0, 0), (0, D, 0), int(round(m / gc)), max(1, int(round(D / gc))), "ground")
+    _grid_quad(V, F, G, (L, 0, 0), (m, 0, 0), (0, D, 0), int(round(m / gc)), max(1, int(round(D / gc))), "ground")
+    verts = np.array(V, float)
+    faces = np.array(F, np.int64)
+    group = np.array([GROUPS.index(g) for g in G], np.int8)
+    # texture waves: wavelengths 0.7-3 m, amplitudes 0.15-0.3 K
+    k = 12
+    lam = rng.uniform(0.7, 3.0, k)
+    ang = rng.uniform(0, np.pi, k)
+    waves = np.stack([2 * np.pi / lam * np.cos(ang), 2 * np.pi / lam * np.sin(ang), rng.uniform(0, 2 * np.pi, k),
+                      rng.uniform(0.15, 0.3, k) / np.sqrt(k / 4)], axis=1)
+    w, h = c.thermal_size
+    f = c.thermal_focal_px
+    thermal = Camera("opencv", (w, h), dict(fx=f, fy=f, cx=(w - 1) / 2 + 0.9, cy=(h - 1) / 2 - 0.6, k1=-0.12, k2=0.05),
+                     pixel_pitch_um=17.0, name="building-thermal")
+    # stations on a rounded rectangle at standoff_m from the walls, looking at the nearest wall point
+    stations = []
+    per = 2 * (L + D) + 2 * np.pi * c.standoff_m
+    for s in range(c.n_stations):
+        u = (s + 0.5 + rng.normal(0, 0.08)) / c.n_stations * per
+        C, target = _ring_point(u, L, D, H, c.standoff_m)
+        C = C + np.array([0.0, 0.0, c.camera_height_m + rng.normal(0, 0.05)])
+        target = target + rng.normal(0, 0.3, 3) * np.array([1, 1, 0.5])
+        stations.append((f"T{s:02d}", Pose.look_at(C, target, up=(0, 0, 1))))
+    return BuildingScene(c, verts, faces, group, thermal, stations, waves)
+
+
+def _ring_point(u, L, D, H, r):
+    """Point at arc length ``u`` on the ring at distance ``r`` around the footprint (counter-clockwise from
+    the south-west corner along the south side) and the wall point it looks at."""
+    segs = [("S", L), ("cSE", np.pi / 2 * r), ("E", D), ("cNE", np.pi / 2 * r), ("N", L), ("cNW", np.pi / 2 * r),
+            ("W", D), ("cSW", np.pi / 2 * r)]
+    for name, length in segs:
+        if u <= length:
+            break
+        u -= length
+    zt = 0.45 * H
+    if name == "S":
+        return np.array([u, -r, 0.0]), np.array([u, 0.0, zt])
+    if name == "E":
+        return np.array([L + r, u, 0.0]), np.array([L, u, zt])
+    if name == "N":
+        return np.array([L - u, D + r, 0.0]), np.array([L - u, D, zt])
+    if name == "W":
+        return np.array([-r, D - u, 0.0]), np.array([0.0, D - u, zt])
+    a = u / r  # corner arcs
+    corner, start = {"cSE": ((L, 0), -np.pi / 2), "cNE": ((L, D), 0.0), "cNW": ((0, D), np.pi / 2), "cSW": ((0, 0), np.pi)}[name]
+    phi = start + a
+    P = np.array([corner[0] + r * np.cos(phi), corner[1] + r * np.sin(phi), 0.0])
+    return P, np.array([corner[0], corner[1], zt])
+
+
+def _waves(scene: BuildingScene, a, b) -> np.ndarray:
+    w = scene.waves
+    return np.sum(w[:, 3] * np.sin(np.multiply.outer(a, w[:, 0]) + np.multiply.outer(b, w[:, 1]) + w[:, 2]), axis=-1)
+
+
+def surface_temperature(scene: BuildingScene, points, group) -> np.ndarray:
+    """True surface temperature (K) of points (N, 3) on faces of the given group index (N,) or scalar."""
+    c = scene.config
+    P = np.asarray(points, float).reshape(-1, 3)
+    g = np.broadcast_to(np.asarray(group), (len(P),))
+    x, y, z = P[:, 0], P[:, 1], P[:, 2]
+    L, D, H = c.length_m, c.depth_m, c.height_m
+    out = np.full(len(P), np.nan)
+    wall = g == GROUPS.index("wall")
+    if np.any(wall):
+        xw, yw, zw = x[wall], y[wall], z[wall]
+        # arc length around the perimeter, counter-clockwise from (0, 0) along the south wall
+        s = np.where(np.abs(yw) < 1e-6, xw,
+                     np.where(np.abs(xw - L) < 1e-6, L + yw,
+                              np.where(np.abs(yw - D) < 1e-6, L + D + (L - xw), 2 * L + D + (D - yw))))
+        t = 281.0 + 0.25 * zw + 0.6 * np.sin(2 * np.pi * s / (2 * (L + D)))
+        for k in range(1, c.floors):
+            t = t + 1.5 * np.exp(-0.5 * ((zw - k * H / c.floors) / 0.35) ** 2)
+        t = t - 1.8 * np.exp(-0.5 * (((s - 0.7 * L) / 1.2) ** 2 + ((zw - 0.7) / 0.5) ** 2))
+        out[wall] = t + _waves(scene, s, zw)
+    roof = g == GROUPS.index("roof")
+    out[roof] = 276.0 + _waves(scene, x[roof], y[roof])
+    ground = g == GROUPS.index("ground")
+    out[ground] = 279.0 + 0.7 * _waves(scene, x[ground], y[ground])
+    occ = g == GROUPS.index("occluder")
+    out[occ] = 286.0 + 0.3 * z[occ] + 0.5 * _waves(scene, x[occ] + y[occ], z[occ])
+    return out
+
+
+def _emissivity(scene: BuildingScene, theta, group) -> np.ndarray:
+    c = scene.config
+    if c.emissivity >= 1.0:
+        return np.ones_like(np.asarray(theta, float))
+    f = fresnel_emissivity(theta, 1.5) / float(fresnel_emissivity(0.0, 1.5))
+    return np.where(np.asarray(group) == GROUPS.index("wall"), c.emissivity * f, 1.0)
+
+
+def apparent_temperature(scene: BuildingScene, points, face_index, center, *, curve=None) -> np.ndarray:
+    """Noise-free apparent (black-body equivalent) temperature (K) of surface points seen from ``center``.
+
+    Parameters
+    ----------
+    points : (N, 3) points on the mesh, metres
+    face_index : (N,) index of the face each point lies on
+    center : (3,) or (N, 3) projection centre of the viewing camera
+
+    With the default scene (``emissivity = 1``, no atmosphere) this is :func:`surface_temperature`.
+    """
+    from ..radiometry.atmosphere import atmospheric_transmission
+
+    c = scene.config
+    curve = curve or FlirCurve()
+    P = np.asarray(points, float).reshape(-1, 3)
+    fi = np.asarray(face_index, int).reshape(-1)
+    g = scene.face_group[fi]
+    T = surface_temperature(scene, P, g)
+    if c.emissivity >= 1.0 and not c.atmosphere:
+        return T
+    v = np.asarray(center, float) - P
+    dist = np.linalg.norm(v, axis=1)
+    cos_t = np.clip(np.einsum("ij,ij->i", scene.face_normals[fi], v / dist[:, None]), 0.0, 1.0)
+    eps = _emissivity(scene, np.arccos(cos_t), g)
+    s_sky = float(curve.signal(c.sky_k))
+    sig = eps * curve.signal(T) + (1 - eps) * s_sky
+    if c.atmosphere:
+        tau = atmospheric_transmission(dist, c.air_k, c.relative_humidity)
+        sig = tau * sig + (1 - tau) * float(curve.signal(c.air_k))
+    return curve.temperature(sig)
+
+
+def render_building_thermal(scene: BuildingScene, station: int, *, sensor: bool = True, pose=None,
+                            with_truth: bool = False) -> dict:
+    """Thermal image (float32 K) of one station (``pose`` overrides the station's true pose).
+
+    Returns ``{"image_k": (H, W) float32}``; with ``with_truth`` also ``face_index`` (H, W; -1 = sky),
+    ``points`` (H, W, 3) and ``apparent_k`` (H, W) at the pixel centres.
+    """
+    c = scene.config
+    name, true_pose = scene.stations[station]
+    pose = pose or true_pose
+    cam = scene.thermal
+    w, h = cam.image_size
+    ss2 = c.supersample**2
+    d = np.einsum("...i,ij->...j", _sample_rays(cam, c.supersample), pose.R)
+    C = pose.center
+    tri, t, pts, _ = _cast_mesh(scene, C, d)
+    hit = tri >= 0
+    curve = FlirCurve()
+    sig = np.full(len(d), float(curve.signal(c.sky_k)))
+    sig[hit] = curve.signal(apparent_temperature(scene, pts[hit], tri[hit], C, curve=curve))
+    img = sig.reshape(h, w, ss2).mean(axis=2)
+    effects = c.sensor if sensor else SensorEffects()
+    out = {"image_k": apply_sensor_effects(img, curve, effects, np.random.default_rng([c.seed, station, 0xB7])).astype(np.float32)}
+    if with_truth:
+        d1 = np.einsum("...i,ij->...j", _sample_rays(cam, 1), pose.R)
+        tri1, _, pts1, _ = _cast_mesh(scene, C, d1)
+        app = np.full(len(d1), np.nan)
+        app[tri1 >= 0] = apparent_temperature(scene, pts1[tri1 >= 0], tri1[tri1 >= 0], C)
+        out.update(face_index=tri1.reshape(h, w), points=pts1.reshape(h, w, 3), apparent_k=app.reshape(h, w))
+    return out
+
+
+def write_building_survey(project, scene: BuildingScene, *, sensor: bool = True, prefix: str = "") -> dict:
+    """Render every station and write a survey folder with the TRUE poses through ``project``:
+
+    ``cameras.json`` (:class:`~thermogrammetry.io.oriented.OrientedCameras`), ``frames/<name>.tif``
+    (float32 K), ``mesh.obj`` (the whole scene, occluder and ground included) and
+    ``truth/face_group.json`` (group name per face).
+    """
+    import io
+
+    import tifffile
+
+    from ..io.oriented import OrientedCameras, OrientedImage
+
+    p = (prefix.rstrip("/") + "/") if prefix else ""
+    images = []
+    for k, (name, pose) in enumerate(scene.stations):
+        img = render_building_thermal(scene, k, sensor=sensor)["image_k"]
+        buf = io.BytesIO()
+        tifffile.imwrite(buf, img.astype(np.float32))
+        project.write_bytes(f"{p}frames/{name}.tif", buf.getvalue())
+        images.append(OrientedImage(name, "thermal", pose.R, pose.t, frame=f"frames/{name}.tif",
+                                    source=f"synthetic building station {k}", unit="K", sensor="thermal"))
+    oc = OrientedCameras({"thermal": scene.thermal}, images, crs=None,
+                         notes="synthetic building: TRUE poses (thermogrammetry.synthetic.building)")
+    import json
+
+    project.write_text(f"{p}cameras.json", json.dumps(oc.to_dict(), indent=1) + "\n")
+    lines = ["# thermogrammetry synthetic building (groups per face in truth/face_group.json)"]
+    lines += [f"v {v[0]:.6f} {v[1]:.6f} {v[2]:.6f}" for v in scene.vertices]
+    lines += [f"f {a + 1} {b + 1} {c_ + 1}" for a, b, c_ in scene.faces]
+    project.write_text(f"{p}mesh.obj", "\n".join(lines) + "\n")
+    project.write_json(f"{p}truth/face_group.json", [GROUPS[g] for g in scene.face_group])
+    return {"stations": len(scene.stations), "faces": int(len(scene.faces))}
