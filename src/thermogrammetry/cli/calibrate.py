@@ -257,6 +257,8 @@ def _summary(console, cal: dict, output, keys) -> None:
     n_img = len(cal["per_image"])
     console.print(f"[bold]calibration[/] {cal['termination']}: {len(cal['images_used'])}/{n_img} images used, "
                   f"RMS {cal['rms_px']:.3f} px, σ0 {cal['sigma0']:.3f}, redundancy {cal['dof']}", highlight=False)
+    for wtext in cal.get("warnings", []):
+        console.print(f"[yellow]warning:[/] {wtext}", highlight=False)
     assumed = cal["run"].get("pixel_pitch_assumed")
     for cam in cal["cameras"]:
         w, h = cam["image_size"]
