@@ -12,7 +12,7 @@ import sys
 from .app import app
 
 #: verb modules, imported in this order (each adds its command(s) to ``app``)
-VERB_MODULES: tuple[str, ...] = ("convert", "closerange", "correct", "calibrate", "survey", "dense", "ortho", "evaluate",
+VERB_MODULES: tuple[str, ...] = ("convert", "closerange", "correct", "calibrate", "survey", "plan", "dense", "ortho", "evaluate",
                                   "texture", "demo")
 
 
