@@ -169,6 +169,8 @@ def rig(data: Path, thermal_dets: list):
             p = c.parameters_px()
             print(f"  {c.name:8s} RMS {c.rms_px:.3f} px (paired frames {np.sqrt(np.mean(np.square(pair_rms[ci]))):.3f} px)  "
                   f"sigma_x {c.sigma_xy_px[0]:.3f} sigma_y {c.sigma_xy_px[1]:.3f} px  fx {p['fx'][0]:.1f} ± {p['fx'][1]:.1f} px")
+        for wtext in r.warnings:
+            print(f"  WARNING: {wtext}")
         for ro in r.relative:
             ang = np.degrees(np.linalg.norm(cv2.Rodrigues(ro.R)[0]))
             print(f"  rgb_from_thermal: t = {np.array2string(ro.t * 1e3, precision=1)} mm ± {np.array2string(ro.std[3:] * 1e3, precision=1)} mm,"

@@ -230,6 +230,25 @@ def test_rig_relative_orientation(field):
     assert ro.baseline_m == pytest.approx(np.linalg.norm(t_rel), abs=4 * np.linalg.norm(ro.std[3:]))
     c2 = r.cameras[1]
     assert abs(c2.params[0] - 8.0) < 4 * c2.std[0]
+    assert not any("rig does not fit" in w for w in r.warnings), r.warnings  # a true rig fits
+
+
+def test_rig_that_does_not_fit_warns(field):
+    """Pairs mislabelled (the second camera's frames shifted by one): the rig constraint cannot hold,
+    its residuals are far above the independent-pose ones, and calibrate says so (issue 13)."""
+    T = field.truth
+    cams, ims, _, _ = _rig_inputs(field)
+    frames = [im.frame for im in ims if im.camera == 1]
+    shifted = frames[1:] + frames[:1]
+    k = 0
+    for im in ims:
+        if im.camera == 1:
+            im.frame = shifted[k]
+            k += 1
+    r = calibrate(cams, T.points, ims, rig=True, options=SelfCalibrationOptions(snooping=False))
+    assert r.outcome.success, r.outcome.reason
+    warn = [w for w in r.warnings if "rig does not fit" in w]
+    assert warn, (r.warnings, [c.rms_px for c in r.cameras], len(r.relative), r.images_rejected)
 
 
 def test_engine_and_dense_solver_agree(field):

@@ -183,6 +183,9 @@ class AdjustmentResult:
         Redundancy numbers and w-tests of the control and GNSS observations (blunders in
         coordinates are reported, not rejected automatically).
     warnings : list of str
+    precision_reason : str
+        Why the standard deviations are NaN ("" when they are determined): redundancy <= 0 (sigma0
+        undefined) or a singular normal matrix. They are never reported as 0 in that case.
     """
 
     termination: Termination
@@ -213,6 +216,7 @@ class AdjustmentResult:
     gnss_w: np.ndarray | None = None
     warnings: list = field(default_factory=list)
     time_s: float = 0.0
+    precision_reason: str = ""
 
     @property
     def success(self) -> bool:
@@ -890,6 +894,8 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
             break
     if rounds:
         warnings.append(f"data snooping rejected {int(np.sum(~active))} image point(s) in {rounds} round(s)")
+    if out.get("precision_reason"):
+        reason = f"{reason}; {out['precision_reason']}" if reason else out["precision_reason"]
     return result(term, reason, total_it, cost0, cost, **out)
 
 
@@ -903,6 +909,11 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     vtpv = float(np.sum((r * w) ** 2))
     sigma0 = float(np.sqrt(vtpv / red)) if red > 0 else float("nan")
     out: dict = {"sigma0": sigma0, "redundancy": int(red)}
+    if red <= 0:
+        why = (f"redundancy {int(red)} <= 0 ({data.m} observation equations for {n} unknowns, datum defect {defect}): "
+               "sigma0 is undetermined, every standard deviation is NaN")
+        out["precision_reason"] = why
+        warnings.append(why)
     K_all = len(active)
     img_res = np.zeros((K_all, 2))
     img_res[data.img_idx] = -r[: 2 * data.K].reshape(-1, 2) * data.sig  # v = observed - computed
@@ -1017,13 +1028,11 @@ def _precision(pb, lay, st, data, opt, active, warnings):
                         warnings.append(
                             f"additional parameter {lay.names[col]} insignificant: t = {tval:.2f} < {tcrit:.2f}"
                         )
-    # write std into the cameras
+    # write std into the cameras: 0 for parameters held fixed, NaN (never 0) for estimated parameters
+    # whose precision is undetermined (redundancy <= 0)
     for c, sd in enumerate(cam_std):
-        cam = pb.cameras[c].with_params(st.cam_params[c])
-        try:
-            pb.cameras[c] = cam.with_params(st.cam_params[c], param_std=np.where(np.isfinite(sd), sd, 0.0))
-        except Exception:  # pragma: no cover - camera classes without std support
-            pb.cameras[c] = cam
+        fixed = lay.cam_cols[c] < 0
+        pb.cameras[c] = pb.cameras[c].with_params(st.cam_params[c], param_std=np.where(fixed, 0.0, sd))
     st.cam_params = [c.params.copy() for c in pb.cameras]
     npf = lay.npf
     Qpp = np.zeros((0, 3, 3))

@@ -114,6 +114,7 @@ def calibration_dict(run: CalibrationRun, exports: dict | None = None) -> dict[s
             for v in r.images
         ],
         "stage1": r.stage1,
+        "warnings": list(r.warnings),
         "blunder_test": r.snooping_test,
         "blunders": r.blunders,
         "solver": calibration_solver(r),
@@ -322,6 +323,8 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
                f"redundancy {r.dof}, RMS {r.rms_px:.4f} px. Blunder test: {e(r.snooping_test)}. "
                f"Solver: {e(calibration_solver(r))} with the correction-form (photogrammetric) model, "
                "Brown (1971) / Fraser (1997).</p>")
+    for wtext in r.warnings:
+        out.append(f"<p class='warn'>Warning: {e(wtext)}</p>")
     if meta.get("pixel_pitch_assumed"):
         out.append(f"<p class='warn'>Pixel pitch not given: {meta['pixel_pitch_um'][0]} µm assumed. Values in mm scale with "
                    "the pitch; the values in pixels do not.</p>")

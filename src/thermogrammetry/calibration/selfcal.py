@@ -88,6 +88,10 @@ class SelfCalibrationOptions:
     snooping : disable to run the adjustment without blunder elimination (Monte-Carlo studies).
     solver : ``"adjustment"`` (the project's engine, default) or ``"dense"`` (the dense Jacobian of
         :mod:`~thermogrammetry.calibration.bundle` solved by :func:`thermogrammetry.adjustment.dense.solve_dense`).
+    rig_rms_warning_factor : with ``rig=True`` the cameras are also calibrated with independent poses,
+        and a warning is given when a rig camera's RMS exceeds this factor times its independent RMS
+        (the rig constraint does not hold: unsynchronised frames, a moving target, mislabelled pairs).
+        0 disables the check (and the extra solve).
     """
 
     k45: bool = False
@@ -103,6 +107,7 @@ class SelfCalibrationOptions:
     max_image_rms_factor: float = 5.0
     snooping: bool = True
     solver: str = "adjustment"
+    rig_rms_warning_factor: float = 2.0
 
     def __post_init__(self):
         if self.solver not in ("adjustment", "dense"):
@@ -311,6 +316,7 @@ class CalibrationResult:
     normalized_residuals: np.ndarray  # (N,2)
     snooping_test: str = ""
     solution: BundleSolution | None = None
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def images_used(self) -> list[str]:
@@ -419,7 +425,9 @@ def calibrate(
         finite positive values are adjusted as weighted unknowns, others are fixed.
     options : :class:`SelfCalibrationOptions`.
     rig : model images of different cameras sharing a ``frame`` as a rigid rig (first camera in
-        each frame is the reference) and estimate the relative orientation.
+        each frame is the reference) and estimate the relative orientation. The cameras are then
+        also solved with independent poses, and ``warnings`` says when a rig camera's RMS is more
+        than ``options.rig_rms_warning_factor`` times its independent RMS.
     progress : optional callable ``progress(stage: str, done: int, total: int)``.
     initial : optional {camera index: (12,) parameters} to start stage 2 from (skips stage 1's
         nominal model for that camera; used by Monte-Carlo studies started at the truth).
@@ -428,8 +436,49 @@ def calibrate(
     Returns
     -------
     CalibrationResult. Bad input raises (``InvalidInputError`` family); a failed solve is returned
-    with ``outcome.success == False`` and the reason.
+    with ``outcome.success == False`` and the reason. ``warnings`` lists undetermined precision
+    (standard deviations NaN, never 0) and a rig that does not fit.
+
+    References
+    ----------
+    Fraser, C. S. (1997). Digital camera self-calibration. ISPRS J. Photogramm. Remote Sens. 52, 149-159.
     """
+    opt = options or SelfCalibrationOptions()
+    kw = dict(point_std=point_std, options=opt, progress=progress, initial=initial, initial_poses=initial_poses)
+    res = _calibrate_once(cameras, points, images, rig=rig, **kw)
+    if rig and res.relative and res.outcome.success and opt.rig_rms_warning_factor > 0:
+        indep = _calibrate_once(cameras, points, images, rig=False, **kw)
+        if indep.outcome.success:
+            for ci, (cr, cs) in enumerate(zip(res.cameras, indep.cameras)):
+                if np.isfinite(cr.rms_px) and np.isfinite(cs.rms_px) and cr.rms_px > opt.rig_rms_warning_factor * cs.rms_px:
+                    fx_r = cr.parameters_px()["fx"][0]
+                    fx_s = cs.parameters_px()["fx"][0]
+                    res.warnings.append(
+                        f"rig does not fit camera {cr.name!r}: RMS {cr.rms_px:.3f} px with the rig constraint against "
+                        f"{cs.rms_px:.3f} px with independent poses (> {opt.rig_rms_warning_factor:g}x; fx {fx_r:.1f} "
+                        f"against {fx_s:.1f} px); check frame synchronisation and pairing")
+            lost = sorted(set(indep.images_used) - set(res.images_used))
+            if lost:
+                res.warnings.append(
+                    f"rig does not fit {len(lost)} image(s) that independent poses use ({', '.join(lost[:5])}"
+                    f"{' ...' if len(lost) > 5 else ''}): rejected under the rig constraint; check frame "
+                    "synchronisation and pairing")
+    return res
+
+
+def _calibrate_once(
+    cameras: Sequence[CameraSetup],
+    points: np.ndarray,
+    images: Sequence[ImageMeasurements],
+    *,
+    point_std: np.ndarray | None = None,
+    options: SelfCalibrationOptions | None = None,
+    rig: bool = False,
+    progress=None,
+    initial: Mapping[int, np.ndarray] | None = None,
+    initial_poses: Sequence[tuple[np.ndarray, np.ndarray]] | None = None,
+) -> CalibrationResult:
+    """One solve of :func:`calibrate` (rig or independent poses); see there."""
     opt = options or SelfCalibrationOptions()
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 3:
@@ -747,8 +796,12 @@ def _assemble(sol, sel, pose_keys, cameras, images, verdicts, obs_img, obs_pt, o
         for name in ADDITIONAL:
             i = PARAM_NAMES.index(name)
             if cb.free[i]:
-                tv = abs(cb.params[i]) / std[i] if std[i] > 0 else float("inf")
-                tests.append(ParameterTest(name, float(cb.params[i]), float(std[i]), float(tv), tcrit, bool(tv > tcrit)))
+                if np.isfinite(std[i]) and std[i] > 0:
+                    tv = abs(cb.params[i]) / std[i]
+                else:  # undetermined precision: no test (never "significant" by a zero or NaN σ)
+                    tv = float("nan")
+                tests.append(ParameterTest(name, float(cb.params[i]), float(std[i]), float(tv), tcrit,
+                                           bool(np.isfinite(tv) and tv > tcrit)))
         cc = CameraCalibration(cs.name, cs.image_size, cs.pixel_pitch_um, cb.params.copy(), std.copy(), cov.copy(),
                                cb.free.copy(), (sx, sy), rms, int(np.count_nonzero(m)), tests)
         names, rho = cc.correlation()
@@ -762,10 +815,15 @@ def _assemble(sol, sel, pose_keys, cameras, images, verdicts, obs_img, obs_pt, o
         n_frames = len({images[k].frame for k in set(oi.tolist()) if images[k].camera == ci})
         rel.append(RelativeOrientation(ci, ref_cam, sol.rig_R[g], sol.rig_t[g], sol.rig_std[g], n_frames))
     rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
+    warns = []
+    undet = [f"{cc.name}.{PARAM_NAMES[i]}" for cc in cams_out for i in np.flatnonzero(cc.free) if not np.isfinite(cc.std[i])]
+    if dof <= 0 or not np.isfinite(sol.sigma0) or undet:
+        warns.append(f"precision undetermined (redundancy {dof}, sigma0 {sol.sigma0:.4g}): standard deviations are NaN"
+                     + (f" for {', '.join(undet[:6])}{' ...' if len(undet) > 6 else ''}" if undet else ""))
     return CalibrationResult(
         sol.outcome, cams_out, verdicts, sol.sigma0, dof, rms, stage1, blunders, rel, oi, obs_pt[sel], obs_xy[sel], res,
         sol.redundancy, sol.normalized_residuals,
-        "Baarda (a-priori sigma)" if use_apriori else "Pope tau (a-posteriori sigma0)", sol)
+        "Baarda (a-priori sigma)" if use_apriori else "Pope tau (a-posteriori sigma0)", sol, warns)
 
 
 def _empty_result(verdicts, term, reason, stage1=None):

@@ -4,6 +4,8 @@ Routes (public contract)::
 
     thermogrammetry calibrate IMAGES... --target chessboard --corners 6x5 --spacing-mm 100 -o OUT
     thermogrammetry calibrate IMAGES... --target circles --grid 7x4 --spacing-mm 50 [--asymmetric] -o OUT
+    thermogrammetry calibrate IMAGES... --target coded --corners 11x9 --spacing-mm 50.5 --marker-mm 161.5 -o OUT
+    thermogrammetry calibrate IMAGES... --target coded --target-file parameters.yaml -o OUT
     thermogrammetry calibrate --control control.csv --measurements measurements.csv \\
         --image-size 320x240 --pixel-pitch-um 25 --focal-mm 18 -o OUT
 
@@ -69,6 +71,7 @@ def _detector(kind: str):
     import importlib
 
     names = {"chessboard": [("detect_chessboard", "detect_chessboard"), ("detect", "detect_chessboard")],
+             "coded": [("detect_coded", "detect_coded_checkerboard")],
              "circles": [("detect_circles", "detect_circle_grid"), ("detect_circlegrid", "detect_circle_grid"),
                          ("detect_circle_grid", "detect_circle_grid"), ("detect", "detect_circle_grid"),
                          ("detect_circles", "detect_circles")]}[kind]
@@ -104,8 +107,15 @@ def _fallback_circles(image, spec, image_id):
 @app.command("calibrate")
 def calibrate(
     images: Optional[List[Path]] = typer.Argument(None, help="Images (or folders of images) of a target."),
-    target: Optional[str] = typer.Option(None, "--target", help="Target kind: chessboard or circles."),
-    corners: Optional[str] = typer.Option(None, "--corners", help="Chessboard inner corners COLUMNSxROWS (OpenCV patternSize), e.g. 6x5."),
+    target: Optional[str] = typer.Option(None, "--target", help="Target kind: chessboard, circles or coded (checkerboard with an ArUco marker on its central corner, Schramm et al. 2021)."),
+    corners: Optional[str] = typer.Option(None, "--corners", help="Chessboard / coded checkerboard inner corners COLUMNSxROWS (OpenCV patternSize), e.g. 6x5 or 11x9."),
+    marker_mm: Optional[float] = typer.Option(None, "--marker-mm", help="Coded target: side of the ArUco marker (outer black border) in mm, e.g. 161.5."),
+    hidden_squares: Optional[int] = typer.Option(None, "--hidden-squares", help="Coded target: the marker blanks NxN squares around the central corner (default 4)."),
+    marker_bits: Optional[int] = typer.Option(None, "--marker-bits", help="Coded target: inner bits per marker side of the custom dictionary (default 3: custom_dictionary(1, 3))."),
+    dictionary: Optional[str] = typer.Option(None, "--dictionary", help="Coded target: a predefined cv2.aruco dictionary (e.g. DICT_4X4_50) instead of the custom one."),
+    marker_id: Optional[int] = typer.Option(None, "--marker-id", help="Coded target: id of the marker in its dictionary (default 0)."),
+    bottom_left_square: Optional[str] = typer.Option(None, "--bottom-left-square", help="Coded target: colour of the board's bottom-left square as printed, white or black (default white)."),
+    target_file: Optional[Path] = typer.Option(None, "--target-file", help="Coded target: the target's own description (MRT parameters.yaml: gridSize, arucoSize, gridMaxWidth/Height, aruCoHiddenSize, aruco_dict, bottomLeftField); flags given as well override it."),
     grid: Optional[str] = typer.Option(None, "--grid", help="Circle grid COLUMNSxROWS of centres, e.g. 7x4."),
     spacing_mm: Optional[float] = typer.Option(None, "--spacing-mm", help="Square size / centre spacing in mm."),
     asymmetric: bool = typer.Option(False, "--asymmetric", help="Asymmetric (staggered) circle grid."),
@@ -127,8 +137,10 @@ def calibrate(
 
     err = Console(stderr=True, soft_wrap=True)
     try:
+        coded = dict(marker_mm=marker_mm, hidden_squares=hidden_squares, marker_bits=marker_bits, dictionary=dictionary,
+                     marker_id=marker_id, bottom_left_square=bottom_left_square, target_file=target_file)
         run = _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, control, measurements, image_size,
-                   pixel_pitch_um, focal_mm, output, k45, affinity, name)
+                   pixel_pitch_um, focal_mm, output, k45, affinity, name, coded)
     except typer.BadParameter as exc:
         err.print(f"[bold red]error:[/] {exc}", markup=True, highlight=False)
         raise typer.Exit(2) from None
@@ -140,8 +152,65 @@ def calibrate(
         raise typer.Exit(1)
 
 
+def _coded_spec(corners, spacing_mm, coded: dict):
+    """The coded checkerboard from ``--target-file`` (if given), then the explicit flags, then the MRT
+    defaults (:class:`thermogrammetry.targets.CodedCheckerboardTarget`)."""
+    from ..calibration.detect_common import CodedCheckerboardSpec
+    from ..errors import ConfigError, DataFileError
+
+    kw: dict = {}
+    tf = coded.get("target_file")
+    if tf is not None:
+        import yaml
+
+        try:
+            text = Path(tf).read_text()
+        except OSError as exc:
+            raise DataFileError(f"--target-file {tf}: cannot read ({exc.strerror or exc})") from None
+        try:
+            params = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise DataFileError(f"--target-file {tf}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        try:
+            base = CodedCheckerboardSpec.from_parameters(params)
+        except ConfigError as exc:
+            raise ConfigError(f"--target-file {tf}: {exc}") from None
+        kw = {k: getattr(base, k) for k in ("inner_columns", "inner_rows", "square_mm", "marker_mm", "hidden_squares",
+                                            "marker_bits", "marker_id", "dictionary_size", "top_left_square",
+                                            "predefined_dictionary")}
+    if corners is not None:
+        kw["inner_columns"], kw["inner_rows"] = _pair(corners, "--corners")
+    if spacing_mm is not None:
+        kw["square_mm"] = spacing_mm
+    for flag, key in (("marker_mm", "marker_mm"), ("hidden_squares", "hidden_squares"), ("marker_bits", "marker_bits"),
+                      ("marker_id", "marker_id")):
+        if coded.get(flag) is not None:
+            kw[key] = coded[flag]
+    if coded.get("dictionary") is not None:
+        d = str(coded["dictionary"]).replace("aruco.", "").upper()
+        kw["predefined_dictionary"] = "" if d in ("", "CUSTOM", "DICT_3X3_1") else d
+    rows = kw.get("inner_rows", CodedCheckerboardSpec.inner_rows)
+    bl = coded.get("bottom_left_square")
+    if bl is not None:
+        b = str(bl).strip().lower()
+        if b not in ("white", "black", "bright", "dark"):
+            raise typer.BadParameter(f"--bottom-left-square {bl!r}: expected white or black")
+        bl_dark = b in ("black", "dark")
+        kw["top_left_square"] = "dark" if (bl_dark if rows % 2 == 0 else not bl_dark) else "bright"
+    elif tf is None and "inner_rows" in kw:
+        # default: bottom-left square white (the MRT target), whatever the number of rows
+        kw["top_left_square"] = "dark" if rows % 2 == 1 else "bright"
+    if tf is None and (corners is None or spacing_mm is None or coded.get("marker_mm") is None):
+        missing = [f for f, v in (("--corners", corners), ("--spacing-mm", spacing_mm), ("--marker-mm", coded.get("marker_mm")))
+                   if v is None]
+        raise typer.BadParameter(f"--target coded needs {', '.join(missing)} (e.g. --corners 11x9 --spacing-mm 50.5 "
+                                 "--marker-mm 161.5) or --target-file parameters.yaml")
+    return CodedCheckerboardSpec(**kw)
+
+
 def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, control, measurements, image_size,
-         pixel_pitch_um, focal_mm, output, k45, affinity, name):
+         pixel_pitch_um, focal_mm, output, k45, affinity, name, coded=None):
+    coded = coded or {}
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -177,17 +246,28 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
         if not images:
             raise typer.BadParameter("no IMAGES given (or use --control/--measurements for a 3D test field)")
         if target is None:
-            raise typer.BadParameter("--target is required with IMAGES: chessboard or circles")
+            raise typer.BadParameter("--target is required with IMAGES: chessboard, circles or coded")
         kind = target.strip().lower()
         if kind in ("circle", "circlegrid", "circle-grid"):
             kind = "circles"
-        if kind not in ("chessboard", "circles"):
-            raise typer.BadParameter(f"--target {target!r}: expected chessboard or circles")
-        if spacing_mm is None or spacing_mm <= 0:
+        if kind in ("coded-checkerboard", "coded_checkerboard", "aruco"):
+            kind = "coded"
+        if kind not in ("chessboard", "circles", "coded"):
+            raise typer.BadParameter(f"--target {target!r}: expected chessboard, circles or coded")
+        if kind != "coded" and coded.get("target_file") is not None:
+            raise typer.BadParameter("--target-file describes a coded checkerboard: use it with --target coded")
+        if not (kind == "coded" and coded.get("target_file") is not None) and (spacing_mm is None or spacing_mm <= 0):
             raise typer.BadParameter("--spacing-mm is required and must be positive (square size or centre spacing in mm)")
         from ..calibration.detect_common import ChessboardSpec, CircleGridSpec
 
-        if kind == "chessboard":
+        if kind == "coded":
+            spec = _coded_spec(corners, spacing_mm, coded)
+            cols, rows = spec.inner_columns, spec.inner_rows
+            spacing_mm = spec.square_mm
+            desc = (f"coded checkerboard {cols}x{rows} inner corners, {spec.square_mm:g} mm squares, ArUco marker "
+                    f"{spec.marker_mm:g} mm ({spec.predefined_dictionary or f'custom {spec.marker_bits}x{spec.marker_bits}-bit'} "
+                    f"id {spec.marker_id}), {spec.hidden_squares}x{spec.hidden_squares} squares hidden")
+        elif kind == "chessboard":
             if corners is None:
                 raise typer.BadParameter("--corners COLUMNSxROWS is required for --target chessboard (inner corners, e.g. 6x5)")
             cols, rows = _pair(corners, "--corners")
@@ -224,6 +304,7 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
                 prog.advance(task)
         prog_desc = {"kind": kind, "description": desc, "pattern": [cols, rows], "spacing_mm": spacing_mm,
                      "asymmetric": bool(asymmetric) if kind == "circles" else None,
+                     **({"marker_mm": spec.marker_mm, "hidden_squares": spec.hidden_squares} if kind == "coded" else {}),
                      "detector": "interim cv2.findCirclesGrid" if interim else f"{detect.__module__}.{detect.__name__}"}
         cams, pts, ims, not_detected, meta = prepare_detections(dets, spec.object_points() * 1e-3, target=prog_desc,
                                                                 pixel_pitch_um=pixel_pitch_um, focal_mm=focal_mm,
@@ -257,6 +338,8 @@ def _summary(console, cal: dict, output, keys) -> None:
     n_img = len(cal["per_image"])
     console.print(f"[bold]calibration[/] {cal['termination']}: {len(cal['images_used'])}/{n_img} images used, "
                   f"RMS {cal['rms_px']:.3f} px, σ0 {cal['sigma0']:.3f}, redundancy {cal['dof']}", highlight=False)
+    for wtext in cal.get("warnings", []):
+        console.print(f"[yellow]warning:[/] {wtext}", highlight=False)
     assumed = cal["run"].get("pixel_pitch_assumed")
     for cam in cal["cameras"]:
         w, h = cam["image_size"]

@@ -1,0 +1,74 @@
+"""``thermogrammetry calibrate --target coded`` on the real MRT coded checkerboard (issue 13).
+
+Contract: ``thermogrammetry calibrate IMAGES --target coded --corners 11x9 --spacing-mm 50.5
+--marker-mm 161.5 -o OUT``; the rest of the geometry defaults to that target's, ``--target-file
+parameters.yaml`` reads the target's own description.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from conftest import data_path
+from thermogrammetry.cli.calibrate import _coded_spec
+from thermogrammetry.cli.main import main
+from thermogrammetry.targets import CodedCheckerboardTarget
+
+CONTRACT = ["--target", "coded", "--corners", "11x9", "--spacing-mm", "50.5", "--marker-mm", "161.5"]
+
+
+@pytest.fixture(scope="module")
+def coded_run(tmp_path_factory):
+    folder = data_path("ir_coded_checkerboard", "imageDataset")
+    out = tmp_path_factory.mktemp("coded") / "out"
+    rc = main(["calibrate", str(folder), *CONTRACT, "-o", str(out)])
+    return rc, out
+
+
+def test_coded_contract_uses_all_60_views(coded_run):
+    rc, out = coded_run
+    assert rc == 0
+    cal = json.loads((out / "calibration.json").read_text())
+    assert len(cal["images_used"]) == 60 and not cal["images_rejected"]
+    # the detector's corners are good to a few tenths of a pixel on these 382x288 8-bit views
+    # (measured 0.31 px); a misidentified corner (50 mm off) would cost pixels
+    assert 0.15 < cal["rms_px"] < 0.45
+    assert cal["run"]["target"]["kind"] == "coded"
+    ocv = json.loads((out / "exports" / "opencv.json").read_text())
+    fx = ocv["K"][0][0]
+    assert 330 < fx < 420, fx  # 382 px wide sensor, ~54 deg field of view (OpenCV on the same corners: ~374)
+
+
+def test_target_file_gives_the_same_target():
+    yaml_path = data_path("ir_coded_checkerboard", "parameters.yaml")
+    from_file = _coded_spec(None, None, {"target_file": yaml_path})
+    from_flags = _coded_spec("11x9", 50.5, {"marker_mm": 161.5})
+    assert from_file == from_flags == CodedCheckerboardTarget()
+    # an explicit flag overrides the file; the corner-square colour follows the printed bottom-left one
+    assert _coded_spec(None, 40.0, {"target_file": yaml_path}).square_mm == 40.0
+    black = _coded_spec("11x9", 50.5, {"marker_mm": 161.5, "bottom_left_square": "black"})
+    assert black.top_left_square == "bright"
+
+
+def test_coded_bad_flags_exit_2(tmp_path, capsys):
+    folder = data_path("ir_coded_checkerboard", "imageDataset")
+    rc = main(["calibrate", str(folder), "--target", "coded", "--corners", "11x9", "--spacing-mm", "50.5", "-o", str(tmp_path / "o")])
+    assert rc == 2
+    assert "--marker-mm" in capsys.readouterr().err
+    bad = tmp_path / "p.yaml"
+    bad.write_text("gridSize: 50.5\n")
+    rc = main(["calibrate", str(folder), "--target", "coded", "--target-file", str(bad), "-o", str(tmp_path / "o")])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "arucoSize" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_coded_help_names_the_flags(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "300")  # rich wraps the option table to the terminal width
+    main(["calibrate", "--help"])
+    text = capsys.readouterr().out
+    for flag in ("--marker-mm", "--target-file", "--hidden-squares", "--bottom-left-square", "coded"):
+        assert flag in text

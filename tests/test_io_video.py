@@ -1,0 +1,88 @@
+"""Thermal video: 16-bit frames decoded as kelvin, frames extracted at a target forward overlap."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from thermogrammetry.errors import ConfigError, DataFileError, UnsupportedFormatError
+from thermogrammetry.pipeline import MemoryProject
+from thermogrammetry.synthetic.survey import SurveyConfig, make_survey, render_frame, write_survey
+from thermogrammetry.synthetic.terrain import TerrainConfig
+
+pytest.importorskip("av")
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory):
+    cfg = SurveyConfig(terrain=TerrainConfig(width_m=90.0, height_m=60.0, n_buildings=4, n_trees=6, n_roads=1),
+                       image_size=(160, 128), focal_mm=6.25, flight_height_m=60.0, n_gcp=3, n_check=2, seed=3,
+                       video_fps=10.0, speed_mps=5.0, max_frames=40)
+    sc = make_survey(cfg)
+    proj = MemoryProject()
+    write_survey(proj, sc, threads=1)
+    path = tmp_path_factory.mktemp("video") / "thermal.mkv"
+    path.write_bytes(proj.read_bytes("survey/video/thermal.mkv"))
+    return sc, proj, path
+
+
+def _true_shift_px(sc, a, b):
+    """Median image motion (px) of the ground seen in the middle of frame a, from a to b (truth)."""
+    cam = sc.camera
+    depth = render_frame(sc, a, with_truth=True, sensor=False)["depth_m"]
+    h, w = depth.shape
+    ys, xs = np.mgrid[h // 4:3 * h // 4:4, w // 4:3 * w // 4:4]
+    xy = np.c_[xs.ravel(), ys.ravel()].astype(float)
+    rays = cam.unproject(xy)
+    pc = np.c_[rays[:, :2] / rays[:, 2:3], np.ones(len(xy))] * depth[ys.ravel(), xs.ravel()][:, None]
+    pw = sc.frames[a].pose.inverse().transform(pc)
+    return np.median(cam.project(sc.frames[b].pose.transform(pw)) - xy, axis=0)
+
+
+def test_video_frames_are_kelvin_equal_to_the_rendered_frames(video):
+    import io
+
+    import tifffile
+
+    from thermogrammetry.io.video import probe_video, read_video_frames
+
+    sc, proj, path = video
+    info = probe_video(path)
+    assert (info.width, info.height, info.bits) == (160, 128, 16) and info.fps == pytest.approx(10.0)
+    frames = list(read_video_frames(path, every=7))
+    assert [f.index for f in frames] == list(range(0, 40, 7))
+    for f in frames[:3]:
+        assert f.unit == "K" and f.image.dtype == np.float32
+        tif = tifffile.imread(io.BytesIO(proj.read_bytes(f"survey/images/T{f.index:04d}.tif")))
+        assert np.nanmax(np.abs(f.image - tif)) <= 0.5 * info.scale + 1e-4  # 16-bit quantisation only
+        assert f.time_s == pytest.approx(sc.frames[f.index].time_s, abs=0.1)
+
+
+def test_frames_extracted_at_the_target_forward_overlap(video):
+    from thermogrammetry.io.video import read_video_frames
+
+    sc, _, path = video
+    h = sc.camera.image_size[1]
+    kept = [f.index for f in read_video_frames(path, forward_overlap=0.8)]
+    assert 4 <= len(kept) <= 6 and kept[0] == 0
+    # frame-to-frame motion (attitude jitter of 1 deg per frame included) bounds the overshoot
+    steps = [abs(_true_shift_px(sc, i, i + 1)[1]) / h for i in range(0, kept[-1])]
+    for a, b in zip(kept[:-1], kept[1:]):
+        moved = abs(_true_shift_px(sc, a, b)[1]) / h  # the flight runs along the image's y axis
+        assert 0.2 - 0.02 <= moved <= 0.2 + max(steps[a:b]) + 0.02, (a, b, moved)
+
+
+def test_video_bad_input(tmp_path):
+    from thermogrammetry.io.video import extraction_stride, read_video_frames
+
+    bad = tmp_path / "clip.mp4"
+    bad.write_bytes(b"\x00\x00\x00\x18ftypmp42 not really a video")
+    with pytest.raises(UnsupportedFormatError, match="clip.mp4"):
+        list(read_video_frames(bad))
+    with pytest.raises(DataFileError, match="no such video"):
+        list(read_video_frames(tmp_path / "missing.mkv"))
+    with pytest.raises(ConfigError, match="forward_overlap=1.2"):
+        list(read_video_frames(bad, forward_overlap=1.2))
+    assert extraction_stride(30.0, 5.0, 40.0, 0.8) == 48  # 0.2 * 40 m / (5 m/s / 30 Hz)
+    with pytest.raises(ConfigError, match="speed_mps=0"):
+        extraction_stride(30.0, 0, 40.0, 0.8)
