@@ -37,7 +37,7 @@ def test_cli_convert_keeps_going_and_exits_nonzero(tmp_path, capsys):
     code = main(["convert", str(truncated), str(ir), str(plain), str(seq), str(xt2), "-o", str(out),
                  "--unit", "C", "--encoding", "uint16"])
     text = capsys.readouterr().out
-    assert code == 1
+    assert code == 2
     # both bad files listed at the end with their reasons
     tail = text[text.index("failed:"):]
     assert "truncated.jpg" in tail and "truncated file" in tail
@@ -45,7 +45,7 @@ def test_cli_convert_keeps_going_and_exits_nonzero(tmp_path, capsys):
     assert "3 of 5 file(s) converted, 4 TIFF(s) written" in " ".join(text.split())
     # the other outputs are complete and hold the right temperatures
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["DJI_XT2.tif", "IR_2412.tif", "SampleSEQ_f00000.tif", "SampleSEQ_f00001.tif"]
+    assert names == ["DJI_XT2.tif", "IR_2412.tif", "SampleSEQ_f00000.tif", "SampleSEQ_f00001.tif", "convert-manifest.json"]
     ref = np.fromfile(data_path("flir_thermimage", "Uploads", "FLIRjpg_W640_H480_F1_I.raw"), "<f4").reshape(480, 640)
     back = read_thermal(out / "IR_2412.tif")
     # 16-bit: half a step (<= 0.005 K) + float32 of the reference + our 3e-5 K agreement with Thermimage
@@ -94,13 +94,13 @@ def test_cli_convert_accepts_a_folder(tmp_path, capsys):
         shutil.copy(data_path("rjpeg_samples", "images", name), src / name)
     code = main(["convert", str(src), "-o", str(tmp_path / "out")])
     assert code == 0
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["DJI_XT2.tif", "DJI_XTR.tif"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["DJI_XT2.tif", "DJI_XTR.tif", "convert-manifest.json"]
 
 
 def test_cli_convert_matrix_needs_input_unit(tmp_path, capsys):
     m = tmp_path / "m.npy"
     np.save(m, np.full((4, 5), 21.5))
-    assert main(["convert", str(m), "-o", str(tmp_path / "a")]) == 1
+    assert main(["convert", str(m), "-o", str(tmp_path / "a")]) == 2
     assert "unit" in capsys.readouterr().out
     assert main(["convert", str(m), "-o", str(tmp_path / "b"), "--input-unit", "C"]) == 0
     np.testing.assert_allclose(read_thermal(tmp_path / "b" / "m.tif").temperature_k, 21.5 + 273.15, atol=1e-4)

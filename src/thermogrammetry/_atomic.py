@@ -1,19 +1,145 @@
-"""Atomic file writes: the one implementation every writer in the project uses.
+"""Atomic file writes and atomic output *sets*: the one implementation every writer in the project uses.
 
-A temp file is written beside the target, flushed and fsync'ed, then renamed over
-it with :func:`os.replace`; a reader never sees a half-written file, and on failure
-the previous content (if any) is untouched and no temp file is left behind.
+Single files (:func:`write_atomic`): a temp file is written beside the target, flushed and fsync'ed, given
+the permissions an ordinary ``open()`` would give (``0o666 & ~umask``, not :func:`tempfile.mkstemp`'s
+0600) and renamed over the target with :func:`os.replace`.  A reader never sees a half-written file; on a
+Python exception the temp file is removed.  A process killed outright (SIGKILL, power loss) cannot clean
+up, so temp names carry the writer's process id (``.<name>.<pid>.<random>.tmp``) and
+:func:`clean_stale_temporaries` -- called by every write into a folder, once per folder and process --
+removes those whose process is gone.
+
+Output sets (:class:`OutputSet`): a verb that writes several files builds them in a staging folder beside
+OUT (``.<OUT>.partial-<pid>``) and moves them into place at the end.  When OUT did not exist the staging
+folder is renamed to OUT (one atomic rename: OUT is absent or complete); when OUT exists the files are
+moved in one by one and a manifest (``<verb>-manifest.json``, listing every file) is written last, so a
+run interrupted while moving leaves OUT without a current manifest.  Stale staging folders of dead
+processes are removed at the next run.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import tempfile
+import threading
 from pathlib import Path
 
 from .errors import DataFileError
 
-__all__ = ["write_atomic", "write_atomic_text"]
+__all__ = ["write_atomic", "write_atomic_text", "file_mode", "dir_mode", "check_output_folder", "clean_stale_temporaries", "make_temp", "OutputSet"]
+
+_LOCK = threading.Lock()
+_MODE: int | None = None
+_CLEANED: set[str] = set()
+
+
+def _umask() -> int:
+    """The process umask (read once)."""
+    global _MODE
+    if _MODE is None:
+        mask = None
+        try:  # Linux: read the umask without changing it (thread-safe)
+            with open("/proc/self/status", encoding="ascii") as fh:
+                for line in fh:
+                    if line.startswith("Umask:"):
+                        mask = int(line.split()[1], 8)
+                        break
+        except (OSError, ValueError):
+            mask = None
+        if mask is None:
+            with _LOCK:
+                mask = os.umask(0o022)
+                os.umask(mask)
+        _MODE = mask
+    return _MODE
+
+
+def file_mode() -> int:
+    """Permission bits an ordinary ``open(path, "w")`` would give a new file: ``0o666 & ~umask``."""
+    return 0o666 & ~_umask()
+
+
+def dir_mode() -> int:
+    """Permission bits ``os.mkdir`` would give a new folder: ``0o777 & ~umask``."""
+    return 0o777 & ~_umask()
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists but not ours (EPERM)
+        return True
+    return True
+
+
+def _owner_pid(name: str, marker: str) -> int | None:
+    """The pid embedded in a temp name (``....<marker><pid>...``), or None."""
+    i = name.rfind(marker)
+    if i < 0:
+        return None
+    digits = ""
+    for ch in name[i + len(marker):]:
+        if not ch.isdigit():
+            break
+        digits += ch
+    return int(digits) if digits else None
+
+
+def clean_stale_temporaries(folder: str | os.PathLike, *, force: bool = False) -> list[Path]:
+    """Remove temp files (``.*.<pid>.*.tmp``) and staging folders (``.*.partial-<pid>``) in ``folder``
+    left by processes that no longer run.  Returns what was removed.  Done once per folder and process
+    unless ``force``."""
+    d = Path(folder)
+    key = str(d.resolve()) if d.exists() else str(d)
+    with _LOCK:
+        if key in _CLEANED and not force:
+            return []
+        _CLEANED.add(key)
+    removed: list[Path] = []
+    try:
+        entries = list(os.scandir(d))
+    except OSError:
+        return removed
+    for e in entries:
+        n = e.name
+        if not n.startswith("."):
+            continue
+        try:
+            if n.endswith(".tmp") and e.is_file(follow_symlinks=False):
+                parts = n[:-4].split(".")
+                pid = int(parts[-2]) if len(parts) >= 3 and parts[-2].isdigit() else None
+                if pid is not None and not _pid_alive(pid):
+                    os.unlink(e.path)
+                    removed.append(Path(e.path))
+            elif ".partial-" in n and e.is_dir(follow_symlinks=False):
+                pid = _owner_pid(n, ".partial-")
+                if pid is not None and not _pid_alive(pid):
+                    shutil.rmtree(e.path, ignore_errors=True)
+                    removed.append(Path(e.path))
+        except OSError:
+            continue
+    return removed
+
+
+def make_temp(path: str | os.PathLike, suffix: str = ".tmp") -> tuple[int, Path]:
+    """Open a temp file beside ``path`` for an atomic write: ``(fd, temp_path)``.
+
+    The name carries this process's id (so a killed run's leftovers are recognised and removed), the mode
+    is :func:`file_mode`.  The caller writes, then ``os.replace(temp_path, path)``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    clean_stale_temporaries(path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=suffix, dir=path.parent)
+    try:
+        os.fchmod(fd, file_mode())
+    except (OSError, AttributeError):  # pragma: no cover - platforms without fchmod
+        pass
+    return fd, Path(tmp)
 
 
 def write_atomic(path: str | os.PathLike, data: bytes) -> Path:
@@ -26,8 +152,7 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> Path:
     """
     path = Path(path)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        fd, tmp = make_temp(path)
     except OSError as exc:
         raise DataFileError(f"{path}: cannot write ({exc.strerror or exc})") from exc
     try:
@@ -36,11 +161,13 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> Path:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             os.unlink(tmp)
         except OSError:
             pass
+        if isinstance(exc, OSError) and not isinstance(exc, DataFileError):
+            raise DataFileError(f"{path}: cannot write ({exc.strerror or exc})") from exc
         raise
     return path
 
@@ -48,3 +175,105 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> Path:
 def write_atomic_text(path: str | os.PathLike, text: str) -> Path:
     """UTF-8 text with ``\\n`` line ends, written by :func:`write_atomic`."""
     return write_atomic(path, text.encode("utf-8"))
+
+
+def check_output_folder(out: str | os.PathLike, what: str = "output folder") -> Path:
+    """Refuse an OUT that cannot become a folder we can write into, before any work is done.
+
+    Raises
+    ------
+    DataFileError
+        OUT is an existing file, or its folder (or OUT itself) is not writable.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise DataFileError(f"{what} {out}: is an existing file, expected a folder (or a name to create)")
+    probe = out if out.is_dir() else out.parent
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        raise DataFileError(f"{what} {out}: {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise DataFileError(f"{what} {out}: {probe} is not writable (permission denied)")
+    return out
+
+
+class OutputSet:
+    """Write a set of files so that OUT is either unchanged or complete (see the module docstring).
+
+    Use as a context manager; ``path(name)`` gives where to write ``name`` (inside the staging folder),
+    ``commit(manifest)`` moves everything into OUT.  Leaving the ``with`` block without ``commit``
+    (an exception, or nothing to write) removes the staging folder and leaves OUT untouched.
+
+    Parameters
+    ----------
+    out : path
+        The output folder the user named.
+    verb : str
+        Names the manifest (``<verb>-manifest.json``).
+    """
+
+    def __init__(self, out: str | os.PathLike, verb: str):
+        self.out = check_output_folder(out)
+        self.verb = verb
+        parent = self.out.parent
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+            clean_stale_temporaries(parent)
+            if self.out.is_dir():
+                clean_stale_temporaries(self.out)
+            self.stage = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.partial-{os.getpid()}-", dir=parent))
+            os.chmod(self.stage, dir_mode())
+        except OSError as exc:
+            raise DataFileError(f"output folder {self.out}: cannot be created ({exc.strerror or exc})") from None
+        self.committed = False
+
+    @property
+    def manifest_name(self) -> str:
+        return f"{self.verb}-manifest.json"
+
+    def path(self, name: str) -> Path:
+        """Where to write the output ``name`` (relative, ``/``-separated) during the run."""
+        p = self.stage / name
+        p.parent.mkdir(parents=True, exist_ok=True)
+        return p
+
+    def final_path(self, name: str) -> Path:
+        return self.out / name
+
+    def files(self) -> list[str]:
+        return sorted(p.relative_to(self.stage).as_posix() for p in self.stage.rglob("*")
+                      if p.is_file() and not p.name.startswith("."))
+
+    def commit(self, manifest: dict | None = None) -> list[Path]:
+        """Move the staged files into OUT; the manifest (``files`` + ``manifest``) is written last."""
+        names = self.files()
+        doc = {"verb": self.verb, "complete": True, "files": names, **(manifest or {})}
+        try:
+            if not self.out.exists():
+                write_atomic_text(self.stage / self.manifest_name, json.dumps(doc, indent=1) + "\n")
+                os.replace(self.stage, self.out)
+            else:
+                stale = self.out / self.manifest_name
+                if stale.exists():  # the set is being replaced: no manifest until it is complete
+                    os.unlink(stale)
+                for n in names:
+                    dst = self.out / n
+                    dst.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(self.stage / n, dst)
+                write_atomic_text(self.out / self.manifest_name, json.dumps(doc, indent=1) + "\n")
+                shutil.rmtree(self.stage, ignore_errors=True)
+        except OSError as exc:
+            raise DataFileError(f"output folder {self.out}: cannot move the outputs into place ({exc.strerror or exc})") from None
+        self.committed = True
+        return [self.out / n for n in names]
+
+    def abort(self) -> None:
+        shutil.rmtree(self.stage, ignore_errors=True)
+
+    def __enter__(self) -> "OutputSet":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if not self.committed:
+            self.abort()

@@ -26,6 +26,7 @@ __all__ = [
     "DataFileError",
     "UnsupportedFormatError",
     "CorruptFileError",
+    "ImageTooLargeError",
 ]
 
 
@@ -72,3 +73,8 @@ class UnsupportedFormatError(DataFileError):
 
 class CorruptFileError(DataFileError):
     """A file claims a known format but its content is truncated or inconsistent."""
+
+
+class ImageTooLargeError(DataFileError):
+    """A file declares an image larger than the configured size cap
+    (:func:`thermogrammetry.io.limits.max_pixels`); refused before any pixel memory is allocated."""

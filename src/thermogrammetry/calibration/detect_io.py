@@ -41,6 +41,10 @@ def read_image(path) -> np.ndarray:
     suffix = p.suffix.lower()
     if suffix not in IMAGE_SUFFIXES:
         raise UnsupportedFormatError(f"{p}: unsupported image type {suffix!r}; expected one of {', '.join(IMAGE_SUFFIXES)}")
+    from ..errors import ImageTooLargeError
+    from ..io.limits import check_image_size
+
+    _check_declared_size(p, check_image_size)
     if suffix in (".tif", ".tiff"):
         try:
             import tifffile
@@ -55,7 +59,40 @@ def read_image(path) -> np.ndarray:
             arr = np.moveaxis(arr, 0, -1)  # planar (C, H, W) → (H, W, C)
         return arr
     data = np.fromfile(str(p), dtype=np.uint8)
-    arr = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    try:
+        arr = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    except (cv2.error, MemoryError) as exc:
+        raise ImageTooLargeError(f"{p}: the image cannot be decoded ({type(exc).__name__}: "
+                                 f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else 'out of memory'})") from None
     if arr is None:
         raise CorruptFileError(f"{p}: cannot decode the image (empty or damaged {suffix} file)")
     return arr
+
+
+def _check_declared_size(p, check) -> None:
+    """Refuse an image whose header declares more pixels than the size cap, before decoding it
+    (:mod:`thermogrammetry.io.limits`).  Headers Pillow cannot read are left to the decoder."""
+    import warnings
+
+    from PIL import Image
+
+    from ..errors import ImageTooLargeError
+
+    from ..io.limits import MAX_PIXELS_ENV, max_pixels
+
+    cap = max_pixels()
+    old = Image.MAX_IMAGE_PIXELS
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            Image.MAX_IMAGE_PIXELS = max(cap // 2, 1)  # Pillow refuses beyond twice this, from the header alone
+            with Image.open(p) as im:  # reads the header only
+                w, h = im.size
+    except Image.DecompressionBombError as exc:
+        raise ImageTooLargeError(f"{p}: declares an image above the size cap of {cap / 1e6:.1f} Mpixel ({exc}); "
+                                 f"raise the cap with {MAX_PIXELS_ENV}=N if the image is genuine") from None
+    except Exception:
+        return
+    finally:
+        Image.MAX_IMAGE_PIXELS = old
+    check(w, h, str(p))

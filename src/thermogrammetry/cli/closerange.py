@@ -1,7 +1,8 @@
-"""``thermogrammetry closerange``: seed 000's multi-camera DLT workflow with directional correction."""
+"""``thermogrammetry closerange``: the multi-camera DLT workflow with directional correction of Sawicki, Stein & Więcek (1998)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import List, Optional
 
@@ -24,10 +25,18 @@ def _unit_of(img) -> str:
 def read_text(path: Path, what: str) -> str:
     from ..errors import DataFileError
 
+    from ..errors import CorruptFileError
+
     try:
-        return Path(path).read_text(encoding="utf-8-sig")
+        data = Path(path).read_bytes()
     except OSError as exc:
         raise DataFileError(f"{what} {path}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise CorruptFileError(f"{what} {path}: not UTF-8 text (line {line}, byte {exc.start}: "
+                               f"{data[exc.start:exc.start + 1]!r}); save it as UTF-8") from None
 
 
 @app.command("closerange")
@@ -43,7 +52,7 @@ def closerange(
     sigma_px: float = typer.Option(0.5, "--sigma-px", help="A-priori σ of the image measurements (px)."),
     thermal_unit: Optional[str] = typer.Option(None, "--thermal-unit", help="K or C, for a float image that does not declare its unit."),
     max_angle_deg: float = typer.Option(75.0, "--max-angle-deg", help="No correction beyond this viewing angle."),
-    emissivity: str = typer.Option("cosine", "--emissivity", help="cosine (seed 000 eq. 8) or fresnel."),
+    emissivity: str = typer.Option("cosine", "--emissivity", help="cosine (ε(θ) = ε_n cos θ, Sawicki, Stein & Więcek 1998, eq. 7-8) or fresnel (dielectric, --refractive-index)."),
     refractive_index: float = typer.Option(1.5, "--refractive-index", help="For --emissivity fresnel."),
     transmission: bool = typer.Option(False, "--transmission/--no-transmission", help="Atmospheric transmission over the per-pixel distance."),
     humidity: float = typer.Option(50.0, "--humidity", help="Relative humidity in percent, for --transmission."),
@@ -58,7 +67,9 @@ def closerange(
 
     from ..closerange.pipeline import closerange_steps, write_inputs
     from ..closerange.workflow import CloseRangeConfig
-    from ..errors import ThermogrammetryError
+    from .._atomic import OutputSet
+    from ..closerange.tables import parse_control, parse_measurements, parse_planes
+    from ..errors import ConfigError, ThermogrammetryError
     from ..pipeline import FolderProject, run_steps
 
     console = Console()
@@ -83,22 +94,41 @@ def closerange(
                                relative_humidity=humidity / 100.0,
                                control_sigma_m=None if control_sigma_mm is None else control_sigma_mm / 1000.0,
                                additional_parameters=tuple(a for a in additional.split(",") if a.strip()))
-        project = FolderProject(out)
-        write_inputs(project, control_csv=read_text(control, "control file"),
-                     measurements_csv=read_text(measurements, "measurements file"),
-                     planes_csv=read_text(planes, "planes file"), thermal=thermal, config=cfg, cameras=cams,
-                     thermal_k=thermal_k, thermal_unit=unit)
-        reports = run_steps(project, closerange_steps(),
-                            on_step=lambda r: console.print(f"[{'green' if r.ok else 'red'}]{r.name}[/] {r.seconds:.2f} s"))
+        texts = {"control": read_text(control, "control file"), "measurements": read_text(measurements, "measurements file"),
+                 "planes": read_text(planes, "planes file")}
+        # validated here, so messages name the user's files and a bad input leaves nothing behind
+        parse_control(texts["control"], str(control))
+        rows = parse_measurements(texts["measurements"], str(measurements))
+        parse_planes(texts["planes"], str(planes))
+        images = sorted({r[0] for r in rows})
+        if thermal not in images:
+            raise ConfigError(f"--thermal {thermal!r}: no such image in {measurements}; images: {', '.join(images)}")
+        for name, v, ok in (("--ambient-c", ambient_c, ambient_c > -273.15), ("--sigma-px", sigma_px, sigma_px > 0),
+                            ("--humidity", humidity, 0 <= humidity <= 100),
+                            ("--max-angle-deg", max_angle_deg, 0 < max_angle_deg < 90),
+                            ("--refractive-index", refractive_index, refractive_index > 1)):
+            if not math.isfinite(v) or not ok:
+                raise ConfigError(f"{name} {v}: out of range (ambient above absolute zero, sigma > 0, humidity 0-100 %, "
+                                  "max angle in (0, 90) deg, refractive index > 1; all finite)")
+        with OutputSet(out, "closerange") as stage:
+            project = FolderProject(stage.stage)
+            write_inputs(project, control_csv=texts["control"], measurements_csv=texts["measurements"],
+                         planes_csv=texts["planes"], thermal=thermal, config=cfg, cameras=cams,
+                         thermal_k=thermal_k, thermal_unit=unit)
+            reports = run_steps(project, closerange_steps(),
+                                on_step=lambda r: console.print(f"[{'green' if r.ok else 'red'}]{r.name}[/] {r.seconds:.2f} s"))
+            failed = [r for r in reports if not r.ok]
+            if failed:
+                err = str(failed[0].error).replace(str(stage.stage), str(out))
+                console.print(f"error in step {failed[0].name}: {err}", markup=False, highlight=False, soft_wrap=True)
+                raise typer.Exit(2)
+            planes_text = project.read_text("planes.csv")
+            stage.commit({"thermal": thermal})
     except ThermogrammetryError as exc:
-        console.print(f"[red]error:[/] {exc}")
-        raise typer.Exit(2)
-    failed = [r for r in reports if not r.ok]
-    if failed:
-        console.print(f"[red]error in step {failed[0].name}:[/] {failed[0].error}")
+        console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(2)
     t = Table(title="planes")
-    lines = project.read_text("planes.csv").strip().splitlines()
+    lines = planes_text.strip().splitlines()
     for h in ("name", "angle_deg", "sigma_angle_deg", "distance_m"):
         t.add_column(h)
     head = lines[0].split(",")

@@ -29,7 +29,8 @@ def demo(
     from rich.console import Console
     from rich.table import Table
 
-    from ..errors import ConfigError
+    from .._atomic import OutputSet
+    from ..errors import ConfigError, ThermogrammetryError
     from ..pipeline import FolderProject
     from ..pipeline.demo import DEMO_SECTIONS, DemoOptions, run_demo
 
@@ -39,8 +40,14 @@ def demo(
             console.print(f"{s.name:24s} {s.title}")
         raise typer.Exit(0)
     names = tuple(n.strip() for n in sections.split(",") if n.strip()) if sections else None
-    opt = DemoOptions(seed=seed, sections=names, threads=threads)
-    project = FolderProject(directory)
+    try:
+        opt = DemoOptions(seed=seed, sections=names, threads=threads)
+        # written as a set: a staging folder beside DIR, renamed/moved into DIR at the end (demo-manifest.json last)
+        stage = OutputSet(directory, "demo")
+    except ThermogrammetryError as exc:
+        console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(2)
+    project = FolderProject(stage.stage)
 
     def show(rep, rows):
         tab = Table(title=f"{rep.name}  ({rep.seconds:.1f} s)", title_justify="left", show_lines=False)
@@ -52,11 +59,17 @@ def demo(
             tab.add_row(r.check, f"{r.value:.4g}", f"{rel}{r.bound:g}" if r.bound is not None else "", r.unit, verdict)
         console.print(tab)
 
-    try:
-        res = run_demo(project, opt, on_section=show)
-    except ConfigError as exc:
-        console.print(f"[red]error:[/] {exc}")
-        raise typer.Exit(2)
+    with stage:
+        try:
+            res = run_demo(project, opt, on_section=show)
+        except ConfigError as exc:
+            console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
+            raise typer.Exit(2)
+        try:
+            stage.commit({"ok": bool(res.ok), "seed": seed, "sections": list(names) if names else "all"})
+        except ThermogrammetryError as exc:
+            console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
+            raise typer.Exit(2)
     n_fail = sum(1 for r in res.rows if not r.passed)
     status = "[green]all checks within their bounds[/]" if res.ok else f"[bold red]{n_fail} check(s) failed[/]"
     console.print(f"{status} in {res.seconds:.1f} s; report: {directory / 'report.html'}")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 import sys
 
+from ..errors import ThermogrammetryError
 from .app import app
 
 #: verb modules, imported in this order (each adds its command(s) to ``app``)
@@ -29,7 +30,23 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:  # typer/click exit
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 1)
+    except (ThermogrammetryError, MemoryError, OSError, UnicodeError) as exc:
+        # last line of defence: a bad input a verb did not catch still ends in one paragraph and exit 2
+        return _fail(exc)
     return 0
+
+
+def _fail(exc: BaseException) -> int:
+    if isinstance(exc, MemoryError):
+        msg = "not enough memory for this input (an image or file larger than this machine can hold?)"
+    elif isinstance(exc, UnicodeError):
+        msg = f"a text input is not UTF-8 ({exc}); save it as UTF-8"
+    elif isinstance(exc, OSError) and not isinstance(exc, ThermogrammetryError) and exc.filename:
+        msg = f"{exc.filename}: {exc.strerror or exc}"
+    else:
+        msg = str(exc) or type(exc).__name__
+    print(f"error: {msg}", file=sys.stderr, flush=True)
+    return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -8,6 +8,7 @@ are parsed.
 from __future__ import annotations
 
 import io
+import math
 import re
 import struct
 from dataclasses import dataclass
@@ -117,23 +118,33 @@ def read_exif(data: bytes) -> dict[str, Any]:
     (from FocalPlaneX/YResolution), ``latitude_deg``, ``longitude_deg``, ``altitude_m``,
     ``image_description``, and ``raw_exif`` / ``raw_gps`` (tag-id -> value dicts, for re-writing).
     """
+    out: dict[str, Any] = {}
+    try:
+        _read_exif(data, out)
+    except Exception as exc:  # damaged EXIF must not make the image unreadable; say what was lost
+        out["exif_error"] = f"EXIF unreadable, camera/GPS tags ignored ({type(exc).__name__}: {str(exc)[:120]})"
+    return out
+
+
+def _read_exif(data: bytes, out: dict[str, Any]) -> None:
     from PIL import Image
 
-    out: dict[str, Any] = {}
     try:
         with Image.open(io.BytesIO(data)) as img:
             exif = img.getexif()
-    except Exception:  # not an image Pillow knows, or broken: no EXIF
-        return out
+    except Exception:  # not an image Pillow knows (e.g. only a JPEG header): there is no EXIF to read
+        return
     base = dict(exif.items())
     try:
         sub = dict(exif.get_ifd(0x8769).items())
-    except Exception:
+    except Exception as exc:
         sub = {}
+        out["exif_error"] = f"EXIF sub-IFD unreadable ({type(exc).__name__}): focal length, serial, time ignored"
     try:
         gps = dict(exif.get_ifd(0x8825).items())
-    except Exception:
+    except Exception as exc:
         gps = {}
+        out["exif_error"] = f"EXIF GPS IFD unreadable ({type(exc).__name__}): position ignored"
     out["raw_exif"] = {**base, **sub}
     out["raw_gps"] = gps
     for key, tag in (("make", 271), ("model", 272), ("software", 305), ("image_description", 270)):
@@ -150,11 +161,14 @@ def read_exif(data: bytes) -> dict[str, Any]:
         except ValueError:
             pass
     fl = _ratio(sub.get(37386))
-    if fl:
+    if fl and math.isfinite(fl) and fl > 0:
         out["focal_length_mm"] = fl
     # FocalPlaneXResolution (pixels per unit) + unit (2 inch, 3 cm, 4 mm, 5 um)
     fx, fy, unit = _ratio(sub.get(41486)), _ratio(sub.get(41487)), sub.get(41488)
-    unit_um = {2: 25400.0, 3: 10000.0, 4: 1000.0, 5: 1.0}.get(int(unit) if unit is not None else 2)
+    try:
+        unit_um = {2: 25400.0, 3: 10000.0, 4: 1000.0, 5: 1.0}.get(int(unit) if unit is not None else 2)
+    except (TypeError, ValueError, OverflowError):
+        unit_um = None
     if fx and fx > 0 and unit_um and fx > 1.5:  # DJI writes 1 px/unit placeholders; ignore those
         px = unit_um / fx
         py = unit_um / fy if fy and fy > 0 else px
@@ -162,6 +176,10 @@ def read_exif(data: bytes) -> dict[str, Any]:
             out["pixel_pitch_um"] = (px, py)
     lat = _dms(gps.get(2), gps.get(1))
     lon = _dms(gps.get(4), gps.get(3))
+    if lat is not None and lon is not None and not (math.isfinite(lat) and math.isfinite(lon)
+                                                     and abs(lat) <= 90 and abs(lon) <= 180):
+        out["exif_error"] = f"EXIF GPS position {lat}, {lon} out of range: ignored"
+        lat = lon = None
     if lat is not None and lon is not None and not (lat == 0 and lon == 0):
         out["latitude_deg"], out["longitude_deg"] = lat, lon
         alt = _ratio(gps.get(6))
@@ -169,8 +187,8 @@ def read_exif(data: bytes) -> dict[str, Any]:
             ref = gps.get(5)
             if isinstance(ref, bytes):
                 ref = ref[:1] == b"\x01"
-            out["altitude_m"] = -alt if ref in (1, True) else alt
-    return out
+            if math.isfinite(alt):
+                out["altitude_m"] = -alt if ref in (1, True) else alt
 
 
 _XMP_START = b"<x:xmpmeta"

@@ -42,7 +42,7 @@ import struct
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -70,6 +70,7 @@ class FFFFrame:
     raw_format: str  # "png", "tiff", "jpeg-ls", "uint16"
     offset: int  # byte offset of the frame in its container
     length: int  # bytes used by the frame
+    index: int = 0  # position in the sequence (damaged frames counted)
 
 
 def _endian_of_header(buf: bytes) -> str | None:
@@ -291,11 +292,28 @@ def parse_fff(buf: bytes, base: int = 0, where: str = "<bytes>") -> FFFFrame:
     return FFFFrame(raw, info, gps, fmt, base, end - base)
 
 
-def iter_fff_frames(buf: bytes, where: str = "<bytes>") -> Iterator[FFFFrame]:
+def iter_fff_frames(buf: bytes, where: str = "<bytes>", *,
+                    on_damaged: Callable[[int, str], None] | None = None) -> Iterator[FFFFrame]:
     """Frames of a SEQ/CSQ/FFF byte string in file order (frames are found by following each frame's extent
-    and then searching for the next valid FFF header)."""
+    and then searching for the next valid FFF header).  Each frame's :attr:`FFFFrame.index` is its position
+    in the sequence, counting damaged frames, so frame 4 keeps index 4 when frame 3 is damaged.
+
+    A damaged frame in the middle of a sequence (its records do not decode, or its header is destroyed so
+    that the next valid header is found past where the frame should start) raises :class:`CorruptFileError`,
+    or -- with ``on_damaged(index, message)`` -- is reported there and skipped.  Frames of SEQ/CSQ files are
+    contiguous; when a header is destroyed, the number of frames lost in the gap is estimated as the gap
+    over the previous frame's length (at least 1).
+    """
     pos = 0
-    n = 0
+    n = 0  # index of the next frame
+    found = 0
+    prev_len = 0
+
+    def damaged(msg: str) -> None:
+        if on_damaged is None:
+            raise CorruptFileError(msg)
+        on_damaged(n, msg)
+
     while pos < len(buf):
         k = buf.find(b"FFF\x00", pos)
         if k < 0:
@@ -305,17 +323,38 @@ def iter_fff_frames(buf: bytes, where: str = "<bytes>") -> Iterator[FFFFrame]:
             continue
         try:
             recs, end = _fff_records(buf, k, where)
-        except CorruptFileError:
-            if n == 0:
+        except CorruptFileError as exc:
+            if found == 0:
                 raise
-            raise CorruptFileError(f"{where}: frame {n} at byte {k} is truncated (file ends at {len(buf)})") from None
+            if buf.find(b"FFF\x00", k + 4) < 0:  # the last frame: the file is cut
+                raise CorruptFileError(f"{where}: frame {n} at byte {k} is truncated (file ends at {len(buf)})") from None
+            damaged(f"{where}: frame {n} at byte {k} is damaged ({exc})")
+            n += 1
+            pos = k + 4
+            continue
         if REC_RAW not in recs:
             pos = k + 4
             continue
-        yield parse_fff(buf, k, where)
+        if found and prev_len and k - pos > 64:  # bytes where a frame should start were not a valid header
+            lost = max(1, int(round((k - pos) / prev_len)))
+            for _ in range(lost):
+                damaged(f"{where}: frame {n} at byte {pos} is damaged (no valid FFF header where the frame should "
+                        f"start; next valid frame at byte {k})")
+                n += 1
+        try:
+            fr = parse_fff(buf, k, where)
+        except (CorruptFileError, UnsupportedFormatError) as exc:
+            if found == 0 and on_damaged is None:
+                raise
+            damaged(f"{where}: frame {n} at byte {k} is damaged ({exc})")
+        else:
+            fr.index = n
+            yield fr
+        found += 1
         n += 1
+        prev_len = end - k
         pos = max(end, k + 4)
-    if n == 0:
+    if found == 0:
         raise UnsupportedFormatError(f"{where}: no FLIR FFF frame with raw data found")
 
 
@@ -411,7 +450,15 @@ def _read_workswell_jpeg(path: Path, data: bytes, opts: ReadOptions) -> Iterator
 
 def _read_fff(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalImage]:
     name = {".seq": "flir_seq", ".csq": "flir_csq"}.get(path.suffix.lower(), "flir_fff")
-    for i, fr in enumerate(iter_fff_frames(data, str(path))):
+    def on_damaged(i: int, msg: str) -> None:
+        if opts.frames is not None and i not in opts.frames:
+            return  # a frame nobody asked for
+        if opts.on_damaged is None:
+            raise CorruptFileError(msg)
+        opts.on_damaged(i, msg)
+
+    for fr in iter_fff_frames(data, str(path), on_damaged=on_damaged):
+        i = fr.index
         if opts.frames is not None and i not in opts.frames:
             continue
         md = _metadata_from_frame(fr, path, name, i, {}, {})

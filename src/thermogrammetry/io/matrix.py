@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import ConfigError, CorruptFileError, UnsupportedFormatError
 from ..radiometry.encoding import to_kelvin
+from .limits import check_image_size
 from .thermal import ReadOptions, ThermalImage, ThermalMetadata, register_reader
 
 __all__ = ["read_matrix", "read_emissivity_table"]
@@ -39,11 +40,15 @@ def _parse_csv(path: Path, text: str) -> np.ndarray:
             if len(cells) > 1 or sep is None:
                 break
         try:
-            rows.append([float(c) if c.strip() else np.nan for c in cells])
+            vals = [float(c) if c.strip() else np.nan for c in cells]
         except ValueError:
             if not rows:  # header line
                 continue
             raise CorruptFileError(f"{path}: line {lineno} has a non-numeric cell: {s[:80]!r}") from None
+        if any(np.isinf(v) for v in vals):
+            raise CorruptFileError(f"{path}: line {lineno} has an infinite value ({s[:80]!r}); expected finite "
+                                   "numbers (empty or nan for no data)")
+        rows.append(vals)
         if len(rows[-1]) != len(rows[0]):
             raise CorruptFileError(f"{path}: line {lineno} has {len(rows[-1])} values, the first row has {len(rows[0])}")
     if not rows:
@@ -57,6 +62,20 @@ def read_matrix(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalI
     data = bytes(data)
     if data.startswith(b"\x93NUMPY"):
         try:
+            fh = io.BytesIO(data)
+            major, _minor = np.lib.format.read_magic(fh)
+            read_header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read_header(fh)
+        except Exception as exc:
+            raise CorruptFileError(f"{path}: NPY header cannot be read ({exc})") from None
+        if len(shape) != 2 or dtype.kind not in "fiu":
+            raise UnsupportedFormatError(f"{path}: expected a 2-D numeric matrix, got shape {shape} dtype {dtype}")
+        check_image_size(shape[1], shape[0], str(path))  # before np.load allocates
+        need = int(np.prod(shape)) * dtype.itemsize
+        if len(data) - fh.tell() < need:
+            raise CorruptFileError(f"{path}: NPY data holds {len(data) - fh.tell()} bytes, {need} needed for "
+                                   f"{shape} {dtype}: truncated file")
+        try:
             arr = np.load(io.BytesIO(data), allow_pickle=False)
         except Exception as exc:
             raise CorruptFileError(f"{path}: NPY file cannot be read ({exc}): truncated?") from None
@@ -64,6 +83,9 @@ def read_matrix(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalI
         arr = _parse_csv(path, data.decode("utf-8", "replace"))
     if arr.ndim != 2 or arr.dtype.kind not in "fiu":
         raise UnsupportedFormatError(f"{path}: expected a 2-D numeric matrix, got shape {arr.shape} dtype {arr.dtype}")
+    if arr.dtype.kind == "f" and np.isinf(arr).any():
+        raise CorruptFileError(f"{path}: {int(np.isinf(arr).sum())} infinite value(s); expected finite numbers "
+                               "(NaN for no data)")
     md = ThermalMetadata(source_path=str(path), reader="matrix", notes=[f"temperature matrix declared in {unit}"])
     yield ThermalImage(None, to_kelvin(arr, unit), md)
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import mmap
+import struct
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -23,7 +24,8 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 
 from ..enums import StrChoice
-from ..errors import ConfigError, CorruptFileError, DataFileError, InvalidInputError, ShapeError, UnsupportedFormatError
+from ..errors import (ConfigError, CorruptFileError, DataFileError, ImageTooLargeError, InvalidInputError, ShapeError,
+                      UnsupportedFormatError)
 from ..radiometry.measurement import MeasurementParams, object_temperature_from_raw
 from ..radiometry.planck import PlanckConstants
 
@@ -189,6 +191,9 @@ class ReadOptions:
         that do not carry one.
     dji_sdk : str or None
         Path of DJI's Thermal SDK library ``libdirp.so``/``libdirp.dll`` (or env ``THERMOGRAMMETRY_DJI_TSDK``).
+    on_damaged : callable or None
+        ``on_damaged(frame_index, message)`` for a damaged frame of a sequence, which is then skipped (the
+        following frames keep their own indices); None: a damaged frame raises :class:`CorruptFileError`.
     """
 
     overrides: dict = field(default_factory=dict)
@@ -197,6 +202,7 @@ class ReadOptions:
     scale: float | None = None
     offset: float | None = None
     dji_sdk: str | None = None
+    on_damaged: Callable[[int, str], None] | None = None
 
 
 @dataclass
@@ -412,13 +418,21 @@ def sniff_reader(path: str | Path, head: bytes | None = None) -> ReaderSpec:
     raise UnsupportedFormatError(f"{p}: not a radiometric thermal file: {what} (readers: {kinds})")
 
 
-def _options(frames, unit, scale, offset, dji_sdk, overrides) -> ReadOptions:
+def _options(frames, unit, scale, offset, dji_sdk, overrides, on_damaged=None) -> ReadOptions:
     names = set(MeasurementParams.field_names())
     unknown = sorted(k for k in overrides if k not in names)
     if unknown:
         raise ConfigError(f"unknown option(s) {unknown}; measurement overrides are {sorted(names)}")
     if unit is not None and str(unit).upper() not in ("K", "C"):
         raise ConfigError(f"unit={unit!r}: expected 'K' or 'C'")
+    for k, v in overrides.items():  # a scalar NaN/inf would silently give an all-NaN image
+        if v is not None and not hasattr(v, "alpha1") and np.ndim(v) == 0 and not np.isfinite(float(v)):
+            raise ConfigError(f"{k}={v!r}: expected a finite number")
+    for k, v in (("scale", scale), ("offset", offset)):
+        if v is not None and not np.isfinite(float(v)):
+            raise ConfigError(f"{k}={v!r}: expected a finite number")
+    if scale is not None and float(scale) == 0:
+        raise ConfigError("scale=0: expected a non-zero count->temperature step")
     return ReadOptions(
         overrides={k: v for k, v in overrides.items() if v is not None},
         frames=None if frames is None else frozenset(int(f) for f in frames),
@@ -426,6 +440,7 @@ def _options(frames, unit, scale, offset, dji_sdk, overrides) -> ReadOptions:
         scale=scale,
         offset=offset,
         dji_sdk=dji_sdk,
+        on_damaged=on_damaged,
     )
 
 
@@ -437,11 +452,15 @@ def iter_thermal(
     scale: float | None = None,
     offset: float | None = None,
     dji_sdk: str | None = None,
+    on_damaged: Callable[[int, str], None] | None = None,
     **overrides,
 ) -> Iterator[ThermalImage]:
-    """Every frame of a thermal file (one for images, many for SEQ/CSQ), see :func:`read_thermal`."""
+    """Every frame of a thermal file (one for images, many for SEQ/CSQ), see :func:`read_thermal`.
+
+    ``on_damaged(frame_index, message)``: report a damaged sequence frame and go on with the next (see
+    :class:`ReadOptions`); without it a damaged frame raises :class:`CorruptFileError`."""
     p = Path(path)
-    opts = _options(frames, unit, scale, offset, dji_sdk, overrides)
+    opts = _options(frames, unit, scale, offset, dji_sdk, overrides, on_damaged)
     # memory-mapped, so a multi-gigabyte SEQ/CSQ recording is paged in frame by frame, not loaded whole
     try:
         fh = open(p, "rb")
@@ -457,11 +476,19 @@ def iter_thermal(
             try:
                 for k, img in enumerate(spec.read(p, data, opts)):
                     idx = img.metadata.frame_index if img.metadata.frame_index is not None else k
+                    bad_exif = (img.metadata.exif or {}).get("exif_error")
+                    if bad_exif and bad_exif not in img.metadata.notes:
+                        img.metadata.notes.append(bad_exif)
                     if opts.frames is None or idx in opts.frames:
                         yield img
             except (DataFileError, InvalidInputError):  # our own errors (incl. ConfigError, ShapeError) pass unchanged
                 raise
-            except (ValueError, IndexError, KeyError, EOFError, OSError) as exc:  # decoding library errors on bad bytes
+            except MemoryError:
+                raise ImageTooLargeError(
+                    f"{p}: not enough memory to decode this {spec.name} file (declared sizes too large for this "
+                    "machine; a damaged header?)") from None
+            except (ValueError, IndexError, KeyError, EOFError, OSError, TypeError, OverflowError, ZeroDivisionError,
+                    struct.error, RecursionError) as exc:  # decoding library errors on bad bytes
                 raise CorruptFileError(f"{p}: {spec.name} reader failed: {type(exc).__name__}: {exc}") from None
         finally:
             if isinstance(data, mmap.mmap):

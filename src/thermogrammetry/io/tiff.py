@@ -34,7 +34,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from .._atomic import write_atomic
-from ..errors import CorruptFileError, InvalidInputError, UnsupportedFormatError
+from ..errors import CorruptFileError, ImageTooLargeError, InvalidInputError, UnsupportedFormatError
 from ..radiometry.encoding import (
     Encoding,
     NODATA_CODE,
@@ -47,9 +47,10 @@ from ..radiometry.encoding import (
     to_kelvin,
 )
 from .exif import parse_xmp, read_exif
+from .limits import check_image_size
 from .thermal import Geotag, ReadOptions, ThermalImage, ThermalMetadata, register_reader
 
-__all__ = ["write_temperature_tiff", "encode_temperature_tiff", "read_gdal_metadata"]
+__all__ = ["write_temperature_tiff", "encode_temperature_tiff", "encode_counts_tiff", "write_counts_tiff", "encode_raster_tiff", "read_gdal_metadata"]
 
 # TIFF field types
 _BYTE, _ASCII, _SHORT, _LONG, _RATIONAL, _UNDEFINED, _DOUBLE = 1, 2, 3, 4, 5, 7, 12
@@ -161,6 +162,7 @@ def _provenance(md: ThermalMetadata | None) -> dict[str, str]:
     if md.planck is not None:
         p = md.planck
         out["PLANCK_R1_R2_B_F_O"] = f"{p.r1:.9g} {p.r2:.9g} {p.b:.9g} {p.f:.9g} {p.o:.9g}"
+    out.update({str(k): str(v) for k, v in (md.extra.get("tiff_metadata") or {}).items()})
     return out
 
 
@@ -178,7 +180,6 @@ def encode_temperature_tiff(
     t = np.asarray(temperature_k)
     if t.ndim != 2:
         raise InvalidInputError(f"temperature_k: expected a 2-D (H, W) image, got shape {t.shape}")
-    h, w = t.shape
     if enc is Encoding.UINT16:
         mapping = mapping or choose_uint16_mapping(t, u)
         pix = encode_uint16(t, mapping)
@@ -190,19 +191,81 @@ def encode_temperature_tiff(
         bits, sample_format, nodata = 32, 3, "nan"
         band = {"unittype": u.value}
     band["description"] = f"temperature ({u.value})"
+    items = {"THERMOGRAMMETRY_QUANTITY": "temperature", "THERMOGRAMMETRY_UNIT": u.value,
+             "THERMOGRAMMETRY_ENCODING": enc.value}
+    items.update(_provenance(metadata))
+    if mapping is not None:
+        items["THERMOGRAMMETRY_MAX_QUANTISATION_ERROR"] = repr(mapping.max_error)
+    md = metadata
+    desc = f"temperature in {u.value}" + (f" from {Path(md.source_path).name}" if md and md.source_path else "")
+    return _encode_single_band(pix, bits, sample_format, nodata, band, items, md, desc), mapping
+
+
+def encode_counts_tiff(raw_counts: np.ndarray, *, metadata: ThermalMetadata | None = None) -> bytes:
+    """Bytes of a uint16 TIFF of raw sensor counts, labelled as counts (not temperatures).
+
+    GDAL band UNITTYPE ``counts``, description "raw sensor counts (not temperature)", no scale/offset and no
+    nodata (every code is a valid count); THERMOGRAMMETRY_QUANTITY ``raw_counts``.  EXIF/GPS/XMP and the
+    source's provenance are kept as for temperature TIFFs, so geometry tools can use the file.
+    """
+    c = np.asarray(raw_counts)
+    if c.ndim != 2:
+        raise InvalidInputError(f"raw_counts: expected a 2-D (H, W) image, got shape {c.shape}")
+    if c.dtype != np.uint16:
+        raise InvalidInputError(f"raw_counts: expected uint16 counts, got {c.dtype}")
+    band = {"unittype": "counts", "description": "raw sensor counts (not temperature)"}
+    items = {"THERMOGRAMMETRY_QUANTITY": "raw_counts", "THERMOGRAMMETRY_UNIT": "counts",
+             "THERMOGRAMMETRY_ENCODING": "uint16"}
+    items.update(_provenance(metadata))
+    md = metadata
+    desc = "raw sensor counts (not temperature)" + (f" from {Path(md.source_path).name}" if md and md.source_path else "")
+    return _encode_single_band(c.astype("<u2"), 16, 1, None, band, items, md, desc)
+
+
+def encode_raster_tiff(values: np.ndarray, *, unit: str, description: str, nodata=None, quantity: str | None = None,
+                       metadata: ThermalMetadata | None = None) -> bytes:
+    """Bytes of a single-band float32 or uint8 TIFF that says what it holds (GDAL band UNITTYPE, DESCRIPTION,
+    GDAL_NODATA), for the auxiliary rasters of the products (angle, distance, σ, valid masks).
+
+    Parameters
+    ----------
+    values : ndarray (H, W), float (stored float32) or bool/uint8
+    unit : str
+        e.g. ``"deg"``, ``"m"``, ``"K"``, ``"1"`` (dimensionless / mask).
+    description : str
+    nodata : float or int or None
+        Value that marks no data (``nan`` for float rasters by default).
+    """
+    a = np.asarray(values)
+    if a.ndim != 2:
+        raise InvalidInputError(f"{description}: expected a 2-D (H, W) raster, got shape {a.shape}")
+    if a.dtype == bool or a.dtype == np.uint8:
+        pix, bits, fmt = a.astype(np.uint8), 8, 1
+        nd = None if nodata is None else str(int(nodata))
+    else:
+        pix, bits, fmt = a.astype("<f4"), 32, 3
+        nd = "nan" if nodata is None else repr(float(nodata))
+    band = {"unittype": unit, "description": description}
+    items = {"THERMOGRAMMETRY_QUANTITY": quantity or description, "THERMOGRAMMETRY_UNIT": unit}
+    items.update(_provenance(metadata))
+    return _encode_single_band(pix, bits, fmt, nd, band, items, metadata, f"{description} ({unit})")
+
+
+def write_counts_tiff(path: str | Path, raw_counts: np.ndarray, *, metadata: ThermalMetadata | None = None) -> None:
+    """Write :func:`encode_counts_tiff` atomically."""
+    write_atomic(path, encode_counts_tiff(raw_counts, metadata=metadata))
+
+
+def _encode_single_band(pix: np.ndarray, bits: int, sample_format: int, nodata: str | None, band: dict, items: dict,
+                        md: ThermalMetadata | None, description: str) -> bytes:
+    h, w = pix.shape
     pix = np.ascontiguousarray(pix, dtype=pix.dtype.newbyteorder("<"))
     row_bytes = w * pix.itemsize
     rps = max(1, min(h, 65536 // row_bytes))
     strips = [zlib.compress(pix[r : r + rps].tobytes(), 1) for r in range(0, h, rps)]  # level 1: 5x faster than 6, ~9 % larger
-
-    md = metadata
-    g = md.geotag if md is not None else Geotag()
-    items = {"THERMOGRAMMETRY_QUANTITY": "temperature", "THERMOGRAMMETRY_UNIT": u.value,
-             "THERMOGRAMMETRY_ENCODING": enc.value}
-    items.update(_provenance(md))
-    if mapping is not None:
-        items["THERMOGRAMMETRY_MAX_QUANTISATION_ERROR"] = repr(mapping.max_error)
     gdal_xml = _gdal_metadata_xml(items, band)
+
+    g = md.geotag if md is not None else Geotag()
 
     buf = bytearray(b"II*\x00" + b"\x00\x00\x00\x00")
     offsets = []
@@ -251,9 +314,10 @@ def encode_temperature_tiff(
         _entry(256, _LONG, w), _entry(257, _LONG, h), _entry(258, _SHORT, bits), _entry(259, _SHORT, 8),
         _entry(262, _SHORT, 1), _entry(273, _LONG, offsets), _entry(277, _SHORT, 1), _entry(278, _LONG, rps),
         _entry(279, _LONG, [len(s) for s in strips]), _entry(284, _SHORT, 1), _entry(339, _SHORT, sample_format),
-        _entry(305, _ASCII, "thermogrammetry"), _entry(42112, _ASCII, gdal_xml), _entry(42113, _ASCII, nodata),
-        _entry(270, _ASCII, f"temperature in {u.value}" + (f" from {Path(md.source_path).name}" if md and md.source_path else "")),
+        _entry(305, _ASCII, "thermogrammetry"), _entry(42112, _ASCII, gdal_xml), _entry(270, _ASCII, description),
     ]
+    if nodata is not None:
+        ifd0.append(_entry(42113, _ASCII, nodata))
     if md is not None and md.make:
         ifd0.append(_entry(271, _ASCII, md.make))
     if md is not None and md.model:
@@ -269,7 +333,7 @@ def encode_temperature_tiff(
         ifd0.append(_entry(34853, _LONG, gps_off))
     ifd0_off = place(ifd0)
     buf[4:8] = struct.pack("<I", ifd0_off)
-    return bytes(buf), mapping
+    return bytes(buf)
 
 
 def write_temperature_tiff(
@@ -309,14 +373,33 @@ def write_temperature_tiff(
 
 # ------------------------------------------------------------------------------------------------ reader
 
+def _tag_number(value, tag: str, path: Path) -> float:
+    """A finite number from a TIFF tag's text, or :class:`CorruptFileError` naming the tag and value."""
+    try:
+        text = value.decode("ascii", "replace") if isinstance(value, (bytes, bytearray)) else str(value)
+        v = float(text.strip().rstrip("\x00"))
+    except (TypeError, ValueError):
+        raise CorruptFileError(f"{path}: TIFF tag {tag} = {str(value)[:40]!r} is not a number") from None
+    if not np.isfinite(v):
+        raise CorruptFileError(f"{path}: TIFF tag {tag} = {str(value)[:40]!r} is not a finite number")
+    return v
+
+
 def _read_tiff(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalImage]:
     import tifffile
 
     try:
         with tifffile.TiffFile(io.BytesIO(data)) as tf:
             page = tf.pages[0]
+            # the declared size is checked before any pixel memory is allocated
+            check_image_size(int(getattr(page, "imagewidth", 0) or 0), int(getattr(page, "imagelength", 0) or 0),
+                             str(path), frames=int(getattr(page, "samplesperpixel", 1) or 1))
             arr = page.asarray()
             tags = {t.code: t.value for t in page.tags.values()}
+    except ImageTooLargeError:
+        raise
+    except MemoryError:
+        raise ImageTooLargeError(f"{path}: not enough memory to decode the TIFF image") from None
     except Exception as exc:
         raise CorruptFileError(f"{path}: TIFF cannot be decoded ({type(exc).__name__}: {exc}): truncated or damaged file") from None
     if arr.ndim != 2:
@@ -337,6 +420,10 @@ def _read_tiff(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalIm
     )
     unit = (band.get("unittype") or ds.get("THERMOGRAMMETRY_UNIT") or opts.unit or "").strip()
     unit = {"k": "K", "kelvin": "K", "c": "C", "°c": "C", "degc": "C", "celsius": "C"}.get(unit.lower(), unit)
+    if unit.lower() == "counts" and arr.dtype == np.uint16:  # written by convert --raw
+        md.notes.append("16-bit TIFF labelled as raw sensor counts (no temperatures)")
+        yield ThermalImage(arr, None, md)
+        return
     if unit and unit not in ("K", "C"):
         raise UnsupportedFormatError(f"{path}: TIFF declares unit {unit!r}; expected K or C")
     if arr.dtype.kind == "f":
@@ -346,10 +433,11 @@ def _read_tiff(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalIm
             )
         vals = arr.astype(np.float64)
         if "scale" in band or "offset" in band:
-            vals = vals * float(band.get("scale", 1)) + float(band.get("offset", 0))
+            vals = vals * _tag_number(band.get("scale", 1), "GDAL_METADATA SCALE", path) \
+                + _tag_number(band.get("offset", 0), "GDAL_METADATA OFFSET", path)
         nod = tags.get(42113)
         if nod is not None and str(nod).strip().lower() not in ("nan", ""):
-            vals = np.where(vals == float(str(nod).strip()), np.nan, vals)
+            vals = np.where(vals == _tag_number(nod, "GDAL_NODATA (42113)", path), np.nan, vals)
         md.notes.append(f"float TIFF in {unit}")
         yield ThermalImage(None, to_kelvin(vals, unit), md)
         return
@@ -357,8 +445,8 @@ def _read_tiff(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalIm
         raise UnsupportedFormatError(
             f"{path}: {arr.dtype} TIFF: not radiometric (expected 16-bit counts with a scale/offset, or float temperatures)"
         )
-    scale = float(band["scale"]) if "scale" in band else opts.scale
-    offset = float(band["offset"]) if "offset" in band else opts.offset
+    scale = _tag_number(band["scale"], "GDAL_METADATA SCALE", path) if "scale" in band else opts.scale
+    offset = _tag_number(band["offset"], "GDAL_METADATA OFFSET", path) if "offset" in band else opts.offset
     if scale is not None and unit:
         m = Uint16Mapping(float(scale), float(offset or 0.0), TemperatureUnit(unit))
         vals = decode_uint16(arr, m) if str(tags.get(42113, "")).strip() == str(NODATA_CODE) else arr * m.scale + m.offset

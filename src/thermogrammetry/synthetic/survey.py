@@ -44,6 +44,8 @@ References
 
 from __future__ import annotations
 
+import os
+
 import csv
 import io
 import json
@@ -409,7 +411,10 @@ def _cast(scene, C_local, dirs):
 _WORKER_SCENE = None
 
 
-def _init_worker(scene):
+def _init_worker(scene, parent_pid=None):
+    from .._procs import die_with_parent
+
+    die_with_parent(parent_pid)  # a SIGKILLed demo must not leave rendering workers behind
     global _WORKER_SCENE
     _WORKER_SCENE = scene
 
@@ -445,7 +450,7 @@ def render_frames(scene: SurveyScene, indices=None, *, threads: int = 2, on_fram
 
         if "fork" in mp.get_all_start_methods():
             ex = ProcessPoolExecutor(max_workers=int(threads), mp_context=mp.get_context("fork"),
-                                     initializer=_init_worker, initargs=(scene,))
+                                     initializer=_init_worker, initargs=(scene, os.getpid()))
             submit = lambda k: ex.submit(_render_in_worker, k)  # noqa: E731
     if ex is None:
         ex = ThreadPoolExecutor(max_workers=int(threads))
