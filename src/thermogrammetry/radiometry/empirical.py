@@ -148,7 +148,10 @@ def read_references_csv(path: str | Path) -> list[Reference]:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise CorruptFileError(f"references file {p}: not UTF-8 text (byte {exc.start}); save it as UTF-8 CSV") from None
-    rows = list(csv.reader(io.StringIO(text)))
+    try:
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:
+        raise CorruptFileError(f"references file {p}: not a readable CSV ({exc})") from None
     rows = [r for r in rows if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
     if not rows:
         raise CorruptFileError(f"references file {p}: empty; expected a header image,x,y|polygon,temperature_c|temperature_k")
