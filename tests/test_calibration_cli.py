@@ -114,10 +114,17 @@ def test_cli_testfield_route_writes_all_outputs(csv_files, tmp_path, capsys, fie
     text = capsys.readouterr().out
     assert rc == 0, text
     assert "16/16 images used" in text and "σx" in text
-    for key in ("camera.json", "calibration.json", "report.html", "exports/opencv.yaml", "exports/opencv.json",
-                "exports/colmap_cameras.txt", "exports/metashape.xml", "observations.json",
+    # this test field's camera (seed 001's FLIR A320 coefficients) converts wildly to the forward
+    # models: several px at the frame corners. The exports say so: names, warning, residuals printed.
+    for key in ("camera.json", "calibration.json", "report.html", "exports/opencv_INACCURATE.yaml",
+                "exports/opencv_INACCURATE.json", "exports/colmap_cameras_INACCURATE.txt",
+                "exports/metashape_INACCURATE.xml", "observations.json",
                 "reports/observations.json", "reports/selfcal.json"):
         assert (out / key).is_file(), key
+    assert not (out / "exports/opencv.yaml").exists()
+    assert "OpenCV/COLMAP export: conversion residual max" in text and "Metashape export: conversion residual max" in text
+    assert "over the data area" in text
+    assert text.count("export loses accuracy") == 2
     steps = json.loads((out / "reports/selfcal.json").read_text())
     assert steps["status"] == "ok" and steps["summary"]["images_used"] == 16
     cam = Camera.load(out / "camera.json")
@@ -138,15 +145,25 @@ def test_cli_testfield_route_writes_all_outputs(csv_files, tmp_path, capsys, fie
     assert len(cal["images_used"]) == 16 and cal["images_rejected"] == {}
     assert cal["rms_px"] > 0 and cal["sigma0"] > 0
     # OpenCV export: loadable by OpenCV and close to our camera where distortion is mild (image centre)
-    fs = cv2.FileStorage(str(out / "exports/opencv.yaml"), cv2.FILE_STORAGE_READ)
+    fs = cv2.FileStorage(str(out / "exports/opencv_INACCURATE.yaml"), cv2.FILE_STORAGE_READ)
     K = fs.getNode("camera_matrix").mat()
     assert K[0, 0] == pytest.approx(cal["parameters_px"]["fx"]["value"], rel=0.02)
-    assert cal["exports"]["camera"]["opencv"]["max_residual_px"] is not None
+    for fmt in ("opencv", "metashape"):
+        e = cal["exports"]["camera"][fmt]
+        # worse over the whole frame (corners, extrapolated by both models) than where the data were
+        assert e["max_residual_px"] > 1.0 and e["area_max_residual_px"] < e["max_residual_px"]
+        assert e["rms_residual_px"] > 0 and e["area_rms_residual_px"] > 0
+        assert "loses accuracy" in e["warning"]
+    # well-conditioned: no cancelling radial terms (|k_i r_max^2i| <= 1)
+    assert all(abs(v) <= 1.0 for v in cal["exports"]["camera"]["opencv"]["kappa"].values())
+    ocv = json.loads((out / "exports/opencv_INACCURATE.json").read_text())
+    assert "loses accuracy" in ocv["conversion_warning"] and len(ocv["covariance"]["matrix"]) == len(ocv["covariance"]["params"])
+    assert "<covariance>" in (out / "exports/metashape_INACCURATE.xml").read_text()
     html = (out / "report.html").read_text()
     for fig in ("residuals", "distortion", "correlation", "coverage", "per_image"):
         assert f"alt='{fig}' src='data:image/png;base64," in html
     assert "Table 2" in html and "Table 4" in html
-    line = (out / "exports/colmap_cameras.txt").read_text().splitlines()[-1]
+    line = (out / "exports/colmap_cameras_INACCURATE.txt").read_text().splitlines()[-1]
     assert line.startswith("1 ") and " 320 240 " in line
 
 

@@ -39,6 +39,19 @@ def test_coded_contract_uses_all_60_views(coded_run):
     ocv = json.loads((out / "exports" / "opencv.json").read_text())
     fx = ocv["K"][0][0]
     assert 330 < fx < 420, fx  # 382 px wide sensor, ~54 deg field of view (OpenCV on the same corners: ~374)
+    # exports record their conversion residuals over the whole frame and the data area; between
+    # 0.1 and 1 px the name stays, with a warning (measured 0.34 px frame max)
+    e = cal["exports"]["camera"]["opencv"]
+    assert e["area_max_residual_px"] <= e["max_residual_px"]
+    if e["max_residual_px"] > 0.1:
+        assert e["warning"] and e["max_residual_px"] <= 1.0
+    from thermogrammetry.io.metashape import read_metashape_xml
+
+    ms = read_metashape_xml(out / "exports" / "metashape.xml")
+    assert ms.cov is not None and ms.cov.shape == (len(ms.cov_params),) * 2
+    # f's standard deviation: the calibration's σ of c in pixels, carried through the fit (within 20 %)
+    sd_f = ms.cov[ms.cov_params.index("f"), ms.cov_params.index("f")] ** 0.5
+    assert sd_f == pytest.approx(cal["parameters_px"]["fy"]["std"], rel=0.2)
 
 
 def test_target_file_gives_the_same_target():

@@ -7,13 +7,16 @@ Keys written by :func:`write_outputs` (``store`` is a :class:`~thermogrammetry.p
     calibration.json                 figures of the run (see calibration_dict)
     report.html                      self-contained report (figures embedded as base64 PNG)
     exports/opencv.yaml              cv::FileStorage YAML: camera_matrix, distortion_coefficients
-    exports/opencv.json              the same as JSON, with the conversion residual
+    exports/opencv.json              the same as JSON, with the conversion residuals and the covariance
     exports/colmap_cameras.txt       COLMAP cameras.txt (OPENCV / FULL_OPENCV; x_colmap = x + 0.5)
     exports/metashape.xml            Agisoft Metashape calibration XML
 
 The calibration is estimated in the correction (photogrammetric) form; OpenCV, COLMAP and Metashape
 use the forward form, so the exports are least-squares conversions over the whole image
-(:func:`thermogrammetry.camera.convert_camera`) and their maximum residual in pixels is recorded.
+(:func:`thermogrammetry.camera.convert_camera`); their max and RMS residuals over the whole frame and
+over the area the data covered are recorded in calibration.json ("exports") and the files. Above
+:data:`WARN_RESIDUAL_PX` (0.1 px) a warning is given; above :data:`BAD_RESIDUAL_PX` (1 px) the files are
+written as ``opencv_INACCURATE.yaml`` etc. (the names say so) with the warning inside.
 
 To keep OUT consistent on failure, build everything into a :class:`~thermogrammetry.pipeline.MemoryProject`
 first and copy it to the folder only when complete (:func:`flush`); every folder write is atomic.
@@ -149,47 +152,107 @@ def _opencv_yaml(K: np.ndarray, dist: np.ndarray, size) -> str:
     return fs.releaseAndGetString()
 
 
-def _exports(cc: CameraCalibration) -> tuple[dict[str, bytes], dict[str, Any]]:
-    """Files (relative key -> bytes) and a summary with conversion residuals."""
+#: conversion residual (px, max over the whole frame) above which an export is flagged
+WARN_RESIDUAL_PX = 0.1
+#: above this the file is written under a name that says so (``<name>_INACCURATE.<ext>``)
+BAD_RESIDUAL_PX = 1.0
+
+
+def _verdict(fmt: str, summary: dict) -> tuple[str, str]:
+    """(file suffix, warning text) of an export from its residuals."""
+    mx = summary.get("max_residual_px")
+    if mx is None:
+        return "_INACCURATE", f"{fmt} export: conversion residual unknown ({summary.get('reason', '')})"
+    area = summary.get("area_max_residual_px")
+    figs = (f"max {mx:.3g} px / RMS {summary['rms_residual_px']:.3g} px over the whole frame"
+            + (f", max {area:.3g} px / RMS {summary['area_rms_residual_px']:.3g} px over the data area" if area is not None else ""))
+    if mx > BAD_RESIDUAL_PX:
+        return "_INACCURATE", (f"{fmt} export loses accuracy: {figs} (> {BAD_RESIDUAL_PX:g} px); written as "
+                               f"*_INACCURATE.*; use camera.json (exact) where possible")
+    if mx > WARN_RESIDUAL_PX:
+        return "", f"{fmt} export: {figs} (> {WARN_RESIDUAL_PX:g} px)"
+    return "", ""
+
+
+def _exports(cc: CameraCalibration, area_px: np.ndarray | None = None) -> tuple[dict[str, bytes], dict[str, Any]]:
+    """Files (relative key -> bytes) and a summary with conversion residuals (whole frame and the
+    area the data covered), conditioning, warnings; a file whose conversion loses more than
+    :data:`BAD_RESIDUAL_PX` is written under ``<name>_INACCURATE.<ext>``."""
+    import json
+
     from ..camera import convert_camera
+    from ..camera.convert import conversion_covariance
+    from ..camera import models as _M
 
     files: dict[str, bytes] = {}
     info: dict[str, Any] = {}
     cam = camera_from_calibration(cc)
-    conv = convert_camera(cam, "opencv")
-    info["opencv"] = {"max_residual_px": _f(conv.max_residual_px), "rms_residual_px": _f(conv.rms_residual_px),
-                      "termination": conv.outcome.termination.value, "reason": conv.outcome.reason}
+    cov = np.where(cc.free[:, None] & cc.free[None, :], cc.covariance, 0.0)
+    conv = convert_camera(cam, "opencv", area_px=area_px)
+    summ = conv.summary()
+    suffix, warn = _verdict("OpenCV/COLMAP", summ)
+    summ["warning"] = warn
     if conv.success:
         ocv = conv.camera
         K, dist = ocv.to_opencv()
-        files["opencv.yaml"] = _opencv_yaml(K, dist, cc.image_size).encode()
-        import json
+        summ["files"] = [f"opencv{suffix}.yaml", f"opencv{suffix}.json", f"colmap_cameras{suffix}.txt"]
+        files[f"opencv{suffix}.yaml"] = _opencv_yaml(K, dist, cc.image_size).encode()
+        ocv_cov = None
+        try:
+            free = list(conv.free)
+            idx = [ocv.param_names.index(k) for k in free]
 
-        files["opencv.json"] = (json.dumps({
+            def proj(t, rays):
+                p = ocv.params.copy()
+                p[idx] = t
+                return _M.project("opencv", p, rays)
+
+            C = conversion_covariance(cam, cov, proj, ocv.params[idx])
+            ocv_cov = {"params": free, "matrix": C.tolist()}
+        except (np.linalg.LinAlgError, ValueError):  # pragma: no cover - reported as absent
+            ocv_cov = None
+        files[f"opencv{suffix}.json"] = (json.dumps({
             "image_size": list(cc.image_size), "K": K.tolist(), "dist": np.asarray(dist).ravel().tolist(),
             "dist_order": "k1 k2 p1 p2 k3 [k4 k5 k6]",
             "converted_from": "photogrammetric (correction form)",
             "conversion_max_residual_px": _f(conv.max_residual_px),
             "conversion_rms_residual_px": _f(conv.rms_residual_px),
+            "conversion_area_max_residual_px": summ["area_max_residual_px"],
+            "conversion_area_rms_residual_px": summ["area_rms_residual_px"],
+            "conversion_warning": warn,
+            "covariance": ocv_cov,
         }, indent=2) + "\n").encode()
         try:
             from ..io.colmap import colmap_camera_line
 
             header = "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# Number of cameras: 1\n"
-            files["colmap_cameras.txt"] = (header + colmap_camera_line(1, ocv) + "\n").encode()
-            info["colmap"] = {"max_residual_px": _f(conv.max_residual_px)}
+            if warn:
+                header += f"# WARNING: {warn}\n"
+            files[f"colmap_cameras{suffix}.txt"] = (header + colmap_camera_line(1, ocv) + "\n").encode()
         except Exception as exc:  # noqa: BLE001 - an export that cannot be made is reported, not fatal
-            info["colmap"] = {"error": f"{type(exc).__name__}: {exc}"}
+            summ["colmap_error"] = f"{type(exc).__name__}: {exc}"
+    info["opencv"] = summ
+    info["colmap"] = {"max_residual_px": summ["max_residual_px"], "area_max_residual_px": summ["area_max_residual_px"],
+                      "same_as": "opencv"}
     try:
-        from ..io.metashape import write_metashape_calibration
+        from ..io.metashape import MetashapeCalibration, write_metashape_xml
 
-        with tempfile.TemporaryDirectory() as td:
-            p = Path(td) / "metashape.xml"
-            ex = write_metashape_calibration(p, cam)
-            files["metashape.xml"] = p.read_bytes()
-        info["metashape"] = {"max_residual_px": _f(ex.max_residual_px), "rms_residual_px": _f(ex.rms_residual_px)}
+        ex = MetashapeCalibration.from_camera(cam, area_px=area_px, covariance=cov)
+        ms = ex.summary()
+        suffix, warn = _verdict("Metashape", ms)
+        ms["warning"] = warn
+        if ex.outcome.success:
+            with tempfile.TemporaryDirectory() as td:
+                p = Path(td) / "metashape.xml"
+                write_metashape_xml(p, ex.calibration)
+                text = p.read_text()
+            if warn:
+                text = text.replace("<calibration>", f"<!-- WARNING: {html.escape(warn)} -->\n<calibration>", 1)
+            files[f"metashape{suffix}.xml"] = text.encode()
+            ms["files"] = [f"metashape{suffix}.xml"]
+        info["metashape"] = ms
     except Exception as exc:  # noqa: BLE001
-        info["metashape"] = {"error": f"{type(exc).__name__}: {exc}"}
+        info["metashape"] = {"error": f"{type(exc).__name__}: {exc}", "warning": f"Metashape export failed: {exc}"}
     return files, info
 
 
@@ -417,7 +480,8 @@ def write_outputs(store: ProjectStore, run: CalibrationRun) -> dict[str, Any]:
             store.write_json("camera.json", cam.to_dict())
         if len(r.cameras) > 1:
             store.write_json(f"cameras/{ci + 1}_{_safe(cc.name)}.json", cam.to_dict())
-        files, info = _exports(cc)
+        cam_of = np.array([r.images[k].camera for k in r.obs_image], dtype=int) if r.obs_image.size else np.zeros(0, int)
+        files, info = _exports(cc, r.obs_xy[cam_of == ci] if r.obs_xy.size else None)
         prefix = "exports/" if ci == 0 else f"exports/{ci + 1}_{_safe(cc.name)}/"
         for k, b in files.items():
             store.write_bytes(prefix + k, b)

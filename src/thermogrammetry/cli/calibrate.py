@@ -367,7 +367,14 @@ def _summary(console, cal: dict, output, keys) -> None:
     if cal["blunders"]:
         console.print(f"{len(cal['blunders'])} observation(s) rejected as blunders ({cal['blunder_test']})", highlight=False)
     for info in cal.get("exports", {}).values():
-        o = info.get("opencv", {})
-        if o.get("max_residual_px") is not None:
-            console.print(f"OpenCV/COLMAP export: conversion max residual {o['max_residual_px']:.3f} px", highlight=False)
+        for fmt, key in (("OpenCV/COLMAP", "opencv"), ("Metashape", "metashape")):
+            o = info.get(key, {})
+            if o.get("max_residual_px") is not None:
+                area = o.get("area_max_residual_px")
+                console.print(f"{fmt} export: conversion residual max {o['max_residual_px']:.3f} px / RMS "
+                              f"{o['rms_residual_px']:.3f} px over the whole frame"
+                              + (f", max {area:.3f} px / RMS {o['area_rms_residual_px']:.3f} px over the data area"
+                                 if area is not None else ""), highlight=False)
+            if o.get("warning"):
+                console.print(f"[yellow]warning:[/] {o['warning']}", highlight=False)
     console.print(f"wrote {len(keys)} files to {output}: {', '.join(k for k in keys if '/' not in k)}", highlight=False)

@@ -210,9 +210,46 @@ class MetashapeCalibration:
         return replace(res, outcome=Outcome(res.outcome.termination, f"{note}; {res.outcome.reason}"))
 
     @classmethod
-    def from_camera(cls, camera: Camera, *, grid_step_px: float | None = None) -> "MetashapeExport":
+    def from_camera(cls, camera: Camera, *, grid_step_px: float | None = None, area_px=None,
+                    covariance: np.ndarray | None = None) -> "MetashapeExport":
         """Metashape calibration of ``camera``: exact for pinhole and OpenCV cameras without k4..k6,
-        otherwise a least-squares fit of Metashape's model over the whole image."""
+        otherwise a least-squares fit of Metashape's forward model (f, cx, cy, b1, b2, k1-k4, p1, p2)
+        over the whole image.
+
+        ``area_px`` (M, 2): pixels the data covered; the residual over their convex hull is reported
+        too. ``covariance`` (P, P) of ``camera.params``: propagated linearly to Metashape's parameters
+        and carried in ``calibration.cov`` (written as ``<covariance>``)."""
+        exp = cls._from_camera(camera, grid_step_px)
+        if not exp.outcome.success:
+            return exp
+        from ..camera.convert import conversion_covariance, image_grid, inside_area
+
+        if area_px is not None:
+            grid = image_grid(camera.image_size, grid_step_px)
+            rays = camera.unproject(grid)
+            ok = np.all(np.isfinite(rays), axis=1) & inside_area(grid, area_px)
+            if ok.any():
+                d = np.linalg.norm(exp.calibration.project(rays[ok]) - grid[ok], axis=1)
+                exp = replace(exp, area_max_residual_px=float(d.max()), area_rms_residual_px=float(np.sqrt(np.mean(d * d))))
+        if covariance is not None:
+            names = ["f", "cx", "cy", "b1", "k1", "k2", "k3", "k4", "p1", "p2"]
+            if exp.calibration.b2 != 0.0:
+                names.append("b2")
+            theta = np.array([getattr(exp.calibration, n) for n in names])
+
+            def proj(t, rays):
+                return replace(exp.calibration, **{n: float(v) for n, v in zip(names, t)}).project(rays)
+
+            try:
+                C = conversion_covariance(camera, covariance, proj, theta, grid_step_px=grid_step_px)
+                exp = replace(exp, calibration=replace(exp.calibration, cov_params=tuple(names), cov=C))
+            except (np.linalg.LinAlgError, ValueError) as exc:  # reported, not fatal
+                exp = replace(exp, outcome=Outcome(exp.outcome.termination,
+                                                   f"{exp.outcome.reason}; covariance not propagated: {exc}"))
+        return exp
+
+    @classmethod
+    def _from_camera(cls, camera: Camera, grid_step_px) -> "MetashapeExport":
         if not isinstance(camera, Camera):
             raise InvalidInputError(f"expected a Camera, got {type(camera).__name__}")
         w, h = camera.image_size
@@ -239,6 +276,19 @@ class MetashapeExport:
     max_residual_px: float
     rms_residual_px: float
     outcome: Outcome
+    area_max_residual_px: float = float("nan")
+    area_rms_residual_px: float = float("nan")
+
+    def summary(self) -> dict:
+        """Max/RMS residual over the whole frame and over the data area (None when unknown), outcome."""
+        def f(v):
+            v = float(v)
+            return v if np.isfinite(v) else None
+
+        return {"max_residual_px": f(self.max_residual_px), "rms_residual_px": f(self.rms_residual_px),
+                "area_max_residual_px": f(self.area_max_residual_px), "area_rms_residual_px": f(self.area_rms_residual_px),
+                "covariance": self.calibration.cov is not None,
+                "termination": self.outcome.termination.value, "reason": self.outcome.reason}
 
 
 def _fit_metashape(camera: Camera, base: MetashapeCalibration, grid_step_px) -> MetashapeExport:
@@ -383,6 +433,10 @@ def write_metashape_xml(path, calib: MetashapeCalibration) -> Path:
     ET.SubElement(root, "height").text = str(int(calib.height))
     for tag in _PARAMS:
         ET.SubElement(root, tag).text = repr(float(getattr(calib, tag)))
+    if calib.cov is not None and calib.cov_params:
+        cov = ET.SubElement(root, "covariance")
+        ET.SubElement(cov, "params").text = " ".join(calib.cov_params)
+        ET.SubElement(cov, "coeffs").text = " ".join(repr(float(v)) for v in np.asarray(calib.cov).ravel())
     ET.SubElement(root, "date").text = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     ET.indent(root, space="  ")
     text = '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
@@ -402,9 +456,11 @@ def read_metashape_calibration(path, *, pixel_pitch_um=None, grid_step_px: float
     return calib.to_camera(pixel_pitch_um=pixel_pitch_um, name=Path(path).stem, grid_step_px=grid_step_px)
 
 
-def write_metashape_calibration(path, camera: Camera, *, grid_step_px: float | None = None) -> MetashapeExport:
-    """Write ``camera`` as a Metashape calibration XML; returns the calibration and its fit residual."""
-    export = MetashapeCalibration.from_camera(camera, grid_step_px=grid_step_px)
+def write_metashape_calibration(path, camera: Camera, *, grid_step_px: float | None = None, area_px=None,
+                                covariance: np.ndarray | None = None) -> MetashapeExport:
+    """Write ``camera`` as a Metashape calibration XML; returns the calibration and its fit residual
+    (see :meth:`MetashapeCalibration.from_camera` for ``area_px`` and ``covariance``)."""
+    export = MetashapeCalibration.from_camera(camera, grid_step_px=grid_step_px, area_px=area_px, covariance=covariance)
     if not export.outcome.success:
         raise InvalidInputError(f"{path}: cannot express the camera in Metashape's model: {export.outcome.reason}")
     write_metashape_xml(path, export.calibration)
