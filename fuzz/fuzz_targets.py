@@ -194,11 +194,14 @@ def main() -> None:
     logging.getLogger("tifffile").setLevel(logging.CRITICAL)  # it logs every odd tag it skips
     import atheris
 
-    with atheris.instrument_imports(include=["thermogrammetry"]):
-        import thermogrammetry.closerange.tables  # noqa: F401
-        import thermogrammetry.io  # noqa: F401
-        import thermogrammetry.io.testfield_csv  # noqa: F401
-        import thermogrammetry.radiometry.empirical  # noqa: F401
+    import thermogrammetry.closerange.tables  # noqa: F401
+    import thermogrammetry.io  # noqa: F401
+    import thermogrammetry.io.testfield_csv  # noqa: F401
+    import thermogrammetry.radiometry.empirical  # noqa: F401
+    from thermogrammetry.io.thermal import registered_readers
+
+    registered_readers()  # import every reader module before instrumenting
+    atheris.instrument_all()  # coverage feedback from every loaded Python function (ours and the decoders')
     corpus = [a for a in sys.argv[1:] if not a.startswith("-")]
     if not corpus:  # write the generated seeds into a fresh corpus folder
         import tempfile
