@@ -128,7 +128,7 @@ class DemoResult:
 DEMO_SECTIONS: list[DemoSection] = []
 
 #: modules imported before a run so that their sections register themselves
-SECTION_MODULES: tuple[str, ...] = ()
+SECTION_MODULES: tuple[str, ...] = ("thermogrammetry.pipeline.demo_survey",)
 
 
 def register_section(section: DemoSection, *, replace: bool = True) -> None:
