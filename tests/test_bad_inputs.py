@@ -439,3 +439,11 @@ def test_bad_input_is_refused_with_a_message(name, tmp_path, capsys):
     if must_not_exist is not None:  # nothing half-written
         assert not Path(must_not_exist).exists(), f"{name}: {must_not_exist} was created"
     assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name], "staging folder left behind"
+
+
+@_c("references contradicting each other (warmer = fewer counts)")
+def _(t):
+    fff = write(t / "a.fff", fff_frame(counts_img()))  # counts rise along rows
+    refs = write(t / "refs.csv", "image,x,y,temperature_c\na.fff,0,0,40\na.fff,7,5,20\n")
+    return ["convert", str(fff), "--references", str(refs), "-o", str(t / "OUT")], \
+        ["refs.csv", "falling with raw counts", "line 2"], t / "OUT"

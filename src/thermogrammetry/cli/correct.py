@@ -87,10 +87,19 @@ def _plane(normal, d, where: str):
     return n.tolist(), float(dd)
 
 
+def _csv_rows(text: str, source: str) -> list[dict]:
+    from ..errors import CorruptFileError
+
+    try:
+        return list(csv.DictReader(io.StringIO(text, newline="")))
+    except csv.Error as exc:
+        raise CorruptFileError(f"{source}: not a readable CSV ({exc})") from None
+
+
 def _planes_csv(text: str, source: str):
     from ..errors import DataFileError
 
-    rows = list(csv.DictReader(io.StringIO(text)))
+    rows = _csv_rows(text, source)
     need = {"normal_x", "normal_y", "normal_z", "d_m"}
     if not rows or not need <= set(rows[0]):
         raise DataFileError(f"{source}: expected columns name,normal_x,normal_y,normal_z,d_m (closerange planes.csv)")
@@ -110,7 +119,7 @@ def _planes_csv(text: str, source: str):
 def _points_csv(text: str, source: str) -> dict:
     from ..errors import DataFileError
 
-    rows = list(csv.DictReader(io.StringIO(text)))
+    rows = _csv_rows(text, source)
     if not rows or not {"id", "X", "Y", "Z"} <= set(rows[0]):
         raise DataFileError(f"{source}: expected columns id,X,Y,Z (closerange points.csv)")
     pts = {}

@@ -473,29 +473,36 @@ def iter_thermal(
             data = fh.read()
         try:
             spec = sniff_reader(p, data[:_SNIFF_BYTES])
-            try:
-                for k, img in enumerate(spec.read(p, data, opts)):
-                    idx = img.metadata.frame_index if img.metadata.frame_index is not None else k
-                    bad_exif = (img.metadata.exif or {}).get("exif_error")
-                    if bad_exif and bad_exif not in img.metadata.notes:
-                        img.metadata.notes.append(bad_exif)
-                    if opts.frames is None or idx in opts.frames:
-                        yield img
-            except (DataFileError, InvalidInputError):  # our own errors (incl. ConfigError, ShapeError) pass unchanged
-                raise
-            except MemoryError:
-                raise ImageTooLargeError(
-                    f"{p}: not enough memory to decode this {spec.name} file (declared sizes too large for this "
-                    "machine; a damaged header?)") from None
-            except (ValueError, IndexError, KeyError, EOFError, OSError, TypeError, OverflowError, ZeroDivisionError,
-                    struct.error, RecursionError) as exc:  # decoding library errors on bad bytes
-                raise CorruptFileError(f"{p}: {spec.name} reader failed: {type(exc).__name__}: {exc}") from None
+            yield from read_with(spec, p, data, opts)
         finally:
             if isinstance(data, mmap.mmap):
                 try:
                     data.close()
                 except BufferError:  # a reader kept a view; the map is released with it
                     pass
+
+
+def read_with(spec: ReaderSpec, p: Path, data, opts: ReadOptions) -> Iterator[ThermalImage]:
+    """Frames of ``data`` (the bytes of ``p``) decoded by ``spec``, with decoder errors mapped to our exception
+    tree (:class:`CorruptFileError`, :class:`ImageTooLargeError` for ``MemoryError``).  Used by
+    :func:`iter_thermal` and by the fuzz harnesses (``fuzz/``)."""
+    try:
+        for k, img in enumerate(spec.read(p, data, opts)):
+            idx = img.metadata.frame_index if img.metadata.frame_index is not None else k
+            bad_exif = (img.metadata.exif or {}).get("exif_error")
+            if bad_exif and bad_exif not in img.metadata.notes:
+                img.metadata.notes.append(bad_exif)
+            if opts.frames is None or idx in opts.frames:
+                yield img
+    except (DataFileError, InvalidInputError):  # our own errors (incl. ConfigError, ShapeError) pass unchanged
+        raise
+    except MemoryError:
+        raise ImageTooLargeError(
+            f"{p}: not enough memory to decode this {spec.name} file (declared sizes too large for this "
+            "machine; a damaged header?)") from None
+    except (ValueError, IndexError, KeyError, EOFError, OSError, TypeError, OverflowError, ZeroDivisionError,
+            struct.error, RecursionError) as exc:  # decoding library errors on bad bytes
+        raise CorruptFileError(f"{p}: {spec.name} reader failed: {type(exc).__name__}: {exc}") from None
 
 
 def read_thermal(

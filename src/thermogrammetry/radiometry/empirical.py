@@ -15,8 +15,8 @@ references carry no uncertainty and are single pixels.
 
 References file (CSV, ``--references``): one row per reference, columns
 ``image`` (file name as given to convert), either ``x,y`` (pixel, column/row from the top-left pixel's
-centre, optional ``radius_px``: disc of pixels) or ``polygon`` (``"x1 y1; x2 y2; x3 y3; ..."``, pixel
-centres inside are used), ``temperature_c`` or ``temperature_k``, optional ``sigma_k``.
+centre, optional ``radius_px``: disc of pixels) or ``polygon`` (``"x1 y1; x2 y2; x3 y3; ..."``; the pixels
+whose centres are inside are used, left/top edges inclusive, right/bottom exclusive), ``temperature_c`` or ``temperature_k``, optional ``sigma_k``.
 
 References
 ----------
@@ -148,7 +148,10 @@ def read_references_csv(path: str | Path) -> list[Reference]:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise CorruptFileError(f"references file {p}: not UTF-8 text (byte {exc.start}); save it as UTF-8 CSV") from None
-    rows = list(csv.reader(io.StringIO(text)))
+    try:
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:
+        raise CorruptFileError(f"references file {p}: not a readable CSV ({exc})") from None
     rows = [r for r in rows if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
     if not rows:
         raise CorruptFileError(f"references file {p}: empty; expected a header image,x,y|polygon,temperature_c|temperature_k")
@@ -257,6 +260,12 @@ def fit_empirical_mapping(refs: list[Reference], counts_by_image: dict[str, np.n
         raise TooFewPointsError(f"{source}: all references have the same mean count {c[0]:.1f}; need different temperatures")
     A = np.column_stack([c, np.ones_like(c)])
     a = float(np.polyfit(c, t, 1)[0])
+    if a <= 0:
+        order = np.argsort(t)
+        raise InvalidInputError(
+            f"{source}: the references give temperature falling with raw counts (slope {a:.4g} K/count; "
+            + ", ".join(f"line {refs[i].row}: {t[i]:.2f} K at {c[i]:.1f} counts" for i in order)
+            + "); a thermal sensor's counts rise with temperature -- check the image, pixel and temperature columns")
     var = np.array(sig_ref) ** 2 + (a * np.array(sems)) ** 2
     n, dof = len(refs), len(refs) - 2
     have_prior = bool(np.all(var > 0))
