@@ -345,7 +345,10 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
             else:
                 decoded = _decode(path, opt.input_unit)
         except (ThermogrammetryError, OSError, ValueError, MemoryError) as exc:
-            failed.append({"file": str(path), "reason": str(exc)})
+            reason = str(exc)
+            if "pass unit='K' or unit='C'" in reason:
+                reason = reason.replace("pass unit='K' or unit='C'", "give --input-unit K or C")
+            failed.append({"file": str(path), "reason": reason})
             if progress:
                 progress(k + 1, len(items))
             continue
