@@ -46,6 +46,9 @@ from .project import FolderProject, ProjectStore
 __all__ = ["SurveyOptions", "SurveyInput", "survey_steps", "run_survey", "VIDEO_SUFFIXES", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".tif", ".tiff", ".png", ".seq", ".csq", ".fff", ".csv", ".npy", ".bmp", ".is2"}
+#: a block whose final tie-point reprojection RMS exceeds this is rejected (reported, not exported)
+BLOCK_RMS_GATE_PX = 3.0
+
 #: below this share of images with a verified pair, the low-texture features are tried as well
 LOW_TEXTURE_SHARE = 0.8
 
@@ -743,6 +746,18 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                               max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
                               compute_covariance=len(images) <= 2500)
         notes += [f"block {ci + 1}: {x}" for x in fa.notes]
+        v = fa.tie_residuals
+        rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
+        if not rms <= BLOCK_RMS_GATE_PX:
+            # a block whose tie points do not fit is not an orientation: it is reported, never exported
+            why = (f"in block {ci + 1} ({len(images)} images) rejected: reprojection RMS {rms:.2f} px after the final "
+                   f"adjustment (> {BLOCK_RMS_GATE_PX:g} px; inconsistent tie points, e.g. repeated structure or too "
+                   "little texture)")
+            for i in images:
+                rec.status[i].reason = why
+            notes.append(f"block {ci + 1}: {why.split(' rejected: ')[1]}")
+            results.append({"block": ci + 1, "images": len(images), "datum": how, "rejected": why})
+            continue
         oriented[images] = True
         fa_all.append((ci, images, fa, how, geo))
         results.append({"block": ci + 1, "images": len(images), "datum": how, "sigma0": float(fa.result.sigma0),
