@@ -36,6 +36,7 @@ from .detect_common import (
     ChessboardSpec,
     Detection,
     clahe_u8,
+    flatten_background,
     image_size_of,
     normalize_to_u8,
     spec_of,
@@ -192,7 +193,7 @@ def _homography_check(grid: np.ndarray, spec_xy: np.ndarray, square_px: float) -
 
 
 def detect_chessboard(image, spec: ChessboardSpec, image_id: str = "", *, refine: bool = False,
-                      try_classic: bool = True, try_upsample: bool | str = "auto") -> Detection:
+                      try_classic: bool = True, try_upsample: bool | str = "auto", try_flatfield: bool = True) -> Detection:
     """Find the inner corners of a chessboard in a thermal image.
 
     Parameters
@@ -218,6 +219,11 @@ def detect_chessboard(image, spec: ChessboardSpec, image_id: str = "", *, refine
         Fall back to the classic detector when the SB passes fail.
     try_upsample : bool or "auto"
         Try a 2x upsampled image; "auto" does so when the smaller side is below 300 px.
+    try_flatfield : bool
+        Also try images with the background removed and the local contrast normalised
+        (:func:`~thermogrammetry.calibration.detect_common.flatten_background`): low-contrast boards
+        under a heater's hot spot or vignetting, where a global stretch leaves the squares a few grey
+        levels apart ("sb-flatfield", "sb-flatfield-wide", "classic-flatfield[-inverted]").
 
     Returns
     -------
@@ -238,6 +244,17 @@ def detect_chessboard(image, spec: ChessboardSpec, image_id: str = "", *, refine
     # bright frame. Costs on a 640x480 frame without a board: SB 1.0 s, SB+CLAHE 1.5 s, 2x
     # upsampled SB 3.8 s, classic with FAST_CHECK 0.25 s.
     passes = [("sb-stretch", u8, 1), ("sb-clahe", cl, 1)]
+    if try_flatfield:
+        # low-contrast boards under a hot spot / vignetting: background removed by a large blur and
+        # local contrast normalised before the stretch. σ = 1/64 of the larger side (10 px at 640: a
+        # third of a 30 px square) and 1/32: a wider background lets the step between board and
+        # surround (several K against a few tenths between squares) leak into the squares next to
+        # the border and bend the saddles there (measured on 640x512 boards with 30-45 px squares,
+        # 0.35 K contrast, 8 K hot spot: σ 10 px finds 6/6 at 0.13-0.16 px RMS, σ 20 px 2/6 at
+        # 0.75-0.86 px, σ 28-80 px none)
+        big = max(gray.shape)
+        ff = {s: flatten_background(gray, big / s) for s in (64, 32)}
+        passes += [("sb-flatfield", ff[64], 1), ("sb-flatfield-wide", ff[32], 1)]
     up = try_upsample if isinstance(try_upsample, bool) else min(gray.shape) < 300
     if up:
         passes.append(("sb-upsampled", cv2.resize(cl, None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC), 2))
@@ -245,6 +262,8 @@ def detect_chessboard(image, spec: ChessboardSpec, image_id: str = "", *, refine
         lut = np.clip(255.0 * (np.arange(256) / 255.0) ** 0.5, 0, 255).astype(np.uint8)
         passes += [("classic-stretch", u8, 1), ("classic-clahe", cl, 1), ("classic-gamma", cv2.LUT(u8, lut), 1),
                    ("classic-inverted", 255 - cl, 1)]
+        if try_flatfield:
+            passes += [("classic-flatfield", ff[64], 1), ("classic-flatfield-inverted", 255 - ff[64], 1)]
 
     tried = []
     for name, img, scale in passes:
@@ -262,14 +281,17 @@ def detect_chessboard(image, spec: ChessboardSpec, image_id: str = "", *, refine
         grid = pts.reshape(pattern[1], pattern[0], 2)
         sq = square_size_px(grid)
         if refine or name.startswith("classic"):
-            pts, _ = refine_corners(u8, pts, sq.ravel())
+            pts, _ = refine_corners(img if "flatfield" in name else u8, pts, sq.ravel())
             grid = pts.reshape(pattern[1], pattern[0], 2)
         ok_h, rms_h = _homography_check(grid, obj, float(np.median(sq)))
         if not ok_h:
             tried.append(f"{name} (rejected: homography residual RMS {rms_h:.2f} px)")
             continue
         colour_distinct = (spec.inner_columns % 2 == 0) != (spec.inner_rows % 2 == 0)
-        grid, _ = canonical_grid_order(grid, cv2.GaussianBlur(u8.astype(np.float32), (0, 0), 1.5), spec.corner0_square,
+        # square colours from the image the board was found in when it is background-flattened (a hot
+        # spot can make a cool square brighter than a hot one far away in the stretched image)
+        col = (255 - img if name.endswith("inverted") else img) if "flatfield" in name else u8
+        grid, _ = canonical_grid_order(grid, cv2.GaussianBlur(col.astype(np.float32), (0, 0), 1.5), spec.corner0_square,
                                        allow_transpose=spec.inner_columns == spec.inner_rows,
                                        colour_distinct=colour_distinct)
         reason = f"found by {name}" + (f" after {', '.join(tried)} failed" if tried else "")

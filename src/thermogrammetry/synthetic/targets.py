@@ -50,6 +50,7 @@ __all__ = [
     "ChessboardTarget",
     "CodedCheckerboardTarget",
     "TargetTemperatures",
+    "HotSpot",
     "RenderedTarget",
     "render_target_image",
     "render_target_signal",
@@ -303,13 +304,59 @@ def _project_with_depth(camera, pose, points):
     return out, front
 
 
-def render_target_signal(camera, pose, target, temperatures=None, *, supersample: int = 8, curve: SignalCurve | None = None) -> np.ndarray:
+@dataclass(frozen=True)
+class HotSpot:
+    """A warm patch on the target from its heater: a Gaussian temperature excess on the board and its
+    features (not on the surround), in the target frame.
+
+    Attributes
+    ----------
+    x_mm, y_mm : centre in the target plane, millimetres (target frame of :mod:`thermogrammetry.targets`).
+    sigma_mm : Gaussian width, millimetres.
+    delta_k : temperature excess at the centre, kelvin (added to every part of the board).
+    """
+
+    x_mm: float
+    y_mm: float
+    sigma_mm: float
+    delta_k: float
+
+    def __post_init__(self):
+        for name in ("x_mm", "y_mm", "sigma_mm", "delta_k"):
+            v = getattr(self, name)
+            try:
+                f = float(v)
+            except (TypeError, ValueError):
+                raise ConfigError(f"HotSpot.{name}={v!r}: expected a number") from None
+            if not np.isfinite(f):
+                raise ConfigError(f"HotSpot.{name}={v!r}: expected a finite number")
+            object.__setattr__(self, name, f)
+        if self.sigma_mm <= 0:
+            raise ConfigError(f"HotSpot.sigma_mm={self.sigma_mm!r}: expected a width > 0 mm")
+
+    def excess_k(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        """Temperature excess (K) at target-plane points (mm)."""
+        r2 = ((np.asarray(x_mm) - self.x_mm) ** 2 + (np.asarray(y_mm) - self.y_mm) ** 2) / self.sigma_mm**2
+        return self.delta_k * np.exp(-0.5 * r2)
+
+
+def render_target_signal(camera, pose, target, temperatures=None, *, supersample: int = 8, curve: SignalCurve | None = None,
+                         hot_spot: HotSpot | None = None) -> np.ndarray:
     """Pixel-integrated signal image (H, W) of ``target`` (no sensor effects). See :func:`render_target_image`."""
     tgt = as_target(target)
     pose = as_pose(pose)
     temps = TargetTemperatures.coerce(temperatures)
     curve = curve or BandPlanckCurve()
-    s_part = np.asarray(curve.signal(np.array([temps.surround_k, temps.board_k, temps.feature_k])), dtype=np.float64)
+    if hot_spot is not None and not isinstance(hot_spot, HotSpot):
+        raise ConfigError(f"hot_spot: expected a thermogrammetry.synthetic.targets.HotSpot, got {type(hot_spot).__name__}")
+    t_part = np.array([temps.surround_k, temps.board_k, temps.feature_k])
+    s_part = np.asarray(curve.signal(t_part), dtype=np.float64)
+    if hot_spot is not None:
+        # signal of the heated parts from a table (the band integral per sample is slow); 2048 nodes over
+        # the range: linear interpolation error ~ s'' dT^2 / 8, below 1e-6 K equivalent here
+        lo, hi = float(t_part.min()) + min(hot_spot.delta_k, 0.0), float(t_part.max()) + max(hot_spot.delta_k, 0.0)
+        t_tab = np.linspace(lo, hi + 1e-9, 2048)
+        s_tab = np.asarray(curve.signal(t_tab), dtype=np.float64)
     w, h = camera_size(camera)
     out = np.empty((h, w), dtype=np.float64)
     R, C = pose.R, pose.center
@@ -322,7 +369,12 @@ def render_target_signal(camera, pose, target, temperatures=None, *, supersample
             y = np.where(ok, C[1] + lam * d[..., 1], np.nan)
         lab = tgt.classify(1e3 * x, 1e3 * y)  # the description is in mm, the pose in metres
         lab[~ok] = SURROUND
-        out[rows] = s_part[lab].mean(axis=-1)
+        if hot_spot is None:
+            out[rows] = s_part[lab].mean(axis=-1)
+        else:
+            on = lab != SURROUND
+            tk = t_part[lab] + np.where(on, hot_spot.excess_k(np.where(on, 1e3 * x, 0.0), np.where(on, 1e3 * y, 0.0)), 0.0)
+            out[rows] = np.interp(tk, t_tab, s_tab).mean(axis=-1)
     return out
 
 
@@ -340,6 +392,7 @@ def render_target_image(
     seed: int = 0,
     fpn_seed: int = 0,
     curve: SignalCurve | None = None,
+    hot_spot: HotSpot | None = None,
 ) -> RenderedTarget:
     """Render a calibration target as a thermal camera sees it.
 
@@ -360,6 +413,8 @@ def render_target_image(
         Seed of the temporal noise of this image.
     curve : SignalCurve, optional
         Signal curve in which parts are mixed (default: Planck radiance over 7.5–13.5 µm).
+    hot_spot : HotSpot, optional
+        A warm patch of the heated board (temperature excess on board and features, target frame).
 
     Returns
     -------
@@ -370,7 +425,7 @@ def render_target_image(
     pose = as_pose(pose)
     curve = curve or BandPlanckCurve()
     effects = SensorEffects(psf_sigma_px=psf_sigma_px, netd_k=netd_k, fpn_k=fpn_k, vignetting=vignetting, fpn_seed=fpn_seed)
-    signal = render_target_signal(camera, pose, target, temperatures, supersample=supersample, curve=curve)
+    signal = render_target_signal(camera, pose, target, temperatures, supersample=supersample, curve=curve, hot_spot=hot_spot)
     image = apply_sensor_effects(signal, curve, effects, np.random.default_rng(seed))
     pts = tgt.object_points_m()
     xy, front = _project_with_depth(camera, pose, pts)
