@@ -176,3 +176,16 @@ def test_real_m3t_flight(tmp_path, shared_data):
     assert s["crs"] == "EPSG:32631"  # UTM zone 31N of the flight (4.43° E)
     las_dims = __import__("laspy").read(out / "sparse.las").point_format.extra_dimension_names
     assert "raw_counts" in las_dims and "temperature_k" not in las_dims
+
+
+def test_float_tiff_without_unit_names_the_flag(tmp_path, capsys):
+    import tifffile
+
+    from thermogrammetry.cli.main import main
+
+    for k in range(2):
+        tifffile.imwrite(tmp_path / f"f{k}.tif", np.full((32, 40), 300.0, np.float32))
+    assert main(["survey", str(tmp_path / "f0.tif"), str(tmp_path / "f1.tif"), "-o", str(tmp_path / "out"), "--workers", "0"]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "f0.tif" in err and "give --input-unit K or C" in err
+    assert not (tmp_path / "out").exists()

@@ -44,7 +44,8 @@ from .detect_common import (
     to_gray_float,
 )
 
-__all__ = ["detect_circle_grid", "refine_circle_centres", "ellipse_centre_bias", "order_grid_by_homography"]
+__all__ = ["detect_circle_grid", "refine_circle_centres", "ellipse_centre_bias", "order_grid_by_homography",
+           "ellipse_candidates"]
 
 
 def _blob_detector(image_area: float) -> cv2.SimpleBlobDetector:
@@ -268,6 +269,215 @@ def ellipse_centre_bias(H: np.ndarray, centres_mm: np.ndarray, radius_mm: float)
     return out
 
 
+def ellipse_candidates(gray: np.ndarray, bright: bool, block_sizes=(15, 31, 61, 121, 241)) -> np.ndarray:
+    """Disc candidates from adaptive thresholds over several scales, each contour fitted by an ellipse.
+
+    A contour is kept when it fills its fitted ellipse (area ratio 0.85-1.1), is convex (area / hull
+    area > 0.92) and not too elongated (axis ratio > 0.25). Detections of the same disc at several
+    scales are merged (centres closer than a quarter of the minor axis); ``count`` says at how many
+    scales a disc was found (noise specks are found at one).
+
+    Returns
+    -------
+    ndarray (K, 6): x, y (px, OpenCV convention), major, minor axis (px), area (px²), count.
+    """
+    u8 = normalize_to_u8(gray)
+    img = cv2.GaussianBlur(u8 if bright else 255 - u8, (0, 0), 1.0)
+    h, w = img.shape
+    raw = []
+    for bs in block_sizes:
+        if bs >= min(h, w):
+            continue
+        for c_off in (-2, -8):
+            bw = cv2.adaptiveThreshold(img, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY, bs, c_off)
+            cs, _ = cv2.findContours(bw, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+            for c in cs:
+                if len(c) < 8:
+                    continue
+                a = cv2.contourArea(c)
+                if a < 12 or a > 0.25 * h * w:
+                    continue
+                (cx, cy), (ma, mi), _ = cv2.fitEllipse(c)
+                ea = np.pi * ma * mi / 4.0
+                if ea <= 0 or min(ma, mi) < 3 or min(ma, mi) / max(ma, mi) < 0.25 or not 0.85 < a / ea < 1.1:
+                    continue
+                if a / max(cv2.contourArea(cv2.convexHull(c)), 1e-9) < 0.92:
+                    continue
+                raw.append((cx, cy, max(ma, mi), min(ma, mi), a))
+    if not raw:
+        return np.zeros((0, 6))
+    raw = np.array(raw)
+    order = np.argsort(-raw[:, 4])
+    used = np.zeros(len(raw), bool)
+    out = []
+    for i in order:
+        if used[i]:
+            continue
+        d = np.hypot(raw[:, 0] - raw[i, 0], raw[:, 1] - raw[i, 1])
+        grp = (~used) & (d < 0.25 * raw[i, 3]) & (raw[:, 4] > 0.5 * raw[i, 4])
+        used |= grp
+        g = raw[grp]
+        med = g[np.argsort(g[:, 4])[len(g) // 2]]
+        out.append((*med, float(len(g))))
+    return np.array(out)
+
+
+def _quad_fit_rms(obj, pts):
+    """RMS and max residual of a second-order polynomial map object -> image (distortion-aware
+    stand-in for a homography when checking an ordering)."""
+    x, y = obj[:, 0] / np.abs(obj).max(), obj[:, 1] / max(np.abs(obj).max(), 1e-12)
+    A = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
+    if len(obj) <= A.shape[1]:
+        A = A[:, :3]
+    coef, *_ = np.linalg.lstsq(A, pts, rcond=None)
+    r = np.linalg.norm(A @ coef - pts, axis=1)
+    return float(np.sqrt(np.mean(r * r))), float(r.max())
+
+
+def _grid_from_ellipses(gray, spec, bright):
+    """Grid of ``spec`` from ellipse candidates: the N candidates of the most common size that are
+    found at several scales, ordered by ``cv2.findCirclesGrid`` on a clean redrawn image and
+    checked with a second-order (distortion-aware) map. Returns (points (N, 2) or None, why)."""
+    c = ellipse_candidates(gray, bright)
+    n = spec.n_points
+    if len(c) < n:
+        return None, f"{len(c)} ellipse candidates < {n}"
+    # size consistency: grid discs are similar (perspective changes their area by < ~4x); pick the
+    # largest group in log-area within a factor 4, preferring discs found at several scales
+    la = np.log(c[:, 4])
+    best = None
+    for i in np.argsort(-c[:, 5]):
+        grp = np.flatnonzero(np.abs(la - la[i]) < np.log(4.0) / 2 + 1e-9)
+        score = (len(grp) >= n, c[grp, 5].sum())
+        if best is None or score > best[0]:
+            best = (score, grp)
+    grp = best[1]
+    if len(grp) < n:
+        return None, f"only {len(grp)} ellipses of a consistent size"
+    grp = grp[np.argsort(-c[grp, 5] - 1e-6 * c[grp, 4])][: max(n + 6, int(1.5 * n))]
+    cand = c[grp]
+    kind = cv2.CALIB_CB_ASYMMETRIC_GRID if spec.asymmetric else cv2.CALIB_CB_SYMMETRIC_GRID
+    obj = spec.object_points()[:, :2]
+    idx = np.arange(spec.rows * spec.columns).reshape(spec.rows, spec.columns)
+    scale = 4
+    for m in sorted({n, len(cand)}):
+        sub = cand[:m]
+        clean = np.full((gray.shape[0] * 1, gray.shape[1] * 1), 255, np.uint8)
+        rad = max(2.0, 0.25 * float(np.median(sub[:, 3])))
+        for x, y in sub[:, :2]:
+            cv2.circle(clean, (int(round(x * 16)), int(round(y * 16))), int(round(rad * 16)), 0, -1, cv2.LINE_8, shift=4)
+        for flags in (kind, kind | cv2.CALIB_CB_CLUSTERING):
+            ok, centres = cv2.findCirclesGrid(clean, spec.pattern_size, flags=flags, blobDetector=_REDRAWN_DETECTOR)
+            if not ok or centres is None:
+                continue
+            pts = centres.reshape(-1, 2).astype(np.float64)
+            # snap to the candidates (the redrawn dots are rounded to 1/16 px)
+            d = np.linalg.norm(pts[:, None] - sub[None, :, :2], axis=2)
+            pts = sub[np.argmin(d, axis=1), :2]
+            spacing = np.median(np.linalg.norm(np.diff(pts.reshape(spec.rows, spec.columns, 2), axis=1), axis=2))
+            good = []
+            for cnd in (idx, idx[::-1, :], idx[:, ::-1], idx[::-1, ::-1]):
+                p = pts[cnd.ravel()]
+                rms, mx = _quad_fit_rms(obj, p)
+                if mx > 0.15 * spacing + 0.5:
+                    continue
+                H = _fit_h(obj, p)
+                if H is None:
+                    continue
+                o = obj.mean(axis=0)
+                e = 1e-3 * spec.spacing_mm
+                q = _apply_h(H, np.array([o, o + [e, 0], o + [0, e]]))
+                dx, dy = q[1] - q[0], q[2] - q[0]
+                handed = dx[0] * dy[1] - dx[1] * dy[0] > 0
+                good.append((not handed, float(p[0].sum()), p))
+            if good:
+                good.sort(key=lambda g: (g[0], g[1]))
+                if _polarity_ok(gray, good[0][2], cand, bright):
+                    return good[0][2], ""
+    if not spec.asymmetric:
+        pts = _grid_from_hull(cand[:n, :2], spec)
+        if pts is not None and _polarity_ok(gray, pts, cand, bright):
+            return pts, ""
+    return None, f"{len(cand)} ellipses of a consistent size, no {spec.pattern_size[0]}x{spec.pattern_size[1]} grid among them"
+
+
+def _polarity_ok(gray, pts, cand, bright) -> bool:
+    """Every disc is brighter (``bright``) or darker than a ring just outside it (half a disc
+    radius beyond the fitted ellipse): rejects grids of the gaps between discs of the other polarity."""
+    smooth = cv2.GaussianBlur(np.asarray(gray, np.float32), (0, 0), 1.0)
+    h, w = smooth.shape
+    rad = 0.5 * float(np.median(cand[:, 2]))
+    a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    sign = 1.0 if bright else -1.0
+    good = 0
+    for x, y in pts:
+        ring = np.column_stack([x + 1.5 * rad * np.cos(a), y + 1.5 * rad * np.sin(a)])
+        ring = ring[(ring[:, 0] >= 0) & (ring[:, 0] <= w - 1) & (ring[:, 1] >= 0) & (ring[:, 1] <= h - 1)]
+        if not len(ring) or not (0 <= x <= w - 1 and 0 <= y <= h - 1):
+            continue
+        inner = smooth[int(round(y)), int(round(x))]
+        outer = np.median(smooth[np.rint(ring[:, 1]).astype(int), np.rint(ring[:, 0]).astype(int)])
+        good += sign * (inner - outer) > 0
+    return good >= 0.9 * len(pts)
+
+
+def _grid_from_hull(p: np.ndarray, spec) -> np.ndarray | None:
+    """Order exactly N candidates of a symmetric grid from their convex hull: the four sharpest hull
+    turns are the grid corners, the hull counts between them tell rows from columns; a homography
+    of the corners predicts the rest, assigned to the nearest candidates and checked with a
+    second-order map (distortion bends the rows, so no global homography check)."""
+    cols, rows = spec.columns, spec.rows
+    if len(p) != cols * rows:
+        return None
+    hull = cv2.convexHull(p.astype(np.float32), returnPoints=False).ravel()
+    if len(hull) < 4:
+        return None
+    hp = p[hull]
+    v_in = hp - np.roll(hp, 1, axis=0)
+    v_out = np.roll(hp, -1, axis=0) - hp
+    ang = np.abs(np.arctan2(v_in[:, 0] * v_out[:, 1] - v_in[:, 1] * v_out[:, 0], np.sum(v_in * v_out, axis=1)))
+    corners = np.sort(np.argsort(-ang)[:4])
+    gaps = np.diff(np.r_[corners, corners[0] + len(hull)]) - 1  # hull points between successive corners
+    obj = spec.object_points()[:, :2]
+    oc = {0: obj[0], 1: obj[cols - 1], 2: obj[-1], 3: obj[(rows - 1) * cols]}  # grid corners, cyclic order
+    best = None
+    for shift in range(4):
+        for direction in (1, -1):
+            seq = [corners[(shift + direction * k) % 4] for k in range(4)]
+            img_c = hp[seq]
+            H = _fit_h(np.array([oc[k] for k in range(4)]), img_c)
+            if H is None:
+                continue
+            pred = _apply_h(H, obj)
+            d = np.linalg.norm(pred[:, None] - p[None], axis=2)
+            a = np.argmin(d, axis=1)
+            if len(set(a.tolist())) != len(p):
+                continue
+            q = p[a]
+            rms, mx = _quad_fit_rms(obj, q)
+            if best is None or rms < best[0]:
+                best = (rms, mx, q)
+    if best is None:
+        return None
+    q = best[2]
+    spacing = np.median(np.linalg.norm(np.diff(q.reshape(rows, cols, 2), axis=1), axis=2))
+    if best[1] > 0.15 * spacing + 0.5:
+        return None
+    # canonical choice among the grid's symmetric orderings (right-handed, corner 0 nearest top-left)
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    good = []
+    for cnd in (idx, idx[::-1, :], idx[:, ::-1], idx[::-1, ::-1]):
+        r = q[cnd.ravel()]
+        H = _fit_h(obj, r)
+        o = obj.mean(axis=0)
+        e = 1e-3 * spec.spacing_mm
+        z = _apply_h(H, np.array([o, o + [e, 0], o + [0, e]]))
+        dx, dy = z[1] - z[0], z[2] - z[0]
+        good.append((not (dx[0] * dy[1] - dx[1] * dy[0] > 0), float(r[0].sum()), r))
+    good.sort(key=lambda g: (g[0], g[1]))
+    return good[0][2]
+
+
 def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polarity: str = "auto",
                        refine: str = "moments", perspective_correction: bool = True) -> Detection:
     """Find a symmetric or asymmetric circle grid and measure sub-pixel centres.
@@ -341,6 +551,14 @@ def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polar
                     continue
                 return _finish(gray, ordered, spec, image_id, size, name, tried, pol == "bright", refine,
                                perspective_correction)
+    # large discs under strong distortion / perspective: ellipse candidates over several scales of
+    # adaptive threshold, grid topology from the candidates' neighbour structure, distortion-aware check
+    for pol in pols:
+        pts, why = _grid_from_ellipses(gray, spec, pol == "bright")
+        name = f"{pol}-ellipses"
+        if pts is not None:
+            return _finish(gray, pts, spec, image_id, size, name, tried, pol == "bright", refine, perspective_correction)
+        tried.append(f"{name} ({why})")
     return Detection.failure(image_id, f"no {pattern[0]}x{pattern[1]} "
                              f"{'asymmetric ' if spec.asymmetric else ''}circle grid found (tried: {', '.join(tried)})", size)
 

@@ -95,6 +95,14 @@ def _camera_block(cc: CameraCalibration) -> dict[str, Any]:
     }
 
 
+def _detector_of(run: CalibrationRun, image: str):
+    """The detector variant that found the target in ``image`` (``run.meta["target"]["detections"]``,
+    written by the target route), or None."""
+    t = run.meta.get("target") if isinstance(run.meta, dict) else None
+    d = (t or {}).get("detections", {}).get(image) if isinstance(t, dict) else None
+    return (d.get("method") or None) if isinstance(d, dict) else None
+
+
 def calibration_dict(run: CalibrationRun, exports: dict | None = None) -> dict[str, Any]:
     """Everything calibration.json holds. Top-level ``parameters`` / ``parameters_px`` are the first camera's."""
     r: CalibrationResult = run.result
@@ -113,7 +121,7 @@ def calibration_dict(run: CalibrationRun, exports: dict | None = None) -> dict[s
         "images_rejected": r.images_rejected,
         "per_image": [
             {"image": v.name, "camera": v.camera, "used": v.used, "reason": v.reason, "n_points": v.n_points,
-             "n_blunders": v.n_blunders, "rms_px": _f(v.rms_px)}
+             "n_blunders": v.n_blunders, "rms_px": _f(v.rms_px), "detector": _detector_of(run, v.name)}
             for v in r.images
         ],
         "stage1": r.stage1,
@@ -444,11 +452,23 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
                        f"<td>{np.array2string(ro.std[3:] * 1e3, precision=2)}</td><td>{np.array2string(ro.std[:3] * 1e3, precision=3)}</td>"
                        f"<td>{ro.baseline_m:.4f}</td><td>{ro.n_frames}</td></tr>")
         out.append("</table>")
-    out.append("<h2>Images</h2><table><tr><th>image</th><th>camera</th><th>used</th><th>points</th><th>blunders</th><th>RMS (px)</th><th>reason</th></tr>")
+    tgt = run.meta.get("target") if isinstance(run.meta, dict) else None
+    cb = tgt.get("centre_bias") if isinstance(tgt, dict) else None
+    if cb:
+        out.append(f"<h2>Circle-centre bias</h2><p>{e(cb.get('method', ''))}</p>")
+        if cb.get("rounds"):
+            out.append(f"<p>largest bias {cb['max_bias_px']:.3f} px; per round: "
+                       + "; ".join(f"round {h['round']}: RMS {h['rms_px']:.4f} px"
+                                   + (f", bias change {h['bias_change_px']:.4f} px" if h.get("bias_change_px") is not None else "")
+                                   for h in cb["rounds"]) + "</p>")
+    show_det = any(_detector_of(run, v.name) for v in r.images)
+    out.append("<h2>Images</h2><table><tr><th>image</th><th>camera</th><th>used</th><th>points</th><th>blunders</th><th>RMS (px)</th>"
+               + ("<th>detector</th>" if show_det else "") + "<th>reason</th></tr>")
     for v in r.images:
         out.append(f"<tr><td class='l'>{e(v.name)}</td><td>{v.camera + 1}</td><td>{'yes' if v.used else '<span class=bad>no</span>'}</td>"
                    f"<td>{v.n_points}</td><td>{v.n_blunders}</td><td>{'' if not np.isfinite(v.rms_px) else f'{v.rms_px:.3f}'}</td>"
-                   f"<td class='l'>{e(v.reason)}</td></tr>")
+                   + (f"<td class='l'>{e(_detector_of(run, v.name) or '')}</td>" if show_det else "")
+                   + f"<td class='l'>{e(v.reason)}</td></tr>")
     out.append("</table>")
     if r.blunders:
         out.append(f"<h2>Rejected observations ({len(r.blunders)})</h2><table><tr><th>stage</th><th>image</th><th>point</th><th>|w|</th><th>v (px)</th></tr>")

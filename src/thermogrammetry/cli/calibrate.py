@@ -119,7 +119,7 @@ def calibrate(
     grid: Optional[str] = typer.Option(None, "--grid", help="Circle grid COLUMNSxROWS of centres, e.g. 7x4."),
     spacing_mm: Optional[float] = typer.Option(None, "--spacing-mm", help="Square size / centre spacing in mm."),
     asymmetric: bool = typer.Option(False, "--asymmetric", help="Asymmetric (staggered) circle grid."),
-    diameter_mm: Optional[float] = typer.Option(None, "--diameter-mm", help="Circle diameter in mm (perspective-bias correction)."),
+    diameter_mm: Optional[float] = typer.Option(None, "--diameter-mm", help="Circle diameter in mm: the centroid bias of each circle (perspective and distortion) is computed from the calibrated camera and poses and removed, iterated with the calibration (3 rounds)."),
     control: Optional[Path] = typer.Option(None, "--control", help="Control points CSV: id,X,Y,Z[,sX,sY,sZ] (metres)."),
     measurements: Optional[Path] = typer.Option(None, "--measurements", help="Image measurements CSV: image,id,x,y[,sx,sy] (pixels)."),
     image_size: Optional[str] = typer.Option(None, "--image-size", help="WIDTHxHEIGHT in pixels (CSV route), e.g. 320x240."),
@@ -222,6 +222,7 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
     from ..pipeline import FolderProject, MemoryProject, run_steps
 
     console = Console(soft_wrap=True)
+    opt = SelfCalibrationOptions(k45=k45, affinity=affinity)
     if output.exists() and not output.is_dir():
         raise typer.BadParameter(f"-o {output}: exists and is not a folder")
     csv_route = control is not None or measurements is not None
@@ -281,6 +282,10 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
             desc = f"{'asymmetric' if asymmetric else 'symmetric'} circle grid {cols}x{rows}, {spacing_mm:g} mm spacing"
         detect = _detector(kind)
         interim = detect is None
+        # circles of known size: raw centroids, then the bias iterated with the calibration
+        # (calibration.circle_bias) instead of the per-image homography correction of the detector
+        unbias = kind == "circles" and diameter_mm is not None and not interim
+        det_kw = {"perspective_correction": False} if unbias else {}
         if interim:
             detect = _fallback_circles
         files = _expand(images)
@@ -300,18 +305,38 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
                     raise InvalidInputError(
                         f"mixed image sizes: {f} is {size[0]}x{size[1]} but {first_size[1]} is "
                         f"{first_size[0][0]}x{first_size[0][1]}; calibrate the images of one camera (one size) per run")
-                dets.append(detect(img, spec, f.name))
+                dets.append(detect(img, spec, f.name, **det_kw))
                 prog.advance(task)
+        bias_meta = None
+        if unbias and any(d.found for d in dets):
+            from ..calibration.circle_bias import unbias_circle_detections
+
+            with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                          console=console, transient=True) as prog:
+                task = prog.add_task("circle-centre bias", total=3)
+                dets, history, bias = unbias_circle_detections(
+                    dets, spec, pixel_pitch_um=pixel_pitch_um, focal_mm=focal_mm, options=opt, iterations=3,
+                    camera_name=name, progress=lambda k, n: prog.update(task, completed=k,
+                                                                       description=f"circle-centre bias, round {k + 1}/{n}"))
+            bias_meta = {"method": "centroid of each circle's outline projected through the calibrated camera (with "
+                                   "distortion) and pose, minus its projected centre; subtracted from the raw centroids "
+                                   "and re-calibrated, iterated (Heikkilä 2000); round 0 starts from the homography bias",
+                         "rounds": history,
+                         "max_bias_px": max((float(np.abs(b).max()) for b in bias.values()), default=0.0)}
         prog_desc = {"kind": kind, "description": desc, "pattern": [cols, rows], "spacing_mm": spacing_mm,
                      "asymmetric": bool(asymmetric) if kind == "circles" else None,
                      **({"marker_mm": spec.marker_mm, "hidden_squares": spec.hidden_squares} if kind == "coded" else {}),
                      "detector": "interim cv2.findCirclesGrid" if interim else f"{detect.__module__}.{detect.__name__}"}
+        if kind == "circles":
+            prog_desc["centre_bias"] = bias_meta or {"method": "none: give --diameter-mm to correct the centroid bias "
+                                                               "of large circles"}
+        prog_desc["detections"] = {d.image_id: {"found": bool(d.found), "method": d.method, "reason": d.reason}
+                                   for d in dets}
         cams, pts, ims, not_detected, meta = prepare_detections(dets, spec.object_points() * 1e-3, target=prog_desc,
                                                                 pixel_pitch_um=pixel_pitch_um, focal_mm=focal_mm,
                                                                 camera_name=name)
         obs = observations_dict(cams, pts, ims, not_detected=not_detected, meta=meta)
         n_images = len(dets)
-    opt = SelfCalibrationOptions(k45=k45, affinity=affinity)
     mem = MemoryProject()
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=console, transient=True) as prog:
@@ -336,6 +361,18 @@ def _summary(console, cal: dict, output, keys) -> None:
     from rich.table import Table
 
     n_img = len(cal["per_image"])
+    dets = cal["run"].get("target", {}).get("detections") if isinstance(cal.get("run"), dict) else None
+    if dets:
+        from collections import Counter
+
+        cnt = Counter(v["method"] for v in dets.values() if v.get("found"))
+        console.print(f"target found in {sum(cnt.values())}/{len(dets)} images"
+                      + (f" ({', '.join(f'{m}: {k}' for m, k in sorted(cnt.items(), key=lambda x: -x[1]))})" if cnt else ""),
+                      highlight=False)
+    cb = cal["run"].get("target", {}).get("centre_bias") if isinstance(cal.get("run"), dict) else None
+    if cb and cb.get("rounds"):
+        ch = ", ".join(f"{h['bias_change_px']:.4f}" for h in cb["rounds"] if h.get("bias_change_px") is not None)
+        console.print(f"circle-centre bias: max {cb['max_bias_px']:.3f} px, change per round {ch} px", highlight=False)
     console.print(f"[bold]calibration[/] {cal['termination']}: {len(cal['images_used'])}/{n_img} images used, "
                   f"RMS {cal['rms_px']:.3f} px, σ0 {cal['sigma0']:.3f}, redundancy {cal['dof']}", highlight=False)
     for wtext in cal.get("warnings", []):

@@ -78,6 +78,9 @@ def survey(
     check_measurements: Optional[Path] = typer.Option(None, "--check-measurements", help="image,id,x,y of the check points."),
     workers: int = typer.Option(2, "--workers", help="Local dask worker processes for features and matching (0 = in this process)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
+    low_texture: str = typer.Option("off", "--low-texture", help="auto: when < 80 % of the frames find a verified pair, also "
+                                    "try ORB on local-contrast-normalised frames (smooth walls, fields, water). Not safe on "
+                                    "periodic facades (identical windows can be matched to their neighbours)."),
 ) -> None:
     """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report."""
     from rich.console import Console
@@ -111,7 +114,7 @@ def survey(
         if out.exists() and not out.is_dir():
             raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
         cam = Camera.load(camera) if camera is not None else None
-        opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, workers=workers if scheduler is None else 0,
+        opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, workers=workers if scheduler is None else 0,
                             scheduler=scheduler)
         inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,
                           str(gcp_measurements) if gcp_measurements else None, str(checkpoints) if checkpoints else None,

@@ -128,7 +128,7 @@ class DemoResult:
 DEMO_SECTIONS: list[DemoSection] = []
 
 #: modules imported before a run so that their sections register themselves
-SECTION_MODULES: tuple[str, ...] = ()
+SECTION_MODULES: tuple[str, ...] = ("thermogrammetry.pipeline.demo_survey",)
 
 
 def register_section(section: DemoSection, *, replace: bool = True) -> None:
@@ -434,14 +434,14 @@ def _section_closerange(project: ProjectStore, opt: DemoOptions) -> list[DemoRow
     return [
         DemoRow(sec, "pass points: 3D error (max of 11)", float(d3.max()), float(round(4.5 * s3.max(), 2)), "mm",
                 note=f"bound 4.5 x the largest propagated 3D sigma ({s3.max():.2f} mm); RMS {np.sqrt(np.mean(d3**2)):.2f} mm "
-                     "at ~2 m with 0.5 px image noise (seed 000 quotes 1:4000 of the distance)"),
+                     "at ~2 m with 0.5 px image noise (Sawicki et al. quote 1:4000 of the distance)"),
         DemoRow(sec, "pass points: max |error| / propagated sigma (33 coordinates)", zmax, 4.5, "sigma"),
         DemoRow(sec, "thermal camera centre (no control on the thermal image): max |error| / sigma", float(np.max(np.abs(dc) / sc)), 4.0,
                 "sigma", note=f"error {np.linalg.norm(dc) * 1000:.1f} mm"),
         DemoRow(sec, "angle-corrected temperature on the hot faces vs truth (median |error|)", float(np.median(dt)),
                 float(round(3 * np.nanmedian(sig_k), 3)), "K",
                 note=f"bound 3 x the median propagated sigma (sigma_k.tif, {np.nanmedian(sig_k):.3f} K); 95th percentile "
-                     f"{np.percentile(dt, 95):.3f} K over {dt.size} px; cosine-law emissivity, seed 000 eq. 8"),
+                     f"{np.percentile(dt, 95):.3f} K over {dt.size} px; cosine-law emissivity, Sawicki et al. eq. 8"),
         DemoRow(sec, "angle-corrected temperature: 95th percentile of |error| / propagated sigma", float(np.nanpercentile(z_t, 95)),
                 3.0, "sigma", note="errors are correlated per face (one plane normal per face)"),
     ]
@@ -688,18 +688,18 @@ def _section_facade(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
                 note="includes mixed pixels at window reveals (PSF 0.5 px)"),
         DemoRow(sec, "rig: thermal-from-RGB relative pose identical at every station", float(max(
             np.abs(np.array(s_["thermal"]["R"]) @ np.array(s_["rgb"]["R"]).T - np.array(cams["rig"]["cam_thermal_from_cam_rgb"]["R"])).max()
-            for s_ in cams["stations"])), 1e-12, "", note="written cameras.json, seed 002 eq. 4-5"),
+            for s_ in cams["stations"])), 1e-12, "", note="written cameras.json, Barazzetti et al. 2013 eq. 4-5"),
     ]
 
 
 for _s in (
     DemoSection("render", "Renderer exactness", _section_render),
     DemoSection("calibration-target", "Calibration from rendered circle-grid images", _section_calibration_target),
-    DemoSection("calibration-testfield", "Calibration on a 3D test field (seed 001)", _section_calibration_testfield),
-    DemoSection("closerange", "Close-range network and angle correction (seed 000)", _section_closerange),
-    DemoSection("survey", "UAV thermal survey (seed 003 set-up)", _section_survey),
-    DemoSection("survey-bundle", "UAV survey bundle adjustment with GNSS, GCPs and check points", _section_survey_bundle),
-    DemoSection("facade", "Facade mesh, thermal + RGB rig, correction over the mesh (seed 002)", _section_facade),
+    DemoSection("calibration-testfield", "Calibration on a 3D test field (Yastikli & Guler 2013)", _section_calibration_testfield),
+    DemoSection("closerange", "Close-range network and angle correction (Sawicki, Stein & Więcek)", _section_closerange),
+    DemoSection("survey", "UAV thermal survey, set-up of Khodaei et al. (starts from true correspondences)", _section_survey),
+    DemoSection("survey-bundle", "UAV survey bundle adjustment with GNSS, GCPs and check points (starts from true tie points)", _section_survey_bundle),
+    DemoSection("facade", "Facade mesh, thermal + RGB rig, correction over the mesh (Barazzetti et al. 2013)", _section_facade),
 ):
     register_section(_s)
 

@@ -46,6 +46,12 @@ from .project import FolderProject, ProjectStore
 __all__ = ["SurveyOptions", "SurveyInput", "survey_steps", "run_survey", "VIDEO_SUFFIXES", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".tif", ".tiff", ".png", ".seq", ".csq", ".fff", ".csv", ".npy", ".bmp", ".is2"}
+#: a block whose final tie-point reprojection RMS exceeds this is rejected (reported, not exported)
+BLOCK_RMS_GATE_PX = 3.0
+
+#: below this share of images with a verified pair, the low-texture features are tried as well
+LOW_TEXTURE_SHARE = 0.8
+
 VIDEO_SUFFIXES = {".mp4", ".mkv", ".mov", ".avi", ".ts", ".m4v", ".webm"}
 SELF_CALIBRATION = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
 
@@ -82,6 +88,12 @@ class SurveyOptions:
         GNSS antenna offset in the camera frame (x right, y down, z forward), metres.
     video_overlap : float
         Target forward overlap of frames extracted from a video.
+    low_texture : "off" | "auto"
+        ``auto``: when fewer than 80 % of the images have a verified pair with the primary features
+        (``features``), ORB on local-contrast-normalised frames is tried too and kept if it connects more
+        images (low-texture facades, water, uniform fields). Off by default: on a synthetic facade with
+        identical, evenly spaced windows it connects every frame but matches windows to their neighbours,
+        giving a consistent and wrong block (periodic structure is not detected yet).
     workers : int
         0 = in-process; N = local dask cluster of N worker processes.
     scheduler : str or None
@@ -98,6 +110,7 @@ class SurveyOptions:
     gnss_sigma_m: tuple | None = None
     lever_arm_m: tuple = (0.0, 0.0, 0.0)
     video_overlap: float = 0.8
+    low_texture: str = "off"
     features: FeatureOptions = field(default_factory=FeatureOptions)
     matching: MatchOptions = field(default_factory=MatchOptions)
     reconstruction: ReconstructionOptions = field(default_factory=ReconstructionOptions)
@@ -123,6 +136,9 @@ class SurveyOptions:
                 raise ConfigError(f"{name}={v!r}: expected a number > 0")
         if not 0 <= self.video_overlap < 1:
             raise ConfigError(f"video_overlap={self.video_overlap!r}: expected a fraction in [0, 1)")
+        if str(self.low_texture).lower() not in ("auto", "off"):
+            raise ConfigError(f"low_texture={self.low_texture!r}: expected 'auto' or 'off'")
+        object.__setattr__(self, "low_texture", str(self.low_texture).lower())
 
     @classmethod
     def from_dict(cls, d: dict) -> "SurveyOptions":
@@ -332,7 +348,10 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
             else:
                 decoded = _decode(path, opt.input_unit)
         except (ThermogrammetryError, OSError, ValueError, MemoryError) as exc:
-            failed.append({"file": str(path), "reason": str(exc)})
+            reason = str(exc)
+            if "pass unit='K' or unit='C'" in reason:
+                reason = reason.replace("pass unit='K' or unit='C'", "give --input-unit K or C")
+            failed.append({"file": str(path), "reason": reason})
             if progress:
                 progress(k + 1, len(items))
             continue
@@ -380,22 +399,24 @@ def _load_npz(project: ProjectStore, key: str) -> dict:
 
 
 def feature_task(args) -> tuple[str, int]:
-    """Unit of work: features of one frame, written to ``features/<name>.npz``."""
-    project, name, fopt = args
+    """Unit of work: features of one frame, written to ``<folder>/<name>.npz`` (``features/`` by default)."""
+    project, name, fopt, *rest = args
+    folder = rest[0] if rest else "features"
     from ..sfm.features import extract_features
 
     f = extract_features(_read_frame(project, name), fopt)
-    _save_npz(project, f"features/{name}.npz", **f.to_npz_dict())
+    _save_npz(project, f"{folder}/{name}.npz", **f.to_npz_dict())
     return name, len(f)
 
 
 def match_task(args) -> tuple[int, int, int, int, str]:
-    """Unit of work: match and verify one pair, written to ``matches/<i>_<j>.npz``."""
-    project, i, j, ni, nj, cam_i, cam_j, mopt = args
+    """Unit of work: match and verify one pair, written to ``matches/<i>_<j>.npz`` (or ``<prefix>matches/``)."""
+    project, i, j, ni, nj, cam_i, cam_j, mopt, *rest = args
+    pre = rest[0] if rest else ""
     from ..sfm.matching import match_descriptors, verify_pair
 
-    fi = _load_npz(project, f"features/{ni}.npz")
-    fj = _load_npz(project, f"features/{nj}.npz")
+    fi = _load_npz(project, f"{pre}features/{ni}.npz")
+    fj = _load_npz(project, f"{pre}features/{nj}.npz")
     m = match_descriptors(fi["descriptors"], fj["descriptors"], ratio=mopt.ratio)
     if cam_i is not None and cam_j is not None and len(m) >= mopt.min_inliers:
         ri = cam_i.unproject(fi["xy"][m[:, 0]])[:, :2]
@@ -408,7 +429,7 @@ def match_task(args) -> tuple[int, int, int, int, str]:
     else:
         inl, model, reason = verify_pair(fi["xy"], fj["xy"], m, options=mopt)
     if not reason:
-        _save_npz(project, f"matches/{i}_{j}.npz", idx=inl)
+        _save_npz(project, f"{pre}matches/{i}_{j}.npz", idx=inl)
     return i, j, len(m), len(inl), reason
 
 
@@ -564,11 +585,38 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
     names = [im["name"] for im in inputs["images"]]
     pairs = select_pairs(len(names), xyz, options=opt.matching)
     store = project if not isinstance(project, FolderProject) else FolderProject(project.root)
-    tasks = [(store, i, j, names[i], names[j], cams[cam_ids[i]], cams[cam_ids[j]], opt.matching) for i, j in pairs]
-    res = _run_tasks(match_task, tasks, opt, progress, "matching")
+
+    def match(pre):
+        tasks = [(store, i, j, names[i], names[j], cams[cam_ids[i]], cams[cam_ids[j]], opt.matching, pre) for i, j in pairs]
+        return _run_tasks(match_task, tasks, opt, progress, "matching")
+
+    def connected(res):
+        return len({k for i, j, npu, nv, reason in res if not reason for k in (i, j)})
+
+    res = match("")
+    n = len(names)
+    info = {"features": f"{opt.features.detector.value}/{opt.features.enhancement.value}", "connected": connected(res)}
+    if opt.low_texture == "auto" and n >= 2 and connected(res) < LOW_TEXTURE_SHARE * n:
+        # low-texture frames (facades, water, fields): ORB on local-contrast-normalised frames
+        lt = replace(opt.features, detector="orb", enhancement="local")
+        _run_tasks(feature_task, [(store, nm, lt, "lowtexture/features") for nm in names], opt, None, "features")
+        res_lt = match("lowtexture/")
+        info["low_texture"] = {"features": "orb/local", "connected": connected(res_lt)}
+        if connected(res_lt) > connected(res):
+            for nm in names:
+                project.write_bytes(f"features/{nm}.npz", project.read_bytes(f"lowtexture/features/{nm}.npz"))
+            for i, j, npu, nv, reason in res_lt:
+                if not reason:
+                    project.write_bytes(f"matches/{i}_{j}.npz", project.read_bytes(f"lowtexture/matches/{i}_{j}.npz"))
+            counts = project.read_json("work/features.json")
+            for nm in names:
+                counts[nm] = int(len(_load_npz(project, f"features/{nm}.npz")["xy"]))
+            project.write_json("work/features.json", counts)
+            res = res_lt
+            info["used"] = "low-texture fallback (ORB on local-contrast-normalised frames)"
     kept = [(i, j, nv) for i, j, npu, nv, reason in res if not reason]
-    project.write_json("work/pairs.json", {"pairs": [[i, j, npu, nv, reason] for i, j, npu, nv, reason in res]})
-    return {"pairs_tried": len(pairs), "pairs_verified": len(kept),
+    project.write_json("work/pairs.json", {"pairs": [[i, j, npu, nv, reason] for i, j, npu, nv, reason in res], "features": info})
+    return {"pairs_tried": len(pairs), "pairs_verified": len(kept), "images_connected": connected(res), "features": info,
             "median_verified_matches": float(np.median([k[2] for k in kept])) if kept else 0.0}
 
 
@@ -698,6 +746,18 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                               max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
                               compute_covariance=len(images) <= 2500)
         notes += [f"block {ci + 1}: {x}" for x in fa.notes]
+        v = fa.tie_residuals
+        rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
+        if not rms <= BLOCK_RMS_GATE_PX:
+            # a block whose tie points do not fit is not an orientation: it is reported, never exported
+            why = (f"in block {ci + 1} ({len(images)} images) rejected: reprojection RMS {rms:.2f} px after the final "
+                   f"adjustment (> {BLOCK_RMS_GATE_PX:g} px; inconsistent tie points, e.g. repeated structure or too "
+                   "little texture)")
+            for i in images:
+                rec.status[i].reason = why
+            notes.append(f"block {ci + 1}: {why.split(' rejected: ')[1]}")
+            results.append({"block": ci + 1, "images": len(images), "datum": how, "rejected": why})
+            continue
         oriented[images] = True
         fa_all.append((ci, images, fa, how, geo))
         results.append({"block": ci + 1, "images": len(images), "datum": how, "sigma0": float(fa.result.sigma0),

@@ -59,8 +59,9 @@ def write_survey_report(project) -> None:
                      "not temperatures (K) — the cloud carries counts or nothing.</p>")
     if s.get("blocks"):
         parts.append("<table><tr><th>block</th><th>images</th><th>datum</th><th>σ0</th><th>termination</th></tr>" + "".join(
-            f"<tr><td>{b['block']}</td><td>{b['images']}</td><td class=l>{html.escape(b['datum'])}</td><td>{_f(b['sigma0'], '{:.3f}')}</td>"
-            f"<td class=l>{html.escape(b['termination'])}</td></tr>" for b in s["blocks"]) + "</table>")
+            f"<tr><td>{b['block']}</td><td>{b['images']}</td><td class=l>{html.escape(str(b['datum']))}</td>"
+            f"<td>{_f(b.get('sigma0'), '{:.3f}')}</td>"
+            f"<td class=l>{html.escape(b.get('termination') or b.get('rejected', ''))}</td></tr>" for b in s["blocks"]) + "</table>")
     bad = [im for im in s["images"] if not im["oriented"]]
     if bad:
         parts.append("<h2>Images not oriented</h2><table><tr><th>image</th><th>reason</th></tr>" + "".join(

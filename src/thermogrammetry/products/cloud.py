@@ -11,10 +11,11 @@ as a WKT VLR. PLY is binary little-endian with double coordinates (read by plyfi
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from .._atomic import make_temp
 
 __all__ = ["value_dimension", "CloudWriter"]
 
@@ -52,10 +53,12 @@ class CloudWriter:
             hdr.add_crs(pyproj.CRS.from_user_input(crs))
         self.header = hdr
         self.las_path.parent.mkdir(parents=True, exist_ok=True)
-        fd, self._las_tmp = tempfile.mkstemp(prefix=f".{self.las_path.name}.", suffix=".tmp", dir=self.las_path.parent)
+        fd, self._las_tmp = make_temp(self.las_path)
+        self._las_tmp = str(self._las_tmp)
         os.close(fd)
         self._las = laspy.open(self._las_tmp, mode="w", header=hdr)
-        fd, self._ply_tmp = tempfile.mkstemp(prefix=f".{self.ply_path.name}.", suffix=".tmp", dir=self.ply_path.parent)
+        fd, self._ply_tmp = make_temp(self.ply_path)
+        self._ply_tmp = str(self._ply_tmp)
         self._ply = os.fdopen(fd, "wb")
         props = [("double", "x"), ("double", "y"), ("double", "z")]
         if self.dim:

@@ -10,12 +10,13 @@ by the tile size.
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
+
+from .._atomic import make_temp
 
 from ..errors import DataFileError
 
@@ -110,7 +111,8 @@ def write_cogs(grid: Grid, specs: dict, tile_fn: Callable[[int, int, int, int], 
         for key, sp in specs.items():
             sp.path = Path(sp.path)
             sp.path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{sp.path.name}.", suffix=".tmp.tif", dir=sp.path.parent)
+            fd, tmp = make_temp(sp.path, suffix=".tmp.tif")
+            tmp = str(tmp)
             os.close(fd)
             tmps[key] = tmp
             dsts[key] = rasterio.open(tmp, "w", driver="GTiff", width=grid.width, height=grid.height, count=sp.bands,
@@ -139,7 +141,8 @@ def write_cogs(grid: Grid, specs: dict, tile_fn: Callable[[int, int, int, int], 
                 dst.update_tags(**{k: str(v) for k, v in sp.tags.items()})
             dst.close()
         for key, sp in specs.items():
-            fd, tmp2 = tempfile.mkstemp(prefix=f".{sp.path.name}.", suffix=".cog.tif", dir=sp.path.parent)
+            fd, tmp2 = make_temp(sp.path, suffix=".cog.tif")
+            tmp2 = str(tmp2)
             os.close(fd)
             try:
                 rasterio.shutil.copy(tmps[key], tmp2, driver="COG", COMPRESS="DEFLATE", OVERVIEWS="AUTO",

@@ -42,6 +42,7 @@ class Enhancement(StrChoice):
     STRETCH = "stretch"  # percentile stretch only
     CLAHE = "clahe"  # percentile stretch, then CLAHE
     HIGHPASS = "highpass"  # subtract a large blur (flat-field), then percentile stretch
+    LOCAL = "local"  # local contrast normalisation: (a - blur) / local std, with a noise floor (low-texture frames)
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,14 @@ class FeatureOptions:
         CLAHE clip limit; tiles of ``clahe_tile_px``.
     contrast_threshold : float
         SIFT contrast threshold (OpenCV default 0.04; lower finds more features on flat thermal frames).
+    highpass_sigma_px : float
+        Blur removed by ``highpass``.
+    local_sigma_px, local_noise_factor : float
+        ``local``: ``n = (a − G(a)) / sqrt(G((a − G(a))²) + (k·σ_noise)²)`` with Gaussian ``G`` of σ
+        ``local_sigma_px`` and σ_noise estimated from the Laplacian (MAD); mapped as 128 + 40·n. Flat walls
+        and smooth heat patterns of a facade become texture; where the local std is below ``k·σ_noise`` (sky,
+        fixed-pattern noise, which would match at the same pixel in every frame) the input is flat, rising
+        to full contrast at ``2k·σ_noise``.
     """
 
     detector: Detector = Detector.SIFT
@@ -71,6 +80,8 @@ class FeatureOptions:
     clahe_tile_px: int = 64
     contrast_threshold: float = 0.01
     highpass_sigma_px: float = 25.0
+    local_sigma_px: float = 8.0
+    local_noise_factor: float = 2.0
 
     def __post_init__(self):
         object.__setattr__(self, "detector", Detector(self.detector))
@@ -150,6 +161,20 @@ def detector_input(image, options: FeatureOptions | None = None) -> tuple[np.nda
     a = np.where(valid, a, fill).astype(np.float32)
     if opt.enhancement is Enhancement.HIGHPASS:
         a = a - cv2.GaussianBlur(a, (0, 0), opt.highpass_sigma_px)
+    if opt.enhancement is Enhancement.LOCAL:
+        d = a - cv2.GaussianBlur(a, (0, 0), opt.local_sigma_px)
+        lap = cv2.Laplacian(a, cv2.CV_32F)[valid]
+        noise = 1.4826 * float(np.median(np.abs(lap - np.median(lap)))) / np.sqrt(20.0)  # Laplacian gain on white noise
+        sd2 = cv2.GaussianBlur(d * d, (0, 0), opt.local_sigma_px)
+        n = d / np.sqrt(sd2 + (opt.local_noise_factor * noise) ** 2 + 1e-12)
+        # where the local signal is noise alone (sky, fixed-pattern noise that moves with the camera and
+        # would match at the same pixel in every frame), the input is made flat
+        k = opt.local_noise_factor
+        n *= np.clip((np.sqrt(sd2) / max(noise, 1e-12) - k) / k, 0.0, 1.0)
+        img8 = np.clip(128.0 + 40.0 * n, 0, 255).astype(np.uint8)
+        if not valid.all():
+            valid = cv2.erode(valid.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+        return img8, valid
     lo, hi = np.percentile(a[valid], [opt.low_percentile, opt.high_percentile])
     if not hi > lo:
         hi = lo + 1.0

@@ -296,8 +296,21 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
             pi = p.view_pose[v]
             cstd[i] = res.pose_std[pi, 3:]
             rstd[i] = np.degrees(res.pose_std[pi, :3])
-    return FinalAdjustment(res, images, view, res.image_residuals[:n_tie] if res.image_residuals is not None else np.zeros((0, 2)),
-                           np.concatenate(tie_rows) if tie_rows else np.zeros(0, int), gcp_res, used, rejected,
+    tie_obs_image = np.concatenate(tie_rows) if tie_rows else np.zeros(0, int)
+    if res.image_residuals is not None:
+        tie_v = res.image_residuals[:n_tie]
+    else:  # the solve stopped without residuals: they are recomputed from the last state, not dropped
+        tie_v = np.full((n_tie, 2), np.nan)
+        k0 = 0
+        for i in images:
+            o = order[tr.image[order] == i]
+            if len(o) == 0:
+                continue
+            Xc = rec.points[tr.track[o]] @ rec.R[i].T + rec.t[i]
+            with np.errstate(all="ignore"):
+                tie_v[k0:k0 + len(o)] = rec.cameras[rec.image_camera[i]].project(Xc) - xy_by_image[i][tr.feature[o]]
+            k0 += len(o)
+    return FinalAdjustment(res, images, view, tie_v, tie_obs_image, gcp_res, used, rejected,
                            res.gnss_residuals if res.gnss_residuals is not None else np.zeros((0, 3)),
                            res.covariance, list(res.param_names or []), cstd, rstd, notes)
 
