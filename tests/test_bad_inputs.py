@@ -447,3 +447,18 @@ def _(t):
     refs = write(t / "refs.csv", "image,x,y,temperature_c\na.fff,0,0,40\na.fff,7,5,20\n")
     return ["convert", str(fff), "--references", str(refs), "-o", str(t / "OUT")], \
         ["refs.csv", "falling with raw counts", "line 2"], t / "OUT"
+
+
+@_c("correct: oriented cameras.json with a ragged rotation (found by fuzzing)")
+def _(t):
+    from thermogrammetry.camera import Camera
+    from thermogrammetry.io.oriented import OrientedCameras, OrientedImage
+
+    cam = Camera("pinhole", (40, 30), {"fx": 40.0, "fy": 40.0, "cx": 19.5, "cy": 14.5})
+    d = OrientedCameras({"c": cam}, [OrientedImage("thermal", "c", np.eye(3), np.zeros(3))]).to_dict()
+    d["images"][0]["cam_from_world"]["R"] = [[1, 0, 0], [0, [1], 0], [0, 0, 1]]
+    d["images"][0].pop("center")
+    c = write(t / "cameras.json", json.dumps(d))
+    f = correct_inputs(t)
+    return ["correct", "--thermal-image", str(f["thermal"]), "--cameras", str(c), "--thermal", "thermal",
+            "--plane", "0,0,1,-5", "-o", str(t / "OUT")], ["cameras.json", "cam_from_world.R", "expected a list of 9 numbers"], t / "OUT"

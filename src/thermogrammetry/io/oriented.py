@@ -122,7 +122,10 @@ class OrientedImage:
 def _num_list(v, n, where, allow_none=False):
     if v is None and allow_none:
         return None
-    a = np.asarray(v, dtype=float) if isinstance(v, (list, tuple)) else None
+    try:
+        a = np.asarray(v, dtype=float) if isinstance(v, (list, tuple)) else None
+    except (TypeError, ValueError):  # ragged lists, strings, objects (found by fuzzing)
+        a = None
     if a is None or a.size != n:
         raise ConfigError(f"{where}: expected a list of {n} numbers, got {v!r}")
     if allow_none and not np.all(np.isfinite(a)):
