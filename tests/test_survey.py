@@ -189,3 +189,17 @@ def test_float_tiff_without_unit_names_the_flag(tmp_path, capsys):
     err = " ".join(capsys.readouterr().err.split())
     assert "f0.tif" in err and "give --input-unit K or C" in err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("args, msg", [
+    (["--lever-arm", "0.1,0.2"], "--lever-arm '0.1,0.2': expected 3 finite numbers"),
+    (["--lever-arm", "a,b,c"], "expected comma-separated numbers"),
+    (["--gnss-sigma", "0.02,-1"], "standard deviations must be > 0"),
+    (["--rig", "rig.json"], "rig mode is not implemented yet"),
+])
+def test_bad_flags_exit_2_with_the_value(tmp_path, capsys, args, msg):
+    from thermogrammetry.cli.main import main
+
+    assert main(["survey", str(tmp_path), "-o", str(tmp_path / "out")] + args) == 2
+    assert msg in " ".join(capsys.readouterr().err.split())
+    assert not (tmp_path / "out").exists()

@@ -78,6 +78,10 @@ def survey(
     check_measurements: Optional[Path] = typer.Option(None, "--check-measurements", help="image,id,x,y of the check points."),
     workers: int = typer.Option(2, "--workers", help="Local dask worker processes for features and matching (0 = in this process)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
+    lever_arm: Optional[str] = typer.Option(None, "--lever-arm", help="GNSS antenna offset X,Y,Z in metres in the camera "
+                                            "frame (x right, y down, z forward); default 0,0,0."),
+    gnss_sigma: Optional[str] = typer.Option(None, "--gnss-sigma", help="σ of every GNSS position, H,V or X,Y,Z in metres "
+                                             "(overrides the RTK status / CSV columns)."),
     low_texture: str = typer.Option("off", "--low-texture", help="auto: when < 80 % of the frames find a verified pair, also "
                                     "try ORB on local-contrast-normalised frames (smooth walls, fields, water). Not safe on "
                                     "periodic facades (identical windows can be matched to their neighbours)."),
@@ -114,7 +118,23 @@ def survey(
         if out.exists() and not out.is_dir():
             raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
         cam = Camera.load(camera) if camera is not None else None
-        opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, workers=workers if scheduler is None else 0,
+        extra = {}
+        for flag, val, sizes in (("--lever-arm", lever_arm, (3,)), ("--gnss-sigma", gnss_sigma, (2, 3))):
+            if val is None:
+                continue
+            try:
+                v = [float(x) for x in val.split(",")]
+            except ValueError:
+                raise ThermogrammetryError(f"{flag} {val!r}: expected comma-separated numbers in metres") from None
+            if len(v) not in sizes or not all(abs(x) < 1e3 and x == x for x in v):
+                raise ThermogrammetryError(f"{flag} {val!r}: expected {' or '.join(str(k) for k in sizes)} finite numbers in metres")
+            if flag == "--lever-arm":
+                extra["lever_arm_m"] = tuple(v)
+            else:
+                if min(v) <= 0:
+                    raise ThermogrammetryError(f"{flag} {val!r}: standard deviations must be > 0")
+                extra["gnss_sigma_m"] = tuple(v if len(v) == 3 else (v[0], v[0], v[1]))
+        opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, **extra, workers=workers if scheduler is None else 0,
                             scheduler=scheduler)
         inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,
                           str(gcp_measurements) if gcp_measurements else None, str(checkpoints) if checkpoints else None,
