@@ -51,7 +51,7 @@ def test_pipeline_outputs_in_memory(case):
     assert "nominal" in oc.image("opt1").notes and "nominal" not in th_im.notes
     for name in oc.names():
         r = rep["cameras"][name]
-        np.testing.assert_allclose(oc.image(name).center, r["center_m"], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(oc.image(name).center, r["center_m"], rtol=0, atol=5e-14)  # measured 8.9e-16 m
         np.testing.assert_allclose(oc.image(name).center_std, [r["exterior_std"][k] for k in ("X0", "Y0", "Z0")],
                                    rtol=0, atol=0)
         # the camera + pose reproduce the DLT (P / P[2, 3] from dlt_L_world) on the pass points
@@ -60,7 +60,7 @@ def test_pipeline_outputs_in_memory(case):
         xh = np.hstack([X, np.ones((len(X), 1))]) @ L.T
         xy_dlt = xh[:, :2] / xh[:, 2:]
         xy_cam = oc.camera_of(name).project(oc.image(name).pose.transform(X))
-        assert np.abs(xy_cam - xy_dlt).max() < 1e-6, name
+        assert np.abs(xy_cam - xy_dlt).max() < 1e-10, name  # measured 1.1e-12 px (worst camera)
     cams = rep["cameras"]
     assert set(cams) == {"opt1", "opt2", "thermal"}
     C = s.camera("thermal").pose.center
