@@ -37,7 +37,31 @@ def test_pipeline_outputs_in_memory(case):
     for pid, r in passp.items():  # within 4.5 sigma per coordinate (33 coordinates)
         for k, ax in enumerate("XYZ"):
             assert abs(float(r[ax]) - s.passpoints[pid][k]) < 4.5 * float(r["s" + ax])
-    cams = p.read_json("cameras.json")["cameras"]
+    # cameras.json: the one oriented-cameras schema, consistent with the orientation report
+    from thermogrammetry.io.oriented import OrientedCameras
+
+    oc = OrientedCameras.from_dict(p.read_json("cameras.json"))
+    rep = p.read_json("orientation.json")
+    assert rep["format"] == "thermogrammetry.closerange.orientation/1" and rep["thermal"] == "thermal"
+    assert sorted(oc.names()) == ["opt1", "opt2", "thermal"] and oc.crs is None
+    th_im = oc.image("thermal")
+    assert th_im.sensor.value == "thermal" and oc.image("opt1").sensor.value == "rgb"
+    # the thermal camera gets the thermal image's size; optical ones a nominal one, said in the notes
+    assert oc.camera_of("thermal").image_size == img["temperature_k"].shape[::-1]
+    assert "nominal" in oc.image("opt1").notes and "nominal" not in th_im.notes
+    for name in oc.names():
+        r = rep["cameras"][name]
+        np.testing.assert_allclose(oc.image(name).center, r["center_m"], rtol=0, atol=5e-14)  # measured 8.9e-16 m
+        np.testing.assert_allclose(oc.image(name).center_std, [r["exterior_std"][k] for k in ("X0", "Y0", "Z0")],
+                                   rtol=0, atol=0)
+        # the camera + pose reproduce the DLT (P / P[2, 3] from dlt_L_world) on the pass points
+        X = np.array([s.passpoints[k] for k in sorted(s.passpoints)])
+        L = np.append(r["dlt_L_world"], 1.0).reshape(3, 4)
+        xh = np.hstack([X, np.ones((len(X), 1))]) @ L.T
+        xy_dlt = xh[:, :2] / xh[:, 2:]
+        xy_cam = oc.camera_of(name).project(oc.image(name).pose.transform(X))
+        assert np.abs(xy_cam - xy_dlt).max() < 1e-10, name  # measured 1.1e-12 px (worst camera)
+    cams = rep["cameras"]
     assert set(cams) == {"opt1", "opt2", "thermal"}
     C = s.camera("thermal").pose.center
     th = cams["thermal"]
@@ -88,7 +112,7 @@ def test_cli_closerange_and_correct(case, tmp_path):
                str(tmp_path / "thermal.tif"), "--planes", str(tmp_path / "planes.csv"), "--ambient-c", "22",
                "-o", str(out)])
     assert rc == 0
-    for f in ("points.csv", "cameras.json", "planes.csv", "corrected.tif", "report.html"):
+    for f in ("points.csv", "cameras.json", "orientation.json", "planes.csv", "corrected.tif", "report.html"):
         assert (out / f).is_file()
     from thermogrammetry.io import read_thermal
 
@@ -112,7 +136,18 @@ def test_cli_closerange_and_correct(case, tmp_path):
     v = tifffile.imread(out / "valid.tif").astype(bool) & tifffile.imread(tmp_path / "OUT3" / "valid.tif").astype(bool)
     assert v.sum() > 0.95 * tifffile.imread(out / "valid.tif").sum()
     assert np.abs(c3[v] - corr[v]).max() < 1e-3  # float32 files; same geometry through cameras.json
-    assert json.loads((out / "cameras.json").read_text())["thermal"] == "thermal"
+    assert json.loads((out / "orientation.json").read_text())["thermal"] == "thermal"
+    assert json.loads((out / "cameras.json").read_text())["format"] == "thermogrammetry/cameras"
+    # a cameras.json in closerange's former format is still read by correct: same result
+    old = json.loads((out / "orientation.json").read_text())
+    old["format"] = "thermogrammetry.closerange.cameras/1"
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    rc = main(["correct", "--thermal-image", str(tmp_path / "thermal.tif"), "--cameras", str(tmp_path / "old.json"),
+               "--thermal", "thermal", "--planes", str(out / "planes.csv"), "--points", str(out / "points.csv"),
+               "--ambient-c", "22", "-o", str(tmp_path / "OUT4")])
+    assert rc == 0
+    c4 = read_thermal(tmp_path / "OUT4" / "corrected.tif").temperature_k
+    assert np.array_equal(np.isnan(c4), np.isnan(c3)) and np.nanmax(np.abs(c4 - c3)) < 1e-3
 
 
 def test_cli_bad_input_exit_code(case, tmp_path, capsys):
@@ -151,7 +186,13 @@ def test_cli_bundle_with_known_thermal_camera(case, tmp_path):
     for pid in s.control:
         sx = [float(pts[pid][k]) for k in ("sX", "sY", "sZ")]
         assert all(0 < v <= 0.001 + 1e-9 for v in sx), (pid, sx)
-    cams = json.loads((out / "cameras.json").read_text())["cameras"]
+    from thermogrammetry.camera import Camera
+    from thermogrammetry.io.oriented import OrientedCameras
+
+    oc = OrientedCameras.load(out)
+    assert oc.camera_of("thermal").to_dict() == Camera.load(tmp_path / "t.json").to_dict()  # calibrated model kept
+    assert "additional parameters" in oc.image("opt1").notes
+    cams = json.loads((out / "orientation.json").read_text())["cameras"]
     assert cams["thermal"]["method"].startswith("resection (known interior orientation)")
     assert cams["thermal"]["method"].endswith("joint adjustment")
     assert cams["thermal"]["interior"]["fx_px"] == pytest.approx(K[0, 0], rel=1e-9)

@@ -44,7 +44,7 @@ import scipy.sparse as sp
 import scipy.stats
 
 from ..enums import StrChoice
-from ..errors import ConfigError
+from ..errors import ConfigError, InvalidInputError
 from ..results import Termination
 from ._so3 import rotation_matrices, skew
 from .problem import BundleProblem, Gauge
@@ -702,10 +702,18 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
             if dn <= opt.parameter_tolerance * (xn + opt.parameter_tolerance):
                 return st, cost0, cost, it, Termination.CONVERGED, f"parameter tolerance reached (|dx| = {dn:.3g})"
             st_new = st.plus(lay, dc, dp)
-            r_new = _evaluate(pb, lay, st_new, data, False)
-            _, cost_new = _robust(r_new, data.K, opt)
-            rho = (cost - cost_new) / model if model > 0 else -1.0
-            ok = bool(np.isfinite(cost_new)) and rho > 1e-3
+            try:
+                r_new = _evaluate(pb, lay, st_new, data, False)
+            except InvalidInputError:
+                # the step left the camera model's domain (e.g. a focal length <= 0): rejected like a step
+                # that increases the cost, so the trust region shrinks
+                r_new = None
+            if r_new is None:
+                cost_new, rho, ok = float("inf"), -1.0, False
+            else:
+                _, cost_new = _robust(r_new, data.K, opt)
+                rho = (cost - cost_new) / model if model > 0 else -1.0
+                ok = bool(np.isfinite(cost_new)) and rho > 1e-3
         if ok:
             change = cost - cost_new
             st, cost = st_new, cost_new

@@ -136,5 +136,5 @@ def closerange(
         c = dict(zip(head, ln.split(",")))
         t.add_row(c["name"], c["angle_deg"], c["sigma_angle_deg"], c["distance_m"])
     console.print(t)
-    console.print(f"outputs in {out}: points.csv cameras.json planes.csv"
+    console.print(f"outputs in {out}: points.csv cameras.json orientation.json planes.csv"
                   + (" corrected.tif" if thermal_image is not None else "") + " report.html")

@@ -135,7 +135,8 @@ def _points_csv(text: str, source: str) -> dict:
 
 def _orientation_from_cameras(path: Path, name: str):
     """(camera, R, t) of image ``name`` from a cameras.json: the oriented-cameras schema
-    (:class:`thermogrammetry.io.oriented.OrientedCameras`) or closerange's report format."""
+    (:class:`thermogrammetry.io.oriented.OrientedCameras`, written by survey and closerange) or the format
+    closerange wrote before (``thermogrammetry.closerange.cameras/1``, now its ``orientation.json``)."""
     from ..errors import ConfigError, UnsupportedFormatError
     from ..io.oriented import CAMERAS_FORMAT, OrientedCameras
 
@@ -173,14 +174,14 @@ def _orientation_from_cameras(path: Path, name: str):
         return K, R, -R @ C
     raise UnsupportedFormatError(
         f"{path}: not an oriented-cameras file: key 'format' is {fmt!r}; expected {CAMERAS_FORMAT!r} (written by "
-        "survey, see thermogrammetry.io.oriented) or closerange's cameras.json")
+        "survey and closerange, see thermogrammetry.io.oriented) or closerange's former 'thermogrammetry.closerange.cameras/1'")
 
 
 @app.command("correct")
 def correct(
     thermal_image: Path = typer.Option(..., "--thermal-image", help="Thermal image (any format thermogrammetry reads)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder."),
-    cameras: Optional[Path] = typer.Option(None, "--cameras", help="cameras.json: oriented cameras (thermogrammetry/cameras v1, from survey) or closerange's; with --thermal."),
+    cameras: Optional[Path] = typer.Option(None, "--cameras", help="cameras.json: oriented cameras (thermogrammetry/cameras v1, written by survey and closerange; closerange's former format is also read); with --thermal."),
     thermal: Optional[str] = typer.Option(None, "--thermal", help="Image/camera name in --cameras."),
     camera: Optional[Path] = typer.Option(None, "--camera", help="camera.json (interior orientation, from `calibrate`)."),
     pose: Optional[Path] = typer.Option(None, "--pose", help="pose.json: R,t (cam_from_world) or omega/phi/kappa_deg + X0,Y0,Z0."),

@@ -7,10 +7,31 @@ Inputs (keys written by the caller, e.g. the CLI, before :func:`closerange_steps
   "cameras": {IMAGE_NAME: "inputs/cameras/IMAGE_NAME.json"}, "thermal_unit": "K" | "C"}``;
 - ``inputs/thermal_k.npy`` (optional): the thermal image's temperatures in kelvin.
 
-Outputs: ``points.csv`` (``id,X,Y,Z,sX,sY,sZ``), ``cameras.json``, ``planes.csv``,
-``corrected.tif`` (float32 in ``thermal_unit``), ``angle_deg.tif``, ``distance_m.tif``, ``sigma_k.tif``,
-``valid.tif`` and ``report.html``. Every step re-solves the (cheap, deterministic) network from the
-inputs, so steps share nothing in memory.
+Outputs: ``points.csv`` (``id,X,Y,Z,sX,sY,sZ``), ``cameras.json``, ``orientation.json``,
+``planes.csv``, ``corrected.tif`` (float32 in ``thermal_unit``), ``angle_deg.tif``, ``distance_m.tif``,
+``sigma_k.tif``, ``valid.tif`` and ``report.html``. Every step re-solves the (cheap, deterministic)
+network from the inputs, so steps share nothing in memory.
+
+``cameras.json`` is the project's one oriented-cameras schema
+(:class:`thermogrammetry.io.oriented.OrientedCameras`, ``thermogrammetry/cameras`` version 1), read by
+``correct --cameras``, ``dense``, ``ortho`` and ``texture``: one entry per image (``camera_id`` = image
+name), ``crs`` null (the local frame of the control points), ``sensor`` ``thermal`` for the thermal
+image and ``rgb`` (visible-light) for the optical ones, no decoded ``frame``. A camera with a known
+interior orientation (``--camera``) keeps its calibrated model; a camera oriented by DLT becomes an
+``opencv`` camera without distortion whose ``fx fy cx cy skew`` are the decomposition of its 3×4 matrix
+(exact: the DLT is that camera). closerange does not know the pixel size of the images of DLT cameras:
+the thermal camera gets the thermal image's size when one is given; otherwise ``image_size`` is a
+nominal size covering the measured points and the principal point (said in the image's ``notes``).
+``center_std`` is the propagated σ of the projection centre; ``rotation_std_deg`` is null (the σ of
+ω φ κ are in ``orientation.json``).
+
+``orientation.json`` (``"format": "thermogrammetry.closerange.orientation/1"``) keeps what the schema
+has no place for: per camera the method, points used, σ0, interior/exterior orientation with σ
+(ω φ κ in degrees, Kraus's convention), the 11 DLT coefficients ``dlt_L_world`` of ``P / P[2, 3]`` in
+the world frame, the additional parameters of the joint adjustment, and the thermal centre's
+covariance and the warnings. (Before this file existed closerange wrote that report as
+``cameras.json`` with ``"format": "thermogrammetry.closerange.cameras/1"``; ``correct`` still reads
+such files.)
 """
 
 from __future__ import annotations
@@ -18,6 +39,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import json
 from typing import Any
 
 import numpy as np
@@ -30,7 +52,10 @@ from .solve import NetworkResult, Observations, solve_network
 from .tables import parse_control, parse_measurements, parse_planes
 from .workflow import CloseRangeConfig, correct_thermal_image, estimate_planes
 
-__all__ = ["closerange_steps", "load_inputs", "camera_report", "write_inputs"]
+__all__ = ["closerange_steps", "load_inputs", "camera_report", "oriented_cameras", "write_inputs",
+           "ORIENTATION_FORMAT"]
+
+ORIENTATION_FORMAT = "thermogrammetry.closerange.orientation/1"
 
 _SETTINGS_KEYS = {"thermal", "config", "cameras", "thermal_unit"}
 
@@ -152,6 +177,69 @@ def camera_report(net: NetworkResult, name: str) -> dict[str, Any]:
     }
 
 
+def _nominal_size(xy: np.ndarray, cx: float, cy: float) -> tuple[int, int]:
+    """Smallest (w, h) holding the measured points and centring the principal point (pixels)."""
+    hi = np.max(np.asarray(xy, float), axis=0) if len(xy) else np.zeros(2)
+    w = int(np.ceil(max(hi[0] + 0.5, 2.0 * cx + 1.0, 1.0)))
+    h = int(np.ceil(max(hi[1] + 0.5, 2.0 * cy + 1.0, 1.0)))
+    return w, h
+
+
+def oriented_cameras(net: NetworkResult, reports: dict[str, dict], inp: dict, *, thermal_size=None):
+    """The network's cameras in the oriented-cameras schema (see the module docstring).
+
+    Parameters
+    ----------
+    net : the solved network
+    reports : ``{name: camera_report(net, name)}``
+    inp : :func:`load_inputs` of the project (rows give the measured pixels, for nominal sizes)
+    thermal_size : (w, h) of the thermal image, or None
+
+    Returns
+    -------
+    thermogrammetry.io.oriented.OrientedCameras
+
+    References
+    ----------
+    Sawicki, Stein & Więcek (1998) for the DLT cameras; docs/conventions.md for the pose convention.
+    """
+    from ..camera import Camera
+    from ..io.oriented import OrientedCameras, OrientedImage
+
+    xy_of: dict[str, list] = {}
+    for r in inp["rows"]:
+        xy_of.setdefault(r[0], []).append((float(r[2]), float(r[3])))
+    cameras, images = {}, []
+    for name, rep in reports.items():
+        R = np.asarray(rep["R_cam_from_world"], float)
+        C = np.asarray(rep["center_m"], float)
+        notes = [f"closerange: {rep['method']}"]
+        known = net.known.get(name)
+        if isinstance(known, Camera):
+            cam = known
+        else:
+            i = rep["interior"]
+            size = thermal_size if (name == net.thermal and thermal_size is not None) else None
+            if size is None:
+                size = _nominal_size(np.array(xy_of.get(name, []), float).reshape(-1, 2), i["cx_px"], i["cy_px"])
+                notes.append("image_size is nominal (closerange does not know the image's pixel size)")
+            cam = Camera("opencv", size, dict(fx=i["fx_px"], fy=i["fy_px"], cx=i["cx_px"], cy=i["cy_px"],
+                                              skew=i["skew_px"]), name=name)
+            notes.append("camera from the DLT decomposition (no distortion); DLT coefficients in orientation.json")
+        if rep.get("additional_parameters"):
+            notes.append("additional parameters of the joint adjustment (orientation.json) are not part of this camera")
+        s = rep["exterior_std"]
+        images.append(OrientedImage(
+            name, name, R, -R @ C, center_std=np.array([s["X0"], s["Y0"], s["Z0"]], float),
+            unit="K" if name == net.thermal else "dn", sensor="thermal" if name == net.thermal else "rgb",
+            notes="; ".join(notes)))
+        cameras[name] = cam
+    return OrientedCameras(cameras, images, crs=None,
+                           notes="written by thermogrammetry closerange (Sawicki, Stein & Więcek 1998); local frame "
+                                 "of the control points; full orientation report with σ and DLT coefficients in "
+                                 "orientation.json")
+
+
 # -- steps ---------------------------------------------------------------------------------------------
 
 def _step_orient(project: ProjectStore) -> dict:
@@ -167,8 +255,14 @@ def _step_orient(project: ProjectStore) -> dict:
     project.write_text("points.csv", "\n".join(lines) + "\n")
     cams = {name: camera_report(net, name) for name in net.cameras}
     C, Cc = net.thermal_center()
-    project.write_json("cameras.json", {
-        "format": "thermogrammetry.closerange.cameras/1",
+    size = None
+    if project.exists("inputs/thermal_k.npy"):
+        h, w = project.read_array("inputs/thermal_k.npy").shape[:2]
+        size = (int(w), int(h))
+    oc = oriented_cameras(net, cams, inp, thermal_size=size)
+    project.write_text("cameras.json", json.dumps(oc.to_dict(), indent=1) + "\n")
+    project.write_json("orientation.json", {
+        "format": ORIENTATION_FORMAT,
         "thermal": net.thermal,
         "sigma_px_a_priori": inp["config"].sigma_px,
         "cameras": cams,
@@ -243,7 +337,7 @@ def _png(fig) -> str:
 
 def _step_report(project: ProjectStore) -> dict:
     inp = load_inputs(project)
-    cams = project.read_json("cameras.json")
+    cams = project.read_json("orientation.json")
     pts = project.read_text("points.csv").strip().splitlines()[1:]
     pls = project.read_text("planes.csv").strip().splitlines()
     e = html.escape

@@ -417,7 +417,7 @@ def _section_closerange(project: ProjectStore, opt: DemoOptions) -> list[DemoRow
         zmax = max(zmax, float(np.max(np.abs(est - X) / sd)))
     d3 = np.array(d3) * 1000
     s3 = np.array(s3) * 1000
-    cams = sub.read_json("cameras.json")["cameras"]
+    cams = sub.read_json("orientation.json")["cameras"]  # closerange's orientation report
     th = cams[s.thermal]
     C = s.camera(s.thermal).pose.center
     dc = np.array([th["exterior"][k] for k in ("X0", "Y0", "Z0")]) - C
