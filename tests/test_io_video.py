@@ -86,3 +86,27 @@ def test_video_bad_input(tmp_path):
     assert extraction_stride(30.0, 5.0, 40.0, 0.8) == 48  # 0.2 * 40 m / (5 m/s / 30 Hz)
     with pytest.raises(ConfigError, match="speed_mps=0"):
         extraction_stride(30.0, 0, 40.0, 0.8)
+
+
+def test_survey_orients_the_frames_of_a_thermal_video(video, tmp_path):
+    """thermal video -> frames at 80 % overlap -> survey (no GNSS: a free block), values kept as kelvin."""
+    import json
+
+    from thermogrammetry.cli.main import main
+    from thermogrammetry.geometry.helmert import umeyama
+    from thermogrammetry.io.oriented import OrientedCameras
+
+    sc, _, path = video
+    assert main(["survey", str(path), "-o", str(tmp_path / "s"), "--gnss", "none", "--workers", "0"]) == 0
+    s = json.loads((tmp_path / "s" / "survey.json").read_text())
+    assert 4 <= s["images_total"] <= 6 and s["images_oriented"] == s["images_total"]
+    assert all(im["unit"] == "K" for im in s["images"])
+    oc = OrientedCameras.load(tmp_path / "s")
+    idx = [int(im.name.rsplit("_f", 1)[1]) for im in oc]
+    est = np.array([im.center for im in oc])
+    true = np.array([sc.frames[i].pose.center for i in idx])
+    S = umeyama(est, true)
+    rms = float(np.sqrt(np.mean(np.sum((S(est) - true) ** 2, axis=1))))
+    # one strip of ~5 frames 4-5 m apart at 60 m, focal self-calibrated from a start 2.3x too short (no EXIF in a
+    # video): measured 0.14 m after a similarity; a failed block is metres off
+    assert rms < 0.3
