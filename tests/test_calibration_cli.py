@@ -122,6 +122,10 @@ def test_cli_testfield_route_writes_all_outputs(csv_files, tmp_path, capsys, fie
                 "reports/observations.json", "reports/selfcal.json"):
         assert (out / key).is_file(), key
     assert not (out / "exports/opencv.yaml").exists()
+    # written as a set: the manifest (last) lists every file, no staging folder is left beside OUT
+    man = json.loads((out / "calibrate-manifest.json").read_text())
+    assert man["complete"] and "camera.json" in man["files"] and "exports/metashape_INACCURATE.xml" in man["files"]
+    assert not list(tmp_path.glob(".OUT.partial-*"))
     assert "OpenCV/COLMAP export: conversion residual max" in text and "Metashape export: conversion residual max" in text
     assert "over the data area" in text
     assert text.count("export loses accuracy") == 2

@@ -351,7 +351,12 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
         Console(stderr=True, soft_wrap=True).print(f"[bold red]calibration failed[/] in step {failed[0].name!r}: {failed[0].error}; "
                                                    f"nothing was written to {output}", highlight=False)
         return None
-    keys = flush(mem, FolderProject(output))
+    from .._atomic import OutputSet
+
+    # the whole set or nothing: staged beside OUT, moved into place, calibrate-manifest.json written last
+    with OutputSet(output, "calibrate") as stage:
+        keys = flush(mem, FolderProject(stage.stage))
+        stage.commit()
     _summary(console, mem.read_json("calibration.json"), output, keys)
     return reports
 
