@@ -1,4 +1,4 @@
-"""``thermogrammetry calibrate``: camera calibration with standard deviations (seed 001 / seed 003).
+"""``thermogrammetry calibrate``: camera calibration with standard deviations (Yastikli & Guler 2013; Khodaei et al. 2015).
 
 Routes (public contract)::
 
@@ -126,7 +126,7 @@ def calibrate(
     pixel_pitch_um: Optional[float] = typer.Option(None, "--pixel-pitch-um", help="Pixel pitch in micrometres."),
     focal_mm: Optional[float] = typer.Option(None, "--focal-mm", help="Nominal focal length in mm (required for the CSV route)."),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
-    k45: bool = typer.Option(False, "--k45", help="Also estimate K4, K5 (seed 003)."),
+    k45: bool = typer.Option(False, "--k45", help="Also estimate K4, K5 (as Khodaei et al. 2015 do)."),
     affinity: bool = typer.Option(False, "--affinity", help="Also estimate affinity/shear B1, B2."),
     name: str = typer.Option("camera", "--name", help="Camera name written into camera.json."),
 ) -> None:

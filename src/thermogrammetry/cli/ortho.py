@@ -20,7 +20,7 @@ def ortho(
     sampling: str = typer.Option("nearest", "--sampling", help="nearest (bit-exact copy of the source pixel) or bilinear."),
     correct: bool = typer.Option(False, "--correct", help="Correct for viewing angle, directional emissivity and transmission (DSM normals and distances)."),
     ambient_c: float = typer.Option(22.0, "--ambient-c", help="Reflected ambient temperature (°C), for --correct."),
-    emissivity: str = typer.Option("cosine", "--emissivity", help="cosine (seed 000) or fresnel, for --correct."),
+    emissivity: str = typer.Option("cosine", "--emissivity", help="cosine (Sawicki et al.) or fresnel, for --correct."),
     refractive_index: float = typer.Option(1.5, "--refractive-index", help="For --emissivity fresnel."),
     transmission: bool = typer.Option(False, "--transmission/--no-transmission", help="Atmospheric transmission over the distance, for --correct."),
     humidity: float = typer.Option(50.0, "--humidity", help="Relative humidity in percent, for --transmission."),

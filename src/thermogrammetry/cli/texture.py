@@ -7,7 +7,7 @@ Contract::
            OUT/source_texture.tif (int32, -1 = none), OUT/vertices.ply (per-vertex temperature_k),
            OUT/texture.json (faces_total, faces_textured, index -> image name, unit, offsets)
 
-Extra: ``--rig rig.json`` (thermal poses from RGB poses, seed 002 eq. 4-5), ``--texel-size`` (m).
+Extra: ``--rig rig.json`` (thermal poses from RGB poses, Barazzetti et al. 2013, eq. 4-5), ``--texel-size`` (m).
 Exit 0 on success, 2 on unusable input (one paragraph, no traceback).
 """
 
