@@ -145,6 +145,11 @@ def select_pairs(n_images: int, centers=None, *, options: MatchOptions | None = 
     return sorted(pairs)
 
 
+def _unit_rows(d: np.ndarray, tol: float = 1e-3) -> bool:
+    n = np.einsum("ij,ij->i", d, d, dtype=np.float64) if len(d) else np.ones(0)
+    return bool(np.all(np.abs(n - 1.0) < tol))
+
+
 def match_descriptors(d1: np.ndarray, d2: np.ndarray, *, ratio: float = 0.85) -> np.ndarray:
     """Ratio-test + mutual nearest-neighbour matches.
 
@@ -173,6 +178,25 @@ def match_descriptors(d1: np.ndarray, d2: np.ndarray, *, ratio: float = 0.85) ->
             return m
 
         m12, m21 = best(d1, d2), best(d2, d1)
+    elif _unit_rows(d1) and _unit_rows(d2):
+        # unit-norm descriptors (RootSIFT): |a - b|^2 = 2 - 2 a.b, so the nearest neighbours are the largest dot
+        # products; each direction reduces along contiguous rows of its own product (2x faster than the
+        # general path, which spends most of its time in element-wise passes over the distance matrix)
+        a = np.ascontiguousarray(d1, np.float32)
+        b = np.ascontiguousarray(d2, np.float32)
+
+        def best_dot(a, b):
+            S = a @ b.T
+            r = np.arange(len(a))
+            j = S.argmax(axis=1)
+            s1 = S[r, j].copy()
+            S[r, j] = -np.inf
+            s2 = S.max(axis=1)
+            dmin = np.sqrt(np.maximum(2.0 - 2.0 * s1, 0.0))
+            dsec = np.sqrt(np.maximum(2.0 - 2.0 * s2, 0.0))
+            return np.where(dmin < ratio * dsec, j, -1)
+
+        m12, m21 = best_dot(a, b), best_dot(b, a)
     else:
         # squared Euclidean distances by one matrix product (float64 accumulation of float32 inputs)
         a = np.asarray(d1, np.float32)
