@@ -780,8 +780,6 @@ def solve(problem: BundleProblem, options: SolverOptions | None = None) -> Adjus
 
     opt = options or SolverOptions()
     if not isinstance(problem, BundleProblem):
-        from ..errors import InvalidInputError
-
         raise InvalidInputError(f"problem: expected a BundleProblem, got {type(problem).__name__}")
     with blas_single_thread(), np.errstate(all="ignore"):
         return _solve(problem, opt)

@@ -100,6 +100,15 @@ def _fit_h(obj_xy, img_xy):
     return H
 
 
+def _right_handed(H, obj_xy, spacing_mm: float) -> bool:
+    """Handedness of the grid's image: sign of the Jacobian determinant of ``H`` at the grid centre."""
+    o = obj_xy.mean(axis=0)
+    e = 1e-3 * spacing_mm
+    q = _apply_h(H, np.array([o, o + [e, 0], o + [0, e]]))
+    dx, dy = q[1] - q[0], q[2] - q[0]
+    return bool(dx[0] * dy[1] - dx[1] * dy[0] > 0)
+
+
 def _apply_h(H, xy):
     p = np.column_stack([xy, np.ones(len(xy))]) @ H.T
     return p[:, :2] / p[:, 2:3]
@@ -135,13 +144,7 @@ def order_grid_by_homography(points_px: np.ndarray, spec: CircleGridSpec, tol_fr
         res = np.linalg.norm(_apply_h(H, obj) - p, axis=1)
         if res.max() > tol_frac * spacing_px + 0.5:
             continue
-        # handedness from the Jacobian of H at the grid centre
-        o = obj.mean(axis=0)
-        e = 1e-3 * spec.spacing_mm
-        q = _apply_h(H, np.array([o, o + [e, 0], o + [0, e]]))
-        dx, dy = q[1] - q[0], q[2] - q[0]
-        handed = dx[0] * dy[1] - dx[1] * dy[0] > 0
-        good.append((not handed, float(p[0].sum()), p, float(np.sqrt(np.mean(res**2)))))
+        good.append((not _right_handed(H, obj, spec.spacing_mm), float(p[0].sum()), p, float(np.sqrt(np.mean(res**2)))))
     if not good:
         return None, np.inf
     good.sort(key=lambda g: (g[0], g[1]))
@@ -384,12 +387,7 @@ def _grid_from_ellipses(gray, spec, bright):
                 H = _fit_h(obj, p)
                 if H is None:
                     continue
-                o = obj.mean(axis=0)
-                e = 1e-3 * spec.spacing_mm
-                q = _apply_h(H, np.array([o, o + [e, 0], o + [0, e]]))
-                dx, dy = q[1] - q[0], q[2] - q[0]
-                handed = dx[0] * dy[1] - dx[1] * dy[0] > 0
-                good.append((not handed, float(p[0].sum()), p))
+                good.append((not _right_handed(H, obj, spec.spacing_mm), float(p[0].sum()), p))
             if good:
                 good.sort(key=lambda g: (g[0], g[1]))
                 if _polarity_ok(gray, good[0][2], cand, bright):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import typer
 
 from .. import __version__
@@ -13,6 +15,17 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+
+
+_SIZE = re.compile(r"^\s*(\d+)\s*[xX×]\s*(\d+)\s*$")
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    """``"640x512"`` (also ``X`` or ``×``, spaces allowed) → (640, 512); None unless two positive integers."""
+    m = _SIZE.match(text or "")
+    if not m or int(m.group(1)) <= 0 or int(m.group(2)) <= 0:
+        return None
+    return int(m.group(1)), int(m.group(2))
 
 
 def _version_callback(value: bool) -> None:

@@ -16,24 +16,22 @@ it was. Bad input exits with status 2 and a message naming the file (and row).
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import List, Optional
 
 import numpy as np
 import typer
 
-from .app import app
+from .app import app, parse_size
 
 _IMAGE_EXT = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".pgm", ".pnm"}
-_SIZE = re.compile(r"^\s*(\d+)\s*[xX×]\s*(\d+)\s*$")
 
 
 def _pair(text: str, flag: str) -> tuple[int, int]:
-    m = _SIZE.match(text or "")
-    if not m or int(m.group(1)) <= 0 or int(m.group(2)) <= 0:
+    pair = parse_size(text)
+    if pair is None:
         raise typer.BadParameter(f"{flag} {text!r}: expected COLUMNSxROWS with positive integers, e.g. 6x5")
-    return int(m.group(1)), int(m.group(2))
+    return pair
 
 
 def _expand(paths: List[Path]) -> list[Path]:

@@ -16,7 +16,7 @@ from typing import Optional
 
 import typer
 
-from .app import app
+from .app import app, parse_size
 
 
 @app.command("plan")
@@ -55,11 +55,10 @@ def plan(
             cam = Camera.load(camera)
             f_px, size = float(cam.K[0, 0]), cam.image_size
         elif focal_px is not None and image_size is not None:
-            try:
-                w, h = (int(v) for v in image_size.lower().split("x"))
-            except ValueError:
-                raise ConfigError(f"--image-size {image_size!r}: expected WxH in pixels, e.g. 640x512") from None
-            f_px, size = focal_px, (w, h)
+            size = parse_size(image_size)
+            if size is None:
+                raise ConfigError(f"--image-size {image_size!r}: expected WxH in pixels, e.g. 640x512")
+            f_px = focal_px
         else:
             raise ConfigError("give --camera camera.json, or --focal-px and --image-size")
         if (area is None) == (corners is None):

@@ -14,6 +14,7 @@ at the end, so OUT is either as it was or complete.
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import sys
@@ -126,7 +127,7 @@ def survey(
                 v = [float(x) for x in val.split(",")]
             except ValueError:
                 raise ThermogrammetryError(f"{flag} {val!r}: expected comma-separated numbers in metres") from None
-            if len(v) not in sizes or not all(abs(x) < 1e3 and x == x for x in v):
+            if len(v) not in sizes or not all(math.isfinite(x) and abs(x) < 1e3 for x in v):
                 raise ThermogrammetryError(f"{flag} {val!r}: expected {' or '.join(str(k) for k in sizes)} finite numbers in metres")
             if flag == "--lever-arm":
                 extra["lever_arm_m"] = tuple(v)

@@ -165,10 +165,14 @@ def frame_shift_px(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
 
     Phase correlation (Hanning window) on contrast-normalised, high-passed copies reduced to ~160 px.
     """
-    import cv2
-
     ra, f = _reduced(a)
     rb, _ = _reduced(b)
+    return _shift_of_reduced(ra, rb, f)
+
+
+def _shift_of_reduced(ra: np.ndarray, rb: np.ndarray, f: float) -> tuple[float, float, float]:
+    import cv2
+
     win = cv2.createHanningWindow(ra.shape[::-1], cv2.CV_32F)
     (dx, dy), resp = cv2.phaseCorrelate(ra, rb, win)
     return float(dx) / f, float(dy) / f, float(resp)
@@ -217,14 +221,16 @@ def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int |
     info = probe_video(path)
     if info.width * info.height > max_pixels:
         raise DataFileError(f"{info.path}: frames of {info.width}x{info.height} px exceed the cap of {max_pixels} pixels")
+    import av
+
     p, c = _open(path)
     kept = 0
     try:
         stream = c.streams.video[0]
         tb = float(stream.time_base) if stream.time_base else 0.0
-        last_small = None
+        last_kept = None
         acc = np.zeros(2)
-        prev = None
+        prev = None  # reduced copy of the previous frame (each frame is reduced once)
         try:
             frames = c.decode(stream)
             for idx, frame in enumerate(frames):
@@ -237,30 +243,26 @@ def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int |
                     img, unit = img.astype(np.float32), "K"
                 else:
                     img, unit = raw, ("counts" if raw.dtype == np.uint16 else "dn")
-                keep = False
-                if every is not None:
-                    keep = idx % int(every) == 0
-                elif prev is None:
-                    keep = True
-                else:
-                    dx, dy, _ = frame_shift_px(prev, img)
-                    acc += (dx, dy)
-                    h, w = img.shape
-                    keep = max(abs(acc[0]) / w, abs(acc[1]) / h) >= (1.0 - forward_overlap) - 1e-9
-                prev = img
+                keep = every is not None and idx % int(every) == 0
+                if every is None:
+                    small = _reduced(img)
+                    if prev is None:
+                        keep = True
+                    else:
+                        dx, dy, _ = _shift_of_reduced(prev[0], small[0], small[1])
+                        acc += (dx, dy)
+                        h, w = img.shape
+                        keep = max(abs(acc[0]) / w, abs(acc[1]) / h) >= (1.0 - forward_overlap) - 1e-9
+                    prev = small
                 if keep:
                     acc[:] = 0.0
-                    last_small = idx
+                    last_kept = idx
                     kept += 1
                     yield VideoFrame(idx, t, img, unit)
                     if max_frames is not None and kept >= max_frames:
                         return
-        except Exception as exc:  # noqa: BLE001 - FFmpeg decode errors: keep what was decoded, say where it stopped
-            import av
-
-            if isinstance(exc, av.error.FFmpegError):
-                raise DataFileError(f"{p}: video decoding failed after frame {last_small} ({exc})") from None
-            raise
+        except av.error.FFmpegError as exc:  # decoding stopped: say after which frame
+            raise DataFileError(f"{p}: video decoding failed after frame {last_kept} ({exc})") from None
         if kept == 0:
             raise DataFileError(f"{p}: no frame could be decoded")
     finally:

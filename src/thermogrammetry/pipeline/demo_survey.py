@@ -59,6 +59,11 @@ def _section_survey_sfm(project: ProjectStore, opt: DemoOptions) -> list[DemoRow
     return rows
 
 
+def _image_gsd_m(cfg) -> float:
+    """Nadir ground sampling distance of the rendered frames at the planned height (m)."""
+    return cfg.flight_height_m * cfg.pixel_pitch_um * 1e-6 / (cfg.focal_mm * 1e-3)
+
+
 def _survey_rows(scene, out, reports, t_render, t_survey) -> list[DemoRow]:
     from ..io.oriented import OrientedCameras
 
@@ -71,7 +76,7 @@ def _survey_rows(scene, out, reports, t_render, t_survey) -> list[DemoRow]:
         return rows
     s = out.read_json("survey.json")
     cfg = scene.config
-    gsd = cfg.flight_height_m * cfg.pixel_pitch_um * 1e-6 / (cfg.focal_mm * 1e-3)
+    gsd = _image_gsd_m(cfg)
     n = len(scene.frames)
     rows.append(DemoRow(sec, f"frames oriented by survey ({STARTS})", s["images_oriented"], n, "frames", kind="min",
                         note=f"{len(s['components'])} block(s), reprojection RMS {s['reprojection_rms_px']:.3f} px, "
@@ -102,7 +107,7 @@ PRODUCTS = "starts from the survey's estimated poses above (no truth); truth rea
 def _product_rows(scene, root: Path) -> list[DemoRow]:
     """dense → DSM and cloud, ortho (bilinear) from the survey output; scored against the scene's truth."""
     import rasterio
-    from scipy.ndimage import maximum_filter, minimum_filter
+    from scipy.ndimage import map_coordinates, maximum_filter, minimum_filter
 
     from ..dense.workflow import run_dense
     from ..products.ortho import run_ortho
@@ -112,7 +117,7 @@ def _product_rows(scene, root: Path) -> list[DemoRow]:
     rows: list[DemoRow] = []
     ter = scene.terrain
     cfg = scene.config
-    gsd_img = cfg.flight_height_m * cfg.pixel_pitch_um * 1e-6 / (cfg.focal_mm * 1e-3)
+    gsd_img = _image_gsd_m(cfg)
     t0 = time.perf_counter()
     try:
         rep = run_dense(root / "output", root / "dense", workers=1)
@@ -192,8 +197,6 @@ def _product_rows(scene, root: Path) -> list[DemoRow]:
         inside = (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
         ui, vi = np.clip(np.rint(uv[:, 0]).astype(int), 0, w - 1), np.clip(np.rint(uv[:, 1]).astype(int), 0, h - 1)
         visible = inside & (np.abs(depth[vi, ui] - Pc[:, 2]) < 0.05 * Pc[:, 2])  # the true surface point is what the pixel sees
-        from scipy.ndimage import map_coordinates
-
         val = o[rc[:, 0], rc[:, 1]]
         t_clean = map_coordinates(clean.astype(np.float64), [uv[:, 1], uv[:, 0]], order=1)
         t_noisy = map_coordinates(noisy.astype(np.float64), [uv[:, 1], uv[:, 0]], order=1)

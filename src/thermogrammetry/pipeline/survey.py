@@ -523,8 +523,9 @@ def _gnss_xyz(inputs: dict, opt: SurveyOptions, crs_out: str | None):
         from pyproj import CRS, Transformer
 
         if crs_out is None:
-            zone = int((np.nanmean(lon[have]) + 180) // 6) + 1
-            crs_out = f"EPSG:{(32600 if np.nanmean(lat[have]) >= 0 else 32700) + zone}"
+            from ..sfm.plan import utm_epsg
+
+            crs_out = f"EPSG:{utm_epsg(float(np.nanmean(lon[have])), float(np.nanmean(lat[have])))}"
             notes.append(f"no --crs given: positions in the UTM zone of the flight, {crs_out}")
         tf = Transformer.from_crs(CRS.from_epsg(4979), CRS.from_user_input(crs_out), always_xy=True)
         x, y, z = tf.transform(lon[have], lat[have], alt[have])
@@ -599,7 +600,8 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
     if opt.low_texture == "auto" and n >= 2 and connected(res) < LOW_TEXTURE_SHARE * n:
         # low-texture frames (facades, water, fields): ORB on local-contrast-normalised frames
         lt = replace(opt.features, detector="orb", enhancement="local")
-        _run_tasks(feature_task, [(store, nm, lt, "lowtexture/features") for nm in names], opt, None, "features")
+        counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features") for nm in names], opt, None,
+                                    "features"))
         res_lt = match("lowtexture/")
         info["low_texture"] = {"features": "orb/local", "connected": connected(res_lt)}
         if connected(res_lt) > connected(res):
@@ -608,10 +610,7 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
             for i, j, npu, nv, reason in res_lt:
                 if not reason:
                     project.write_bytes(f"matches/{i}_{j}.npz", project.read_bytes(f"lowtexture/matches/{i}_{j}.npz"))
-            counts = project.read_json("work/features.json")
-            for nm in names:
-                counts[nm] = int(len(_load_npz(project, f"features/{nm}.npz")["xy"]))
-            project.write_json("work/features.json", counts)
+            project.write_json("work/features.json", {**project.read_json("work/features.json"), **counts_lt})
             res = res_lt
             info["used"] = "low-texture fallback (ORB on local-contrast-normalised frames)"
     kept = [(i, j, nv) for i, j, npu, nv, reason in res if not reason]

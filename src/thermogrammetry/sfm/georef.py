@@ -209,15 +209,15 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
         pmap = np.full(len(rec.points), -1, np.int64)
         pmap[pts] = pidx
         order = np.nonzero(obs)[0]
-        tie_rows = []
+        tie_rows = []  # (image index, its observation indices) in the order they enter the problem
         for i in images:
             o = order[tr.image[order] == i]
             if len(o) == 0:
                 continue
             pb.add_image_points(cam_block[int(rec.image_camera[i])], view[int(i)], pmap[tr.track[o]],
                                 xy_by_image[i][tr.feature[o]], sigma_px=tie_sigma_px)
-            tie_rows.append(np.full(len(o), i))
-        n_tie = int(sum(len(r) for r in tie_rows))
+            tie_rows.append((int(i), o))
+        n_tie = int(sum(len(o) for _, o in tie_rows))
         # GCPs: weighted control points with their image measurements
         gcp_point = {}
         if gcps_in:
@@ -296,16 +296,13 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
             pi = p.view_pose[v]
             cstd[i] = res.pose_std[pi, 3:]
             rstd[i] = np.degrees(res.pose_std[pi, :3])
-    tie_obs_image = np.concatenate(tie_rows) if tie_rows else np.zeros(0, int)
+    tie_obs_image = np.concatenate([np.full(len(o), i) for i, o in tie_rows]) if tie_rows else np.zeros(0, int)
     if res.image_residuals is not None:
         tie_v = res.image_residuals[:n_tie]
     else:  # the solve stopped without residuals: they are recomputed from the last state, not dropped
         tie_v = np.full((n_tie, 2), np.nan)
         k0 = 0
-        for i in images:
-            o = order[tr.image[order] == i]
-            if len(o) == 0:
-                continue
+        for i, o in tie_rows:
             Xc = rec.points[tr.track[o]] @ rec.R[i].T + rec.t[i]
             with np.errstate(all="ignore"):
                 tie_v[k0:k0 + len(o)] = rec.cameras[rec.image_camera[i]].project(Xc) - xy_by_image[i][tr.feature[o]]
