@@ -85,3 +85,14 @@ def test_closerange_and_testfield_sections_end_to_end():
     for k in ("closerange/points.csv", "closerange/report.html", "calibration-testfield/control.csv", "report.html",
               "demo/closerange.json", "reports/closerange.json"):
         assert p.exists(k), k
+
+
+def test_list_names_every_section_that_a_run_would_run(capsys):
+    """``demo --list`` shows the sections registered by SECTION_MODULES too (survey-sfm was missing)."""
+    from thermogrammetry.cli.main import main
+    from thermogrammetry.pipeline.demo import all_sections
+
+    assert main(["demo", "--list"]) == 0
+    listed = [line.split()[0] for line in capsys.readouterr().out.splitlines() if line.strip()]
+    assert listed == [s.name for s in all_sections()]
+    assert "survey-sfm" in listed

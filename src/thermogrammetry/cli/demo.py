@@ -32,11 +32,11 @@ def demo(
     from .._atomic import OutputSet
     from ..errors import ConfigError, ThermogrammetryError
     from ..pipeline import FolderProject
-    from ..pipeline.demo import DEMO_SECTIONS, DemoOptions, run_demo
+    from ..pipeline.demo import DemoOptions, all_sections, run_demo
 
     console = Console(soft_wrap=True)
     if list_sections:
-        for s in DEMO_SECTIONS:
+        for s in all_sections():
             console.print(f"{s.name:24s} {s.title}")
         raise typer.Exit(0)
     names = tuple(n.strip() for n in sections.split(",") if n.strip()) if sections else None

@@ -61,6 +61,7 @@ __all__ = [
     "DemoResult",
     "DEMO_SECTIONS",
     "SECTION_MODULES",
+    "all_sections",
     "register_section",
     "demo_steps",
     "run_demo",
@@ -706,9 +707,15 @@ for _s in (
 
 # ------------------------------------------------------------------------------------------ running
 
-def _selected(options: DemoOptions) -> list[DemoSection]:
+def all_sections() -> list[DemoSection]:
+    """Every registered section, in run order (the built-in ones and those of :data:`SECTION_MODULES`)."""
     for mod in SECTION_MODULES:
         importlib.import_module(mod)
+    return list(DEMO_SECTIONS)
+
+
+def _selected(options: DemoOptions) -> list[DemoSection]:
+    all_sections()
     if options.sections is None:
         return list(DEMO_SECTIONS)
     names = {s.name: s for s in DEMO_SECTIONS}
