@@ -38,6 +38,7 @@ from .detect_common import (
     CircleGridSpec,
     Detection,
     clahe_u8,
+    flatten_background,
     image_size_of,
     normalize_to_u8,
     spec_of,
@@ -483,7 +484,7 @@ def _grid_from_hull(p: np.ndarray, spec) -> np.ndarray | None:
 
 def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polarity: str = "auto",
                        refine: str = "moments", perspective_correction: bool = True, partial: bool = True,
-                       min_partial_points: int = 6) -> Detection:
+                       min_partial_points: int = 6, flatfield: bool = True) -> Detection:
     """Find a symmetric or asymmetric circle grid and measure sub-pixel centres.
 
     Parameters
@@ -510,6 +511,11 @@ def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polar
         there). ``extra["partial"]`` says so and ``extra["placements"]`` counts the valid ones.
     min_partial_points : int
         Fewest circles of a partial grid (default 6, the calibration's minimum per image).
+    flatfield : bool
+        When the passes on the stretched image fail, run them again on the image flattened by
+        :func:`~thermogrammetry.calibration.detect_common.flatten_background` (σ = 1/16 of the larger
+        side): low-contrast masks under a heater's hot spot or vignetting ("bright-flatfield",
+        "bright-flatfield-ellipses", "...-flatfield-partial"). Centres are measured on the raw image.
 
     Returns
     -------
@@ -535,38 +541,46 @@ def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polar
     small = min(gray.shape) < 300
 
     tried = []
+
+    def blob_pass(pol, vname, img, scale):
+        """The blob detector + cv2.findCirclesGrid on one 8-bit variant; the ordered grid or None."""
+        det = blob if scale == 1 else _blob_detector(area * scale * scale)
+        # findCirclesGrid's grid search grows steeply with the number of blobs (18 s for 800 noise
+        # blobs in a 160x120 frame): detect the blobs here, keep the largest few times N (grid
+        # discs are larger than noise specks) and hand findCirclesGrid a clean redrawn image
+        # a light blur first: noise specks otherwise make thousands of contours (2.5 s per call
+        # on a 640x480 noise frame, 0.2 s after the blur); the centres are refined on the raw image
+        keypoints = det.detect(cv2.GaussianBlur(img, (0, 0), 1.0 * scale))
+        if len(keypoints) < spec.n_points:
+            tried.append(f"{pol}-{vname} ({len(keypoints)} blobs < {spec.n_points})")
+            return None, ""
+        cap = max(3 * spec.n_points, spec.n_points + 30)
+        keypoints = sorted(keypoints, key=lambda k: -k.size)[:cap]
+        clean = _redraw_blobs(img.shape, keypoints)
+        for flags, fname in ((kind, ""), (kind | cv2.CALIB_CB_CLUSTERING, "+clustering")):
+            ok, centres = cv2.findCirclesGrid(clean, pattern, flags=flags, blobDetector=_REDRAWN_DETECTOR)
+            name = f"{pol}-{vname}{fname}"
+            if not ok or centres is None:
+                tried.append(name)
+                continue
+            pts = centres.reshape(-1, 2).astype(np.float64)
+            if scale != 1:
+                pts = (pts + 0.5) / scale - 0.5
+            ordered, rms = order_grid_by_homography(pts, spec)
+            if ordered is None:
+                tried.append(f"{name} (rejected: grid does not fit a homography)")
+                continue
+            return ordered, name
+        return None, ""
+
     for pol in pols:
         base = 255 - u8 if pol == "bright" else u8  # the blob detector looks for dark blobs
         variants = [("stretch", base, 1), ("clahe", clahe_u8(base), 1)]
         if small:
             variants.append(("upsampled", cv2.resize(base, None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC), 3))
         for vname, img, scale in variants:
-            det = blob if scale == 1 else _blob_detector(area * scale * scale)
-            # findCirclesGrid's grid search grows steeply with the number of blobs (18 s for 800 noise
-            # blobs in a 160x120 frame): detect the blobs here, keep the largest few times N (grid
-            # discs are larger than noise specks) and hand findCirclesGrid a clean redrawn image
-            # a light blur first: noise specks otherwise make thousands of contours (2.5 s per call
-            # on a 640x480 noise frame, 0.2 s after the blur); the centres are refined on the raw image
-            keypoints = det.detect(cv2.GaussianBlur(img, (0, 0), 1.0 * scale))
-            if len(keypoints) < spec.n_points:
-                tried.append(f"{pol}-{vname} ({len(keypoints)} blobs < {spec.n_points})")
-                continue
-            cap = max(3 * spec.n_points, spec.n_points + 30)
-            keypoints = sorted(keypoints, key=lambda k: -k.size)[:cap]
-            clean = _redraw_blobs(img.shape, keypoints)
-            for flags, fname in ((kind, ""), (kind | cv2.CALIB_CB_CLUSTERING, "+clustering")):
-                ok, centres = cv2.findCirclesGrid(clean, pattern, flags=flags, blobDetector=_REDRAWN_DETECTOR)
-                name = f"{pol}-{vname}{fname}"
-                if not ok or centres is None:
-                    tried.append(name)
-                    continue
-                pts = centres.reshape(-1, 2).astype(np.float64)
-                if scale != 1:
-                    pts = (pts + 0.5) / scale - 0.5
-                ordered, rms = order_grid_by_homography(pts, spec)
-                if ordered is None:
-                    tried.append(f"{name} (rejected: grid does not fit a homography)")
-                    continue
+            ordered, name = blob_pass(pol, vname, img, scale)
+            if ordered is not None:
                 return _finish(gray, ordered, spec, image_id, size, name, tried, pol == "bright", refine,
                                perspective_correction)
     # large discs under strong distortion / perspective: ellipse candidates over several scales of
@@ -579,18 +593,54 @@ def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polar
         if pts is not None:
             return _finish(gray, pts, spec, image_id, size, name, tried, pol == "bright", refine, perspective_correction)
         tried.append(f"{name} ({why})")
+    # low contrast under a hot spot / vignetting: the same passes on the image flattened by a wide
+    # blur (flatten_background, σ = 1/16 of the larger side: it must span more than a circle and
+    # its gap; a chessboard's 1/64-1/32 leaves the discs of a sparse grid half-flattened). Run only
+    # when everything above failed, so a view found before keeps its centres; the centres are
+    # measured on the raw image (its plane background takes the smooth remainder of the hot spot)
+    ff_imgs = []
+    if flatfield:
+        for frac, tag in ((16.0, "flatfield"), (32.0, "flatfield-narrow")):
+            ff_u8 = flatten_background(gray, max(gray.shape) / frac)
+            ff_img = ff_u8.astype(np.float32)
+            ff_imgs.append((tag, ff_img))
+            for pol in pols:
+                ordered, name = blob_pass(pol, tag, 255 - ff_u8 if pol == "bright" else ff_u8, 1)
+                if ordered is not None:
+                    return _finish(gray, ordered, spec, image_id, size, name, tried, pol == "bright", refine,
+                                   perspective_correction)
+            for pol in pols:
+                # one row per disc: a flattened disc gives nested contours at many thresholds
+                cands[f"{tag}-{pol}"] = _one_per_disc(ellipse_candidates(ff_img, pol == "bright"))
+                pts, why = _grid_from_ellipses(ff_img, spec, pol == "bright", cands[f"{tag}-{pol}"])
+                name = f"{pol}-{tag}-ellipses"
+                if pts is not None:
+                    return _finish(gray, pts, spec, image_id, size, name, tried, pol == "bright", refine,
+                                   perspective_correction)
+                tried.append(f"{name} ({why})")
     # part of the grid: outside the frame, cut by its border or hidden
     if partial:
-        for pol in pols:
-            pts, ids, n_place, why = _partial_grid(gray, spec, pol == "bright", cands[pol], int(min_partial_points))
-            name = f"{pol}-partial"
-            if pts is not None:
-                det = _finish(gray, pts, spec, image_id, size, name, tried, pol == "bright", refine,
-                              perspective_correction, ids=ids, min_points=int(min_partial_points), n_placements=n_place)
-                if det.found:
-                    return det
-                why = det.reason
-            tried.append(f"{name} ({why})")
+        for tag, img in [("", gray)] + ff_imgs:
+            for pol in pols:
+                key = f"{tag}-{pol}" if tag else pol
+                pts, ids, n_place, why = _partial_grid(img, spec, pol == "bright", cands[key], int(min_partial_points))
+                name = f"{pol}-{tag + '-' if tag else ''}partial"
+                if pts is not None and len(ids) == spec.n_points:
+                    # every circle: a whole grid after all, in the canonical order of the other passes
+                    full = np.empty_like(pts)
+                    full[ids] = pts
+                    ordered, _ = order_grid_by_homography(full, spec, tol_frac=0.5)
+                    return _finish(gray, full if ordered is None else ordered, spec, image_id, size,
+                                   name.replace("partial", "lattice"), tried, pol == "bright", refine,
+                                   perspective_correction)
+                if pts is not None:
+                    det = _finish(gray, pts, spec, image_id, size, name, tried, pol == "bright", refine,
+                                  perspective_correction, ids=ids, min_points=int(min_partial_points),
+                                  n_placements=n_place)
+                    if det.found:
+                        return det
+                    why = det.reason
+                tried.append(f"{name} ({why})")
     return Detection.failure(image_id, f"no {pattern[0]}x{pattern[1]} "
                              f"{'asymmetric ' if spec.asymmetric else ''}circle grid found (tried: {', '.join(tried)})", size)
 
@@ -846,6 +896,17 @@ def _place_on_target(ab: np.ndarray, spec: CircleGridSpec):
     return out
 
 
+def _one_per_disc(cand: np.ndarray) -> np.ndarray:
+    """One :func:`ellipse_candidates` row per disc: nested contours of one disc at other thresholds
+    (smaller, found at fewer scales, centre within a quarter of the minor axis, area within 4x) are dropped."""
+    keep = []
+    for i in np.lexsort((-cand[:, 4], -cand[:, 5])):
+        if all(np.hypot(*(cand[i, :2] - cand[j, :2])) > 0.25 * min(cand[i, 3], cand[j, 3])
+               or max(cand[i, 4], cand[j, 4]) > 4.0 * min(cand[i, 4], cand[j, 4]) for j in keep):
+            keep.append(i)
+    return cand[np.sort(np.asarray(keep, dtype=int))]
+
+
 def _partial_grid(gray, spec, bright, cand, min_points: int):
     """A partial grid from ellipse candidates (:func:`_grow_lattice`, :func:`_place_on_target`),
     checked with a second-order map and the polarity test. Returns (points (K, 2), ids (K,),
@@ -857,14 +918,7 @@ def _partial_grid(gray, spec, bright, cand, min_points: int):
     # outline (relative departure from its fitted ellipse 0.15-0.3, against 0.02-0.05 for whole
     # blurred discs); its centroid would be off by pixels
     cand = cand[cand[:, 7] <= 0.1]
-    # one candidate per disc: nested contours of one disc at other thresholds (smaller, found at fewer
-    # scales) are dropped
-    keep = []
-    for i in np.lexsort((-cand[:, 4], -cand[:, 5])):
-        if all(np.hypot(*(cand[i, :2] - cand[j, :2])) > 0.25 * min(cand[i, 3], cand[j, 3])
-               or max(cand[i, 4], cand[j, 4]) > 4.0 * min(cand[i, 4], cand[j, 4]) for j in keep):
-            keep.append(i)
-    cand = cand[np.sort(np.asarray(keep, dtype=int))]
+    cand = _one_per_disc(cand)
     if len(cand) < min_points:
         return None, None, 0, f"{len(cand)} whole-disc ellipse candidates < {min_points}"
     grp = _size_group(cand, n)

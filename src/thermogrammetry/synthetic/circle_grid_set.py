@@ -20,7 +20,7 @@ import numpy as np
 from .. import targets as _t
 from ..errors import ConfigError
 from ..targets import BOARD, FEATURE, SURROUND, CircleGridTarget
-from .targets import RenderedTarget, render_target_image
+from .targets import HotSpot, RenderedTarget, render_target_image
 from .testfield import look_at_pose
 
 __all__ = ["CircleGridSet", "DisplacedCircleGrid", "make_circle_grid_set", "displace_centres_in_image",
@@ -179,7 +179,8 @@ class CircleGridSet:
 
 def make_circle_grid_set(n_views: int = 24, seed: int = 13, *, supersample: int = 3, psf_sigma_px: float = 0.8,
                          netd_k: float = 0.05, params: dict | None = None, centre_noise_px: float = 0.0,
-                         centre_noise_seed: int = 1013) -> CircleGridSet:
+                         centre_noise_seed: int = 1013, temperatures=None, hot_spot_k: float = 0.0,
+                         vignetting: float = 0.0) -> CircleGridSet:
     """Render ``n_views`` views of a 4 x 3 grid of 60 mm circles at 90 mm spacing (dark... bright holes on
     a warm emitter behind the mask) through :data:`STRONG_BARREL_CAMERA`.
 
@@ -197,6 +198,14 @@ def make_circle_grid_set(n_views: int = 24, seed: int = 13, *, supersample: int 
         The realised shifts are in ``CircleGridSet.centre_shifts_px``. 0: the nominal grid.
     centre_noise_seed : int
         Seed of those shifts (independent of the pose seed, so the poses are the same with and without).
+    temperatures : TargetTemperatures, dict or tuple, optional
+        Apparent temperatures of holes, mask and surround (default: 303.15 / 296.15 / 293.15 K).
+    hot_spot_k : float
+        A heater's hot spot on the mask: a Gaussian excess of this many kelvin, 1.5 spacings wide,
+        at a different place on the mask in every view (drawn from ``centre_noise_seed + 1``, so the
+        poses do not change). 0: none.
+    vignetting : float
+        Signal vignetting of :class:`~thermogrammetry.synthetic.sensor.SensorEffects`.
     """
     from ..camera import Camera
 
@@ -205,6 +214,7 @@ def make_circle_grid_set(n_views: int = 24, seed: int = 13, *, supersample: int 
     if not (np.isfinite(centre_noise_px) and centre_noise_px >= 0):
         raise ConfigError(f"centre_noise_px={centre_noise_px!r}: expected a standard deviation >= 0 px")
     noise_rng = np.random.default_rng(centre_noise_seed)
+    spot_rng = np.random.default_rng(centre_noise_seed + 1)
     shifts = []
     rng = np.random.default_rng(seed)
     centre = np.array([0.135, 0.09, 0.0])
@@ -241,9 +251,14 @@ def make_circle_grid_set(n_views: int = 24, seed: int = 13, *, supersample: int 
         rim = cam.project(1e-3 * tgt.outline_points() @ R.T + t)
         if not (np.all(np.isfinite(rim)) and np.all(rim >= 2) and np.all(rim[:, 0] <= w - 3) and np.all(rim[:, 1] <= h - 3)):
             continue
+        extra = {}
+        if hot_spot_k:
+            a = spot_rng.uniform(0, 2 * np.pi)
+            extra["hot_spot"] = HotSpot(1e3 * centre[0] + 90.0 * np.cos(a), 1e3 * centre[1] + 60.0 * np.sin(a), 135.0,
+                                        hot_spot_k)
         r, shift = render_circle_grid_view(cam, (R, t), tgt, centre_noise_px=centre_noise_px, rng=noise_rng,
                                            supersample=supersample, psf_sigma_px=psf_sigma_px, netd_k=netd_k,
-                                           seed=len(views))
+                                           seed=len(views), temperatures=temperatures, vignetting=vignetting, **extra)
         if not r.visible.all():
             continue
         shifts.append(shift)
