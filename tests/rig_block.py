@@ -15,6 +15,7 @@ import numpy as np
 
 RIG_ROT_DEG = (0.5, -0.4, 0.3)
 RIG_BASE_M = (0.10, 0.02, -0.01)  # thermal projection centre in the RGB camera frame (seed 002's t)
+MARKER_SIGMA_PX = 0.3
 
 
 def truth_rig():
@@ -43,7 +44,7 @@ def write_rig_block(root, *, seed: int = 0, n_frames: int | None = None):
 
     root = Path(root)
     cfg = uav_thermal_config(seed=seed, terrain=TerrainConfig(width_m=80.0, height_m=64.0, n_buildings=3, n_trees=6, n_roads=1),
-                             n_gcp=0, n_check=0, max_frames=n_frames)
+                             n_gcp=4, n_check=0, max_frames=n_frames)
     scene = make_survey(cfg)
     rig = truth_rig()
     th_frames = [replace(fr, name=f"{k:04d}_ir", pose=rig.compose(fr.pose)) for k, fr in enumerate(scene.frames)]
@@ -60,7 +61,32 @@ def write_rig_block(root, *, seed: int = 0, n_frames: int | None = None):
         g = fr.gnss_enh
         rows.append(f"{k:04d}_rgb,{g[0]:.4f},{g[1]:.4f},{g[2]:.4f},{cfg.gnss_sigma_h_m},{cfg.gnss_sigma_h_m},{cfg.gnss_sigma_v_m}")
     (root / "gnss.csv").write_text("\n".join(rows) + "\n")
-    return {"scene": scene, "rig": rig, "rgb_poses": {f"{k:04d}_rgb": fr.pose for k, fr in enumerate(scene.frames)},
+    # GCPs (σ 1 cm) measured in the RGB images, and manual tie points measured in RGB and thermal images
+    # (truth projected + N(0, MARKER_SIGMA_PX)); ids MT.. are in no coordinate file
+    rng = np.random.default_rng([seed, 0x7A6])
+    (root / "gcps.csv").write_text("id,X,Y,Z,sX,sY,sZ\n" + "".join(
+        f"{k},{X[0]:.4f},{X[1]:.4f},{X[2]:.4f},0.01,0.01,0.01\n" for k, X in scene.gcps.items()))
+    ter = scene.terrain
+    xy_t = np.array([[0.3, 0.35], [0.55, 0.5], [0.7, 0.6], [0.45, 0.65], [0.35, 0.5], [0.6, 0.4]]) * [ter.width_m, ter.height_m]
+    ties = {f"MT{k + 1:02d}": ter.to_world(np.array([x, y, ter.height_at(np.array([x]), np.array([y]))[0]]))
+            for k, (x, y) in enumerate(xy_t)}
+    meas = ["image,id,x,y"]
+    n_meas = {}
+    for pts, kinds in ((scene.gcps, ("rgb",)), (ties, ("rgb", "ir"))):
+        for pid, X in pts.items():
+            for kind in kinds:
+                poses = {"rgb": [(f"{k:04d}_rgb", fr.pose) for k, fr in enumerate(scene.frames)],
+                         "ir": [(f.name, f.pose) for f in th_frames]}[kind]
+                cam = cam_rgb if kind == "rgb" else scene.camera
+                w, h = cam.image_size
+                for name, pose in poses:
+                    Xc = pose.R @ X + pose.t
+                    u = cam.project(Xc[None, :])[0] + rng.normal(0, MARKER_SIGMA_PX, 2)
+                    if 10 <= u[0] <= w - 11 and 10 <= u[1] <= h - 11 and n_meas.get((pid, kind), 0) < 4:
+                        meas.append(f"{name},{pid},{u[0]:.3f},{u[1]:.3f}")
+                        n_meas[(pid, kind)] = n_meas.get((pid, kind), 0) + 1
+    (root / "measurements.csv").write_text("\n".join(meas) + "\n")
+    return {"scene": scene, "rig": rig, "ties": ties, "gcps": scene.gcps, "rgb_poses": {f"{k:04d}_rgb": fr.pose for k, fr in enumerate(scene.frames)},
             "thermal_poses": {f.name: f.pose for f in th_frames}, "thermal_camera": scene.camera, "rgb_camera": cam_rgb,
             "epsg": scene.terrain.epsg, "root": root}
 

@@ -278,7 +278,7 @@ def _decode(path: Path, input_unit: str | None):
             exif = ex
             model = ex.get("model")
             focal_length_mm = ex.get("focal_length_mm")
-            pixel_pitch_um = None
+            pixel_pitch_um = ex.get("pixel_pitch_um")  # EXIF FocalPlane resolution, when written
         md = _Md
     except Exception:  # noqa: BLE001 - EXIF is optional for a plain image; its absence is noted below
         md = None
@@ -343,7 +343,7 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
                     exif = ex
                     model = ex.get("model")
                     focal_length_mm = ex.get("focal_length_mm")
-                    pixel_pitch_um = None
+                    pixel_pitch_um = ex.get("pixel_pitch_um")  # EXIF FocalPlane resolution, when written
                 h, w = img.shape[:2]
                 decoded = [("", img[..., ::-1].copy(), "dn", geo, _camera_guess(w, h, _Md), "RGB image")]
             else:
@@ -470,8 +470,8 @@ def _run_tasks(fn, tasks, opt: SurveyOptions, progress: Callable | None, what: s
             cluster.close()
 
 
-def _initial_cameras(inputs: dict, camera=None) -> tuple[dict, list]:
-    """Camera id -> starting Camera, and the camera id of each image."""
+def _initial_cameras(inputs: dict, camera=None, rgb_camera=None) -> tuple[dict, list]:
+    """Camera id -> starting Camera, and the camera id of each image (``rgb_camera``: the rig file's)."""
     from ..camera import Camera
 
     groups: dict[tuple, str] = {}
@@ -486,6 +486,8 @@ def _initial_cameras(inputs: dict, camera=None) -> tuple[dict, list]:
                     raise ConfigError(f"camera file: image size {camera.image_size} differs from the frames' "
                                       f"{im['width']}x{im['height']} ({im['name']})")
                 cams[cid] = camera
+            elif rgb_camera is not None and im["sensor"] == "rgb" and tuple(rgb_camera.image_size) == (im["width"], im["height"]):
+                cams[cid] = rgb_camera
             else:
                 w, h, f = im["width"], im["height"], im["camera_guess"]["f_px"]
                 pitch = im["camera_guess"].get("pitch_um")
@@ -582,7 +584,7 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
     from ..sfm.matching import select_pairs
 
     inputs = project.read_json("work/inputs.json")
-    cams, cam_ids = _initial_cameras(inputs, camera)
+    cams, cam_ids = _initial_cameras(inputs, camera, getattr(rig, "rgb_camera", None))
     xyz, _, crs, _ = _gnss_xyz(inputs, opt, opt.crs)
     names = [im["name"] for im in inputs["images"]]
     pairs = select_pairs(len(names), xyz, options=opt.matching)
@@ -625,14 +627,14 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
             "median_verified_matches": float(np.median([k[2] for k in kept])) if kept else 0.0}
 
 
-def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None) -> dict:
+def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None, rgb_camera=None) -> dict:
     from ..sfm.reconstruction import reconstruct
     from ..sfm.tracks import build_tracks
 
     inputs = project.read_json("work/inputs.json")
     counts = project.read_json("work/features.json")
     names = [im["name"] for im in inputs["images"]]
-    cams, cam_ids = _initial_cameras(inputs, camera)
+    cams, cam_ids = _initial_cameras(inputs, camera, rgb_camera)
     cam_list = list(cams)
     image_camera = np.array([cam_list.index(c) for c in cam_ids])
     xy = [_load_npz(project, f"features/{n}.npz")["xy"] for n in names]
@@ -773,8 +775,10 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         comps, rig_enabled, nts2 = plan_rig_blocks(rec, inp.rig, rig_master, comps)
         notes += nts + nts2 + [f"rig: {len(rig_master)} RGB/thermal pair(s) from {inp.rig.source}"]
     # intrinsics: a given thermal camera (--camera or the rig's) is held fixed, other sensors self-calibrated
-    self_cal = opt.self_calibrate if camera is None else {
-        k: (() if str(cid).startswith("thermal") else opt.self_calibrate) for k, cid in enumerate(meta["camera_ids"])}
+    rgb_cam = getattr(inp.rig, "rgb_camera", None)
+    self_cal = opt.self_calibrate if camera is None and rgb_cam is None else {
+        k: (() if (camera is not None and str(cid).startswith("thermal")) or (rgb_cam is not None and str(cid).startswith("rgb"))
+            else opt.self_calibrate) for k, cid in enumerate(meta["camera_ids"])}
     for ci, images in enumerate(comps):
         if len(images) == 0:
             continue
@@ -798,6 +802,12 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             images, nts = attach_rig_images(rec, images, rigv, xy, max_error_px=opt.reconstruction.max_error_px,
                                             min_tri_angle_deg=opt.reconstruction.min_tri_angle_deg)
             notes += [f"block {ci + 1}: {x}" for x in nts]
+            n_th = _rig_observations(rec, rigv, images, t_obs)
+            if not rigv.fixed and n_th < 30:
+                # too few thermal observations to estimate R*, t: held at its start (reported), never left singular
+                rigv.fixed = True
+                notes.append(f"block {ci + 1}: rig: only {n_th} thermal observation(s) of oriented points: R*, t cannot be "
+                             f"estimated and are held at their start ({rigv.start})")
         fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=self_cal, tie_sigma_px=opt.tie_sigma_px,
                               max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
                               compute_covariance=len(images) <= 2500, rig=rigv, manual_ties=t_obs or None)
@@ -896,6 +906,16 @@ def _point_values(project, inputs, rec, names, images_used, obs_mask):
         return vals / cnt, unit
 
 
+def _rig_observations(rec, rigv, images, manual_obs) -> int:
+    """Observations in the rig views of a block: valid tie observations of points, plus manual measurements."""
+    tr = rec.tracks
+    inb = set(np.asarray(images).tolist())
+    sl = np.zeros(len(rec.registered), bool)
+    sl[[s for s, m in rigv.master.items() if s in inb and m in inb]] = True
+    n = int(np.sum(rec.obs_valid & sl[tr.image] & np.isfinite(rec.points[tr.track]).all(1)))
+    return n + sum(1 for i, *_ in manual_obs if sl[i])
+
+
 def _rig_scale_local(rec, images, rig, master, rigv) -> list:
     """A block without datum and a rig with a given baseline: scale the model to metres by the baseline of the
     thermal images oriented together with their partners (else the adjustment's rig constraint sets it)."""
@@ -980,6 +1000,12 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
     obs_mask = rec.obs_valid & used[tr.image] & np.isfinite(rec.points[tr.track]).all(1)
     cnt = np.bincount(tr.track[obs_mask], minlength=len(rec.points))
     pts_ok = (cnt >= 2) & np.isfinite(rec.points).all(1)
+    if oriented_idx and pts_ok.any():
+        # points run away to near infinity (nearly parallel rays left after outlier removal) are not exported
+        d = np.linalg.norm(rec.points[pts_ok] - rec.centers()[oriented_idx].mean(axis=0), axis=1)
+        far = np.zeros(len(pts_ok), bool)
+        far[np.nonzero(pts_ok)[0]] = d > 50.0 * max(float(np.median(d)), 1e-9)
+        pts_ok &= ~far
     values, unit = _point_values(project, inputs, rec, names, oriented_idx, obs_mask)
     mult = cnt[pts_ok]
     units = sorted({inputs["images"][i]["unit"] for i in oriented_idx})
@@ -1137,7 +1163,8 @@ def survey_steps(inp: SurveyInput, opt: SurveyOptions, progress: Callable | None
         Step("inputs", lambda p: step_inputs(p, inp, opt, prog("inputs")), "decode inputs to frames/"),
         Step("features", lambda p: step_features(p, opt, prog("features")), "tie-point features per image"),
         Step("matching", lambda p: step_matching(p, opt, cam, prog("matching"), rig=inp.rig), "pairs, matching, geometric verification"),
-        Step("orient", lambda p: step_orient(p, opt, cam, prog("orient")), "tracks and incremental orientation"),
+        Step("orient", lambda p: step_orient(p, opt, cam, prog("orient"), rgb_camera=getattr(inp.rig, "rgb_camera", None)),
+             "tracks and incremental orientation"),
         Step("georef", lambda p: step_georef(p, inp, opt, cam, prog("georef")), "georeferencing, final adjustment, exports"),
     ]
 

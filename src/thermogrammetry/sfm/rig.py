@@ -22,6 +22,7 @@ The rig file (one schema, shared with the ``texture`` verb)::
      "cam_thermal_from_cam_rgb": {"R": [[3x3]], "t": [tx, ty, tz]},   # metres; optional when estimate is true
      "estimate": false,                 # true: R, t estimated in the block (the values above are the start)
      "thermal_camera": {camera JSON},   # optional in survey (held fixed like --camera); required by texture
+     "rgb_camera": {camera JSON},       # optional: the RGB camera of the rig calibration, held fixed
      "frames": {"<RGB image>": "<thermal file>", ...},   # explicit pairs (names with or without extension)
      "pairing": {"rgb_suffix": "-visible", "thermal_suffix": "-radiometric"},   # pairs by common stem
      "notes": "free text"}
@@ -50,7 +51,7 @@ __all__ = ["RigFile", "RigViews", "read_rig", "parse_rig", "pair_rig_images", "r
            "attach_rig_images", "rig_report", "RIG_KEYS"]
 
 RIG_FORMAT = "thermogrammetry/rig"
-RIG_KEYS = ("format", "cam_thermal_from_cam_rgb", "estimate", "thermal_camera", "frames", "pairing", "notes")
+RIG_KEYS = ("format", "cam_thermal_from_cam_rgb", "estimate", "thermal_camera", "rgb_camera", "frames", "pairing", "notes")
 
 
 @dataclass
@@ -63,7 +64,8 @@ class RigFile:
         ``cam_thermal_from_cam_rgb`` (t in metres); None when only ``estimate`` is asked.
     estimate : bool
         True: estimated in the block (R, t are the start when given); False: held fixed.
-    thermal_camera : Camera or None
+    thermal_camera, rgb_camera : Camera or None
+        Held fixed in the survey when given (from the rig's calibration).
     frames : dict RGB name -> thermal file (as written)
     rgb_suffix, thermal_suffix : str
         Stem suffixes removed before pairing by name.
@@ -80,6 +82,7 @@ class RigFile:
     thermal_suffix: str = ""
     notes: str = ""
     source: str = "rig.json"
+    rgb_camera: object = None
 
     @property
     def relative(self):
@@ -138,6 +141,7 @@ def parse_rig(d, *, source: str = "rig.json", require_relative: bool = False, re
         cam = Camera.from_dict(d["thermal_camera"], source=f"{source}: thermal_camera")
     elif require_camera:
         raise ConfigError(f"{source}: 'thermal_camera' (camera JSON) is required")
+    rgb_cam = Camera.from_dict(d["rgb_camera"], source=f"{source}: rgb_camera") if d.get("rgb_camera") is not None else None
     frames = d.get("frames", {})
     if not isinstance(frames, dict) or not all(isinstance(k, str) and isinstance(v, str) and k and v for k, v in frames.items()):
         raise ConfigError(f"{source}: 'frames' must map RGB image names to thermal frame files (non-empty strings)")
@@ -149,7 +153,7 @@ def parse_rig(d, *, source: str = "rig.json", require_relative: bool = False, re
         raise ConfigError(f"{source}: 'pairing' must be {{'rgb_suffix': str, 'thermal_suffix': str}}; got {pairing!r}")
     notes = d.get("notes", "")
     return RigFile(R, t, est, cam, dict(frames), pairing.get("rgb_suffix", ""), pairing.get("thermal_suffix", ""),
-                   notes if isinstance(notes, str) else json.dumps(notes), source)
+                   notes if isinstance(notes, str) else json.dumps(notes), source, rgb_cam)
 
 
 def _strip(stem: str, suffix: str) -> str:
