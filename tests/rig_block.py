@@ -67,7 +67,16 @@ def write_rig_block(root, *, seed: int = 0, n_frames: int | None = None):
     (root / "gcps.csv").write_text("id,X,Y,Z,sX,sY,sZ\n" + "".join(
         f"{k},{X[0]:.4f},{X[1]:.4f},{X[2]:.4f},0.01,0.01,0.01\n" for k, X in scene.gcps.items()))
     ter = scene.terrain
-    xy_t = np.array([[0.3, 0.35], [0.55, 0.5], [0.7, 0.6], [0.45, 0.65], [0.35, 0.5], [0.6, 0.4]]) * [ter.width_m, ter.height_m]
+    # on locally flat ground or roofs (a point on a steep DSM edge has no well-defined height)
+    cand = np.array([[0.3, 0.35], [0.55, 0.5], [0.7, 0.6], [0.45, 0.65], [0.35, 0.5], [0.6, 0.4], [0.4, 0.4], [0.65, 0.5],
+                     [0.5, 0.35], [0.3, 0.6], [0.7, 0.45], [0.5, 0.6]]) * [ter.width_m, ter.height_m]
+    flat = []
+    for x, y in cand:
+        off = np.array([[1.0, 0], [-1.0, 0], [0, 1.0], [0, -1.0], [0.7, 0.7], [-0.7, -0.7]])
+        hz = ter.height_at(x + off[:, 0], y + off[:, 1])
+        if np.ptp(np.append(hz, ter.height_at(np.array([x]), np.array([y])))) < 0.1:
+            flat.append((x, y))
+    xy_t = np.array(flat[:6])
     ties = {f"MT{k + 1:02d}": ter.to_world(np.array([x, y, ter.height_at(np.array([x]), np.array([y]))[0]]))
             for k, (x, y) in enumerate(xy_t)}
     meas = ["image,id,x,y"]
