@@ -158,3 +158,39 @@ def _alive(pid: int) -> bool:
             return fh.read().split()[2] != "Z"
     except OSError:
         return False
+
+
+def test_replacing_a_set_is_one_atomic_swap(tmp_path, monkeypatch):
+    """OUT existed: it is unchanged up to the folder exchange, complete after it; user files survive as the same file."""
+    import thermogrammetry._atomic as atomic
+
+    if not atomic._HAS_EXCHANGE:
+        pytest.skip("renameat2(RENAME_EXCHANGE) not available here")
+    out = tmp_path / "OUT"
+    with OutputSet(out, "t") as s:
+        s.path("a.txt").write_text("old a")
+        s.path("sub/b.txt").write_text("old b")
+        s.commit()
+    (out / "user.txt").write_text("user file")
+    (out / "sub" / "user2.txt").write_text("user file 2")
+    inode = (out / "user.txt").stat().st_ino
+    before = {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def dies(a, b):  # the process dies just before the exchange
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(atomic, "_exchange", dies)
+    with pytest.raises(KeyboardInterrupt):
+        with OutputSet(out, "t") as s:
+            s.path("a.txt").write_text("new a")
+            s.commit()
+    assert {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    monkeypatch.undo()
+    with OutputSet(out, "t") as s:
+        s.path("a.txt").write_text("new a")
+        s.commit({"n": 2})
+    assert (out / "a.txt").read_text() == "new a"
+    assert (out / "sub" / "b.txt").read_text() == "old b"  # older outputs the new set does not replace stay
+    assert (out / "user.txt").stat().st_ino == inode and (out / "sub" / "user2.txt").read_text() == "user file 2"
+    assert json.loads((out / "t-manifest.json").read_text())["files"] == ["a.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["OUT"]  # no staging folder left

@@ -21,7 +21,9 @@ from thermogrammetry.pipeline.demo import (
 @pytest.fixture
 def fake_sections():
     """Temporarily register sections with known outcomes; restore the registry afterwards."""
-    saved = list(DEMO_SECTIONS)
+    from thermogrammetry.pipeline.demo import all_sections
+
+    saved = all_sections()  # imports SECTION_MODULES first, so restoring keeps their sections
 
     def good(project, opt):
         project.write_text("good/out.txt", "x")
@@ -81,7 +83,7 @@ def test_closerange_and_testfield_sections_end_to_end():
     res = run_demo(p, DemoOptions(sections=("calibration-testfield", "closerange")))
     assert res.ok, [(r.check, r.value, r.bound) for r in res.rows if not r.passed]
     assert {r.section for r in res.rows} == {"calibration-testfield", "closerange"}
-    assert len(res.rows) == 7
+    assert len(res.rows) == 8
     for k in ("closerange/points.csv", "closerange/report.html", "calibration-testfield/control.csv", "report.html",
               "demo/closerange.json", "reports/closerange.json"):
         assert p.exists(k), k

@@ -10,10 +10,13 @@ removes those whose process is gone.
 
 Output sets (:class:`OutputSet`): a verb that writes several files builds them in a staging folder beside
 OUT (``.<OUT>.partial-<pid>``) and moves them into place at the end.  When OUT did not exist the staging
-folder is renamed to OUT (one atomic rename: OUT is absent or complete); when OUT exists the files are
-moved in one by one and a manifest (``<verb>-manifest.json``, listing every file) is written last, so a
-run interrupted while moving leaves OUT without a current manifest.  Stale staging folders of dead
-processes are removed at the next run.
+folder is renamed to OUT (one atomic rename: OUT is absent or complete).  When OUT exists, the files of
+OUT that the new set does not replace (the user's own files, older outputs) are hard-linked into the
+staging folder and the two folders are swapped by one ``renameat2(RENAME_EXCHANGE)`` (Linux): OUT is
+unchanged or complete, never partial.  Where that call is not available the files are moved in one by
+one and the manifest (``<verb>-manifest.json``, listing every file) is written last, so a run interrupted
+while moving leaves OUT without a current manifest.  Stale staging folders of dead processes are removed
+at the next run.
 """
 
 from __future__ import annotations
@@ -30,6 +33,36 @@ from .errors import DataFileError
 __all__ = ["write_atomic", "write_atomic_text", "file_mode", "dir_mode", "check_output_folder", "clean_stale_temporaries", "make_temp", "OutputSet"]
 
 _LOCK = threading.Lock()
+
+
+def _load_exchange():
+    """``renameat2(..., RENAME_EXCHANGE)`` from the C library, or None (not Linux, old glibc)."""
+    import ctypes
+    import ctypes.util
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return None
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    fn.restype = ctypes.c_int
+    return fn
+
+
+_RENAMEAT2 = _load_exchange()
+_HAS_EXCHANGE = _RENAMEAT2 is not None
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap two existing paths; False when the file system refuses (nothing changed then)."""
+    if _RENAMEAT2 is None:
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    return _RENAMEAT2(at_fdcwd, os.fsencode(str(a)), at_fdcwd, os.fsencode(str(b)), rename_exchange) == 0
 _MODE: int | None = None
 _CLEANED: set[str] = set()
 
@@ -253,6 +286,8 @@ class OutputSet:
             if not self.out.exists():
                 write_atomic_text(self.stage / self.manifest_name, json.dumps(doc, indent=1) + "\n")
                 os.replace(self.stage, self.out)
+            elif self._swap_into_existing(doc):
+                pass
             else:
                 stale = self.out / self.manifest_name
                 if stale.exists():  # the set is being replaced: no manifest until it is complete
@@ -267,6 +302,41 @@ class OutputSet:
             raise DataFileError(f"output folder {self.out}: cannot move the outputs into place ({exc.strerror or exc})") from None
         self.committed = True
         return [self.out / n for n in names]
+
+    def _swap_into_existing(self, doc: dict) -> bool:
+        """Carry OUT's other files into the stage (hard links) and swap the folders atomically.
+
+        Returns False, with nothing in OUT changed, where the atomic exchange is unavailable.
+        """
+        if not _HAS_EXCHANGE or not self.out.is_dir() or self.out.is_symlink():
+            return False
+        if os.stat(self.out).st_dev != os.stat(self.stage).st_dev:  # OUT is a mount point: no exchange
+            return False
+        new = set(self.files())
+        for root, dirs, files in os.walk(self.out):
+            rel_root = Path(root).relative_to(self.out)
+            for d in dirs:
+                if os.path.islink(os.path.join(root, d)):  # a symlinked folder is carried as a link, not walked
+                    files.append(d)
+            dirs[:] = [d for d in dirs if not os.path.islink(os.path.join(root, d))]
+            for f in files:
+                rel = (rel_root / f).as_posix()
+                if rel in new or rel == self.manifest_name:
+                    continue
+                src, dst = Path(root) / f, self.stage / rel
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                if src.is_symlink():
+                    os.symlink(os.readlink(src), dst)
+                else:
+                    try:
+                        os.link(src, dst)
+                    except OSError:
+                        shutil.copy2(src, dst)
+        write_atomic_text(self.stage / self.manifest_name, json.dumps(doc, indent=1) + "\n")
+        if not _exchange(self.stage, self.out):
+            return False
+        shutil.rmtree(self.stage, ignore_errors=True)  # now the previous OUT (its user files are linked in OUT)
+        return True
 
     def abort(self) -> None:
         shutil.rmtree(self.stage, ignore_errors=True)

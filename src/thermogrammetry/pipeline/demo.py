@@ -339,8 +339,9 @@ def _section_calibration_target(project: ProjectStore, opt: DemoOptions) -> list
     worst = max(z, key=lambda t: abs(t[1]))
     rows.append(DemoRow(sec, f"camera parameters: max |estimate - truth| / sigma over {len(z)} free ({worst[0]})", float(abs(worst[1])), 4.0,
                         "sigma", note=", ".join(f"{k} {v:+.1f}" for k, v in z)))
-    rows.append(DemoRow(sec, "principal distance error", float(abs(cc.params[0] - truth["c_mm"]) * 1000), None, "um", kind="info",
-                        note=f"sigma {cc.std[0] * 1000:.1f} um"))
+    rows.append(DemoRow(sec, "principal distance error (relative)", float(abs(cc.params[0] / truth["c_mm"] - 1.0)) * 100,
+                        CALIB_C_BOUND_PCT, "%", note=f"{abs(cc.params[0] - truth['c_mm']) * 1000:.1f} um, sigma "
+                                                     f"{cc.std[0] * 1000:.1f} um; absolute bound {CALIB_C_BOUND_PCT} % of c"))
     project.write_json("calibration-target/camera.json", {"params": cc.param_dict, "std": cc.std_dict, "truth": truth})
     return rows
 
@@ -439,6 +440,9 @@ def _section_closerange(project: ProjectStore, opt: DemoOptions) -> list[DemoRow
         DemoRow(sec, "pass points: max |error| / propagated sigma (33 coordinates)", zmax, 4.5, "sigma"),
         DemoRow(sec, "thermal camera centre (no control on the thermal image): max |error| / sigma", float(np.max(np.abs(dc) / sc)), 4.0,
                 "sigma", note=f"error {np.linalg.norm(dc) * 1000:.1f} mm"),
+        DemoRow(sec, "thermal camera centre: 3D error", float(np.linalg.norm(dc)) * 1000, CLOSERANGE_THERMAL_CENTRE_BOUND_MM, "mm",
+                note=f"absolute bound {CLOSERANGE_THERMAL_CENTRE_BOUND_MM} mm at ~2 m (resection of a 320-px-wide thermal frame "
+                     "from intersected pass points)"),
         DemoRow(sec, "angle-corrected temperature on the hot faces vs truth (median |error|)", float(np.median(dt)),
                 float(round(3 * np.nanmedian(sig_k), 3)), "K",
                 note=f"bound 3 x the median propagated sigma (sigma_k.tif, {np.nanmedian(sig_k):.3f} K); 95th percentile "
@@ -503,6 +507,11 @@ def _section_survey(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
             for r in csv.DictReader(io.StringIO(project.read_text("survey/gnss.csv")))}
     from ..geometry.rotations import matrix_from_axis_angle
 
+    import cv2
+
+    eligible = sorted(im for im, names in by_img.items() if len(names) >= 4)
+    failed_resections: list[str] = []
+    covers: list[float] = []
     for im, names in by_img.items():
         if len(names) < 4:
             continue
@@ -512,16 +521,30 @@ def _section_survey(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
         res = resection(cam, np.array([pts[n] for n in names]), np.array([noisy[(im, n)] for n in names]), sigma_px=sigma_px,
                         initial_pose=Pose.from_center(R0, gnss[im]))
         if not res.success:
+            failed_resections.append(f"{im} ({res.reason})")
             continue
         dc = res.center - poses[im].center
         zc.append(np.max(np.abs(dc) / res.center_std_prior))
         dcs.append(np.linalg.norm(dc))
+        xy = np.array([noisy[(im, n)] for n in names], np.float32)
+        covers.append(float(cv2.contourArea(cv2.convexHull(xy))) / (cam.width * cam.height))
     if zc:
         rows.append(DemoRow(sec, f"resection of {len(zc)} frames from >= 4 markers (GNSS/IMU start): max |centre error| / sigma",
                             float(np.max(zc)), 4.5,
                             "sigma", note=f"centre error RMS {np.sqrt(np.mean(np.square(dcs))) * 1000:.0f} mm, {sigma_px} px marker noise"))
-    else:
-        rows.append(DemoRow(sec, "resection: no frame sees >= 4 markers", 0.0, 1.0, "frames", kind="min"))
+        strong = [d for d, c in zip(dcs, covers) if c >= RESECTION_MIN_COVER]
+        if strong:
+            rows.append(DemoRow(sec, f"resection: largest camera-centre error, {len(strong)} frames whose markers cover "
+                                     f">= {RESECTION_MIN_COVER * 100:.0f} % of the frame", float(np.max(strong)),
+                                round(RESECTION_CENTRE_BOUND_REL * scene.config.flight_height_m, 2), "m",
+                                note=f"absolute bound {RESECTION_CENTRE_BOUND_REL * 100:.0f} % of the {scene.config.flight_height_m:.0f} m "
+                                     "flight height: over flat ground and a 25 deg field of view, tilt and horizontal position "
+                                     "trade against each other, so a single-image resection is weak (the bundle fixes it); "
+                                     f"{len(dcs) - len(strong)} frames with less marker cover (weaker still) are in the sigma row"))
+    rows.append(DemoRow(sec, f"frames resected, of the {len(eligible)} that see >= 4 markers", float(len(zc)),
+                        float(max(len(eligible), 1)), "frames", kind="min",
+                        note=("failed: " + "; ".join(failed_resections)) if failed_resections else
+                        ("none failed" if eligible else "no frame sees >= 4 markers")))
     # triangulation of the check points from the true poses
     checks = [n for n in pts if n.startswith("CHK")]
     cfg_gsd_cm = scene.config.flight_height_m * scene.config.pixel_pitch_um * 1e-6 / (scene.config.focal_mm * 1e-3) * 100
@@ -539,6 +562,10 @@ def _section_survey(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
                             float(np.max(tri_z)), 4.5, "sigma",
                             note=f"3D error max {np.max(tri_err) * 1000:.0f} mm, RMS {np.sqrt(np.mean(np.square(tri_err))) * 1000:.0f} mm; "
                                  f"GSD {cfg_gsd_cm:.1f} cm, {sigma_px} px marker noise"))
+        rows.append(DemoRow(sec, "check points triangulated from the true poses: largest 3D error", float(np.max(tri_err)) * 100,
+                            round(TRIANGULATION_BOUND_GSD * cfg_gsd_cm, 1), "cm",
+                            note=f"absolute bound {TRIANGULATION_BOUND_GSD} GSD ({cfg_gsd_cm:.1f} cm): {sigma_px} px marker noise "
+                                 "over a base/height of ~0.3 gives ~1 GSD in height"))
     # --- radiometry: recover the surface temperature of one frame per pixel from the written TIFF
     k = len(scene.frames) // 2
     fr = scene.frames[k]
@@ -619,6 +646,7 @@ def _section_survey_bundle(project: ProjectStore, opt: DemoOptions) -> list[Demo
     if not res.success or res.point_covariance is None:
         return [DemoRow(sec, f"bundle adjustment ({res.termination.value}: {res.reason})", float("nan"), 0.0, "")]
     ck = np.array([pi[n] for n in checks])
+    gsd_cm = cfg.flight_height_m * cfg.pixel_pitch_um * 1e-6 / (cfg.focal_mm * 1e-3) * 100
     e = res.points[ck] - (np.array(list(checks.values())) - O)
     sd = np.sqrt(np.diagonal(res.point_covariance[ck], axis1=1, axis2=2))
     C = np.array([p.center for p in res.poses])
@@ -642,6 +670,14 @@ def _section_survey_bundle(project: ProjectStore, opt: DemoOptions) -> list[Demo
                 note=f"RMSE E/N/h {rmse[0]:.0f}/{rmse[1]:.0f}/{rmse[2]:.0f} mm (B/H 0.3: 70 % overlap)"),
         DemoRow(sec, f"camera centres ({len(C)}): max |error| / sigma", float(np.max(zc)), 4.5, "sigma",
                 note="RMSE E/N/h " + "/".join(f"{v:.0f}" for v in np.sqrt(np.mean(dC**2, axis=0)) * 1000) + " mm"),
+        DemoRow(sec, "check points: horizontal RMSE (E and N, the larger)", float(np.max(rmse[:2])) / 10 / gsd_cm,
+                BUNDLE_CHECK_BOUND_GSD[0], "GSD", note=f"GSD {gsd_cm:.1f} cm; absolute bound {BUNDLE_CHECK_BOUND_GSD[0]} GSD "
+                                                   "(issue 10's survey target)"),
+        DemoRow(sec, "check points: height RMSE", float(rmse[2]) / 10 / gsd_cm, BUNDLE_CHECK_BOUND_GSD[1], "GSD",
+                note=f"absolute bound {BUNDLE_CHECK_BOUND_GSD[1]} GSD (base/height 0.3)"),
+        DemoRow(sec, "camera centres: largest 3D error", float(np.max(np.linalg.norm(dC, axis=1))), BUNDLE_CENTRE_BOUND_M, "m",
+                note=f"absolute bound {BUNDLE_CENTRE_BOUND_M} m (GNSS sigma {cfg.gnss_sigma_h_m}/{cfg.gnss_sigma_v_m} m H/V, "
+                     "tightened by the tie points)"),
     ]
 
 
@@ -704,6 +740,16 @@ for _s in (
 ):
     register_section(_s)
 
+
+# Absolute bounds of the demo rows (beside the sigma ones; issue 14): fixed numbers from the scene's design
+# (noise, base/height, distance), each 1.5-3x the worst figure measured over seeds 0-3.
+RESECTION_MIN_COVER = 0.25  # convex hull of the markers / frame area
+RESECTION_CENTRE_BOUND_REL = 0.08  # of the flight height; measured 2.4-5.0 % (seeds 0-3)
+TRIANGULATION_BOUND_GSD = 5.0  # a-priori sigma_Z of a 2-ray point at B/H 0.3 and 0.3 px: ~1.4 GSD; measured <= 2.8
+BUNDLE_CHECK_BOUND_GSD = (0.5, 4.0)  # E/N: issue 10's target (measured <= 0.34); h: ~3x the 2-ray sigma_Z (measured <= 2.6)
+BUNDLE_CENTRE_BOUND_M = 0.15  # GNSS 3/5 cm H/V priors tightened by the ties; measured <= 0.10
+CLOSERANGE_THERMAL_CENTRE_BOUND_MM = 200.0  # ~2 m away, no control on the thermal frame; measured 34-113 mm
+CALIB_C_BOUND_PCT = 0.5  # measured <= 0.15 %
 
 # ------------------------------------------------------------------------------------------ running
 

@@ -13,29 +13,129 @@ Heikkilä, J. (2000). Geometric camera calibration using circular control points
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..targets import CircleGridTarget
+from .. import targets as _t
+from ..errors import ConfigError
+from ..targets import BOARD, FEATURE, SURROUND, CircleGridTarget
 from .targets import RenderedTarget, render_target_image
 from .testfield import look_at_pose
 
-__all__ = ["CircleGridSet", "make_circle_grid_set", "STRONG_BARREL_CAMERA"]
+__all__ = ["CircleGridSet", "DisplacedCircleGrid", "make_circle_grid_set", "displace_centres_in_image",
+           "STRONG_BARREL_CAMERA"]
 
 #: 640 x 512, 17 µm, c = 7.48 mm (fx 440 px); correction form with K1 such that the correction at the
 #: frame corner is ~ 35 px (barrel), plus small K2, P1, P2
 STRONG_BARREL_CAMERA = dict(c_mm=7.48, x0_mm=0.06, y0_mm=-0.04, K1=1.6e-3, K2=8e-6, P1=2e-5, P2=-1.5e-5)
 
 
+@dataclass(frozen=True)
+class DisplacedCircleGrid(CircleGridTarget):
+    """A circle grid whose circles are *made* off their nominal centres (a manufacturing error of the
+    mask, or an injected measurement error for a test): the circles are rendered at
+    ``object_points()[:, :2] + offsets_mm``, while ``object_points()`` stays the nominal design that a
+    calibration uses.
+
+    Attributes
+    ----------
+    offsets_mm : ndarray (N, 2)
+        Displacement of every circle in the target plane, millimetres, OpenCV point order; each must
+        stay well below the gap between circles (checked: ``|offset| < (nn - d) / 4``).
+    """
+
+    offsets_mm: np.ndarray = field(default=None, compare=False, repr=False)
+
+    def __post_init__(self):
+        super().__post_init__()
+        n = type(self).__name__
+        off = np.zeros((self.n_points, 2)) if self.offsets_mm is None else np.asarray(self.offsets_mm, np.float64)
+        if off.shape != (self.n_points, 2) or not np.all(np.isfinite(off)):
+            raise ConfigError(f"{n}.offsets_mm: expected a finite ({self.n_points}, 2) array in mm, got shape {off.shape}")
+        gap = self.nearest_neighbour_mm - self._need_diameter()
+        if np.linalg.norm(off, axis=1).max() >= 0.25 * gap:
+            raise ConfigError(f"{n}.offsets_mm: largest displacement {np.linalg.norm(off, axis=1).max():.4g} mm; "
+                              f"expected < a quarter of the gap between circles ({0.25 * gap:.4g} mm)")
+        object.__setattr__(self, "offsets_mm", off)
+
+    def circle_centres_mm(self) -> np.ndarray:
+        """(N, 2) where the circles are actually made, mm."""
+        return self.object_points()[:, :2] + self.offsets_mm
+
+    def classify(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        """Part label (SURROUND=0, BOARD=1 mask, FEATURE=2 displaced circle) of target-plane points, int8."""
+        x, y = np.asarray(x_mm, dtype=np.float64), np.asarray(y_mm, dtype=np.float64)
+        r2 = (0.5 * self._need_diameter()) ** 2
+        lab = np.where(_t._in_box(x, y, self.extent_mm()), BOARD, SURROUND).astype(np.int8)
+        inside = np.zeros(lab.shape, dtype=bool)
+        with np.errstate(invalid="ignore"):
+            for cx, cy in self.circle_centres_mm():
+                inside |= (x - cx) ** 2 + (y - cy) ** 2 <= r2
+        lab[inside & np.isfinite(x) & np.isfinite(y)] = FEATURE
+        return lab
+
+    def outline_points(self, n: int = 16) -> np.ndarray:
+        """(N·n, 3) mm: points on every (displaced) circle's rim (visibility checks)."""
+        c = np.column_stack([self.circle_centres_mm(), np.zeros(self.n_points)])
+        a = 2 * np.pi * np.arange(n) / n
+        r = 0.5 * self._need_diameter()
+        rim = np.stack([r * np.cos(a), r * np.sin(a), np.zeros(n)], axis=1)
+        return (c[:, None, :] + rim[None, :, :]).reshape(-1, 3)
+
+
+def displace_centres_in_image(camera, R: np.ndarray, t: np.ndarray, centres_mm: np.ndarray, shift_px: np.ndarray,
+                              iterations: int = 4) -> np.ndarray:
+    """Target-plane offsets (mm) that move the projections of ``centres_mm`` by ``shift_px``.
+
+    Newton iteration on ``project(R (c + o) + t) - project(R c + t) = shift`` with a numerical 2 x 2
+    Jacobian per point (the projection includes the camera's distortion).
+
+    Parameters
+    ----------
+    camera : thermogrammetry.Camera
+    R, t : cam_from_target, metres.
+    centres_mm : (N, 2) or (N, 3) target-plane points, mm (z = 0).
+    shift_px : (N, 2) wanted image displacement, px.
+
+    Returns
+    -------
+    offsets_mm : (N, 2) -- the realised shift agrees with ``shift_px`` to < 1e-6 px for sub-pixel shifts.
+    """
+    c = np.asarray(centres_mm, np.float64)[:, :2]
+    want = np.asarray(shift_px, np.float64)
+
+    def proj(xy_mm):
+        p = np.column_stack([xy_mm, np.zeros(len(xy_mm))]) * 1e-3
+        return camera.project(p @ np.asarray(R).T + np.asarray(t))
+
+    base = proj(c)
+    off = np.zeros_like(c)
+    h = 1e-3  # mm
+    for _ in range(iterations):
+        cur = proj(c + off)
+        jx = (proj(c + off + [h, 0.0]) - cur) / h
+        jy = (proj(c + off + [0.0, h]) - cur) / h
+        J = np.stack([jx, jy], axis=2)  # (N, 2, 2): d px / d mm
+        off = off + np.linalg.solve(J, (want - (cur - base))[:, :, None])[:, :, 0]
+    return off
+
+
 @dataclass
 class CircleGridSet:
-    """Rendered views with their truth."""
+    """Rendered views with their truth.
+
+    ``centre_shifts_px`` (one (N, 2) array per view, OpenCV point order): the image displacement of
+    each circle's projected centre made by rendering it off its nominal position
+    (``make_circle_grid_set(centre_noise_px=...)``); zeros when no noise was injected. The views'
+    ``points_px`` remain the projections of the *nominal* centres (the calibration's truth).
+    """
 
     camera: object
     target: CircleGridTarget
     views: list  # RenderedTarget
     names: list
+    centre_shifts_px: list = field(default_factory=list)
 
     @property
     def images(self):
@@ -43,18 +143,34 @@ class CircleGridSet:
 
 
 def make_circle_grid_set(n_views: int = 24, seed: int = 13, *, supersample: int = 3, psf_sigma_px: float = 0.8,
-                         netd_k: float = 0.05, params: dict | None = None) -> CircleGridSet:
+                         netd_k: float = 0.05, params: dict | None = None, centre_noise_px: float = 0.0,
+                         centre_noise_seed: int = 1013) -> CircleGridSet:
     """Render ``n_views`` views of a 4 x 3 grid of 60 mm circles at 90 mm spacing (dark... bright holes on
     a warm emitter behind the mask) through :data:`STRONG_BARREL_CAMERA`.
 
     Every view shows the whole grid (all circle outlines inside the frame); views alternate between
     the frame centre and its corners/edges, 0.45-0.75 m away, tilted up to ~40 degrees, rolled freely.
     Seeded: the same arguments give the same images.
+
+    Parameters
+    ----------
+    centre_noise_px : float
+        σ (px, per image coordinate) of a known centre error: in every view each circle is rendered
+        where its projected centre moves by an independent N(0, σ²) shift in x and y (the circle is
+        displaced in the target plane by :func:`displace_centres_in_image`, so its image is a true
+        projection of a circle), while the truth (``points_px``, ``target``) stays the nominal grid.
+        The realised shifts are in ``CircleGridSet.centre_shifts_px``. 0: the nominal grid.
+    centre_noise_seed : int
+        Seed of those shifts (independent of the pose seed, so the poses are the same with and without).
     """
     from ..camera import Camera
 
     cam = Camera("photogrammetric", (640, 512), dict(params or STRONG_BARREL_CAMERA), pixel_pitch_um=17.0)
     tgt = CircleGridTarget(4, 3, 90.0, diameter_mm=60.0)
+    if not (np.isfinite(centre_noise_px) and centre_noise_px >= 0):
+        raise ConfigError(f"centre_noise_px={centre_noise_px!r}: expected a standard deviation >= 0 px")
+    noise_rng = np.random.default_rng(centre_noise_seed)
+    shifts = []
     rng = np.random.default_rng(seed)
     centre = np.array([0.135, 0.09, 0.0])
     views, names = [], []
@@ -90,11 +206,21 @@ def make_circle_grid_set(n_views: int = 24, seed: int = 13, *, supersample: int 
         rim = cam.project(1e-3 * tgt.outline_points() @ R.T + t)
         if not (np.all(np.isfinite(rim)) and np.all(rim >= 2) and np.all(rim[:, 0] <= w - 3) and np.all(rim[:, 1] <= h - 3)):
             continue
-        r = render_target_image(cam, (R, t), tgt, supersample=supersample, psf_sigma_px=psf_sigma_px, netd_k=netd_k,
+        draw = tgt
+        shift = np.zeros((tgt.n_points, 2))
+        if centre_noise_px > 0:
+            shift = noise_rng.normal(0.0, centre_noise_px, (tgt.n_points, 2))
+            off = displace_centres_in_image(cam, R, t, tgt.object_points(), shift)
+            draw = DisplacedCircleGrid(tgt.columns, tgt.rows, tgt.spacing_mm, diameter_mm=tgt.diameter_mm,
+                                       margin_mm=tgt.margin_mm, offsets_mm=off)
+        r = render_target_image(cam, (R, t), draw, supersample=supersample, psf_sigma_px=psf_sigma_px, netd_k=netd_k,
                                 seed=len(views))
         if not r.visible.all():
             continue
+        if draw is not tgt:  # the truth is the nominal grid (what the calibration is told)
+            r.target = tgt
+        shifts.append(shift)
         views.append(r)
         names.append(f"cg{len(views) - 1:02d}")
         k += 1
-    return CircleGridSet(cam, tgt, views, names)
+    return CircleGridSet(cam, tgt, views, names, shifts)
