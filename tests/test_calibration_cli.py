@@ -111,9 +111,12 @@ def test_cli_testfield_route_writes_all_outputs(csv_files, tmp_path, capsys, fie
     out = tmp_path / "OUT"
     rc = main(["calibrate", "--control", str(csv_files / "control.csv"), "--measurements", str(csv_files / "measurements.csv"),
                "--image-size", "320x240", "--pixel-pitch-um", "25", "--focal-mm", "18", "-o", str(out)])
-    text = capsys.readouterr().out
+    cap = capsys.readouterr()
+    text = cap.out
     assert rc == 0, text
     assert "16/16 images used" in text and "σx" in text
+    # not a terminal (captured): progress comes as plain lines on stderr, first and last of the resection
+    assert "calibrate: resection 0/16" in cap.err and "calibrate: resection 16/16" in cap.err, cap.err
     # this test field's camera (seed 001's FLIR A320 coefficients) converts wildly to the forward
     # models: several px at the frame corners. The exports say so: names, warning, residuals printed.
     for key in ("camera.json", "calibration.json", "report.html", "exports/opencv_INACCURATE.yaml",

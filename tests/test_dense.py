@@ -134,12 +134,19 @@ FRAMES = [k for line in (1, 2) for k in range(14 * line + 3, 14 * line + 11)]  #
 @pytest.fixture(scope="module")
 def dense_run(tmp_path_factory):
     """Dense on a 16-frame block with TRUE poses (not from `survey`)."""
+    import contextlib
+    import io
+
     from thermogrammetry.cli.main import main
 
     root = tmp_path_factory.mktemp("dense")
     sc, sv = write_true_survey(root / "survey", frames=FRAMES)
-    rc = main(["dense", str(sv), "-o", str(root / "dense"), "--workers", "0"])
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        rc = main(["dense", str(sv), "-o", str(root / "dense"), "--workers", "0"])
     assert rc == 0
+    # not a terminal: plain progress lines, the last one with every reference image done
+    assert f"dense: reference images {len(FRAMES)}/{len(FRAMES)}" in err.getvalue(), err.getvalue()
     return sc, sv, root / "dense"
 
 

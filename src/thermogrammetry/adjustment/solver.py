@@ -568,6 +568,11 @@ class _Normal:
         self.dU = np.clip(np.diag(self.U), 1e-6, 1e32) if lay.nc else np.zeros(0)
         self.dV = np.clip(np.diagonal(self.V, axis1=1, axis2=2), 1e-6, 1e32)
         self._Bc = None
+        # work of the sparse Schur product W V^-1 W^T (sum over point columns of their non-zeros squared);
+        # the dense slab product costs nc^2 * 3 npf: sparse wins when each point touches few parameters
+        # (survey blocks: ~4 of 32 poses per point)
+        col_nnz = np.bincount(self.B.indices, minlength=3 * npf) if lay.nc and npf else np.zeros(0)
+        self.sparse_flops = float(np.sum(col_nnz.astype(float) ** 2))
         self.grad_max = max(float(np.max(np.abs(self.gc))) if lay.nc else 0.0, float(np.max(np.abs(gp))) if npf else 0.0)
 
     def schur(self, lam, want_H=False):
@@ -594,7 +599,7 @@ class _Normal:
         rhs = -self.gc.copy()
         H = None
         if nc and npf:
-            if want_H or nc * nc * 3 * npf > 5e9:
+            if want_H or nc * nc * 3 * npf > 5e9 or nc * nc * 3 * npf > 10.0 * self.sparse_flops:
                 Vsp = sp.bsr_matrix((Vinv, np.arange(npf), np.arange(npf + 1)), shape=(3 * npf, 3 * npf)).tocsr()
                 H = (self.B @ Vsp).tocsr()
                 S -= (H @ self.B.T).toarray()

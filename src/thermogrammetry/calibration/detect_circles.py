@@ -282,7 +282,10 @@ def ellipse_candidates(gray: np.ndarray, bright: bool, block_sizes=(15, 31, 61, 
 
     Returns
     -------
-    ndarray (K, 6): x, y (px, OpenCV convention), major, minor axis (px), area (px²), count.
+    ndarray (K, 8): x, y (px, OpenCV convention), major, minor axis (px), area (px²), count, angle of
+    the major axis (radians, from image x towards image y), and the contour's largest relative
+    departure from the fitted ellipse (``max |ρ - 1|``, ρ the contour point's normalised elliptic
+    radius: ~0.03 for a whole blurred disc, larger for a disc cut by an occluder's edge).
     """
     u8 = normalize_to_u8(gray)
     img = cv2.GaussianBlur(u8 if bright else 255 - u8, (0, 0), 1.0)
@@ -300,15 +303,22 @@ def ellipse_candidates(gray: np.ndarray, bright: bool, block_sizes=(15, 31, 61, 
                 a = cv2.contourArea(c)
                 if a < 12 or a > 0.25 * h * w:
                     continue
-                (cx, cy), (ma, mi), _ = cv2.fitEllipse(c)
+                (cx, cy), (ma, mi), _ang = cv2.fitEllipse(c)
                 ea = np.pi * ma * mi / 4.0
                 if ea <= 0 or min(ma, mi) < 3 or min(ma, mi) / max(ma, mi) < 0.25 or not 0.85 < a / ea < 1.1:
                     continue
                 if a / max(cv2.contourArea(cv2.convexHull(c)), 1e-9) < 0.92:
                     continue
-                raw.append((cx, cy, max(ma, mi), min(ma, mi), a))
+                ang = np.deg2rad(_ang) + (0.0 if ma >= mi else 0.5 * np.pi)
+                q = c.reshape(-1, 2).astype(np.float64) - (cx, cy)
+                ca, sa = np.cos(ang), np.sin(ang)
+                u, v = q[:, 0] * ca + q[:, 1] * sa, -q[:, 0] * sa + q[:, 1] * ca
+                # contour pixels are the outermost pixel centres inside the threshold: their radius is
+                # ~half a pixel short of the fitted ellipse's; compare with the fitted axes
+                rho = np.hypot(u / (0.5 * max(ma, mi)), v / (0.5 * min(ma, mi)))
+                raw.append((cx, cy, max(ma, mi), min(ma, mi), a, ang % np.pi, float(np.abs(rho - 1.0).max())))
     if not raw:
-        return np.zeros((0, 6))
+        return np.zeros((0, 8))
     raw = np.array(raw)
     order = np.argsort(-raw[:, 4])
     used = np.zeros(len(raw), bool)
@@ -321,7 +331,7 @@ def ellipse_candidates(gray: np.ndarray, bright: bool, block_sizes=(15, 31, 61, 
         used |= grp
         g = raw[grp]
         med = g[np.argsort(g[:, 4])[len(g) // 2]]
-        out.append((*med, float(len(g))))
+        out.append((*med[:5], float(len(g)), med[5], med[6]))
     return np.array(out)
 
 
@@ -337,24 +347,19 @@ def _quad_fit_rms(obj, pts):
     return float(np.sqrt(np.mean(r * r))), float(r.max())
 
 
-def _grid_from_ellipses(gray, spec, bright):
+def _grid_from_ellipses(gray, spec, bright, c=None):
     """Grid of ``spec`` from ellipse candidates: the N candidates of the most common size that are
     found at several scales, ordered by ``cv2.findCirclesGrid`` on a clean redrawn image and
-    checked with a second-order (distortion-aware) map. Returns (points (N, 2) or None, why)."""
-    c = ellipse_candidates(gray, bright)
+    checked with a second-order (distortion-aware) map. Returns (points (N, 2) or None, why).
+    ``c``: the :func:`ellipse_candidates` of ``gray`` when already computed."""
+    if c is None:
+        c = ellipse_candidates(gray, bright)
     n = spec.n_points
     if len(c) < n:
         return None, f"{len(c)} ellipse candidates < {n}"
     # size consistency: grid discs are similar (perspective changes their area by < ~4x); pick the
     # largest group in log-area within a factor 4, preferring discs found at several scales
-    la = np.log(c[:, 4])
-    best = None
-    for i in np.argsort(-c[:, 5]):
-        grp = np.flatnonzero(np.abs(la - la[i]) < np.log(4.0) / 2 + 1e-9)
-        score = (len(grp) >= n, c[grp, 5].sum())
-        if best is None or score > best[0]:
-            best = (score, grp)
-    grp = best[1]
+    grp = _size_group(c, n)
     if len(grp) < n:
         return None, f"only {len(grp)} ellipses of a consistent size"
     grp = grp[np.argsort(-c[grp, 5] - 1e-6 * c[grp, 4])][: max(n + 6, int(1.5 * n))]
@@ -477,7 +482,8 @@ def _grid_from_hull(p: np.ndarray, spec) -> np.ndarray | None:
 
 
 def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polarity: str = "auto",
-                       refine: str = "moments", perspective_correction: bool = True) -> Detection:
+                       refine: str = "moments", perspective_correction: bool = True, partial: bool = True,
+                       min_partial_points: int = 6) -> Detection:
     """Find a symmetric or asymmetric circle grid and measure sub-pixel centres.
 
     Parameters
@@ -492,18 +498,32 @@ def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polar
         "moments": :func:`refine_circle_centres` on the float image; "none": blob-detector centres.
     perspective_correction : bool
         Remove the perspective bias (:func:`ellipse_centre_bias`); needs ``spec.diameter_mm``.
+    partial : bool
+        When no pass finds the whole grid, accept part of it (circles outside the frame, cut by its
+        border or hidden): the ellipse candidates of a consistent size are put on a lattice by
+        growing it from neighbour to neighbour (:func:`_grow_lattice`), the patch is placed on the
+        target (:func:`_place_on_target`) and checked with a second-order map and the polarity
+        test; circles whose measuring window leaves the frame are dropped. A symmetric patch may fit
+        the target at several places (a 3x3 patch of a 4x3 grid at two); they differ by a rigid
+        motion of the target plane, which the view's own pose absorbs, so the calibration is the
+        same whichever is taken (not so for a rig with a shared target pose: keep the views whole
+        there). ``extra["partial"]`` says so and ``extra["placements"]`` counts the valid ones.
+    min_partial_points : int
+        Fewest circles of a partial grid (default 6, the calibration's minimum per image).
 
     Returns
     -------
     Detection
-        ``points_px`` (columns*rows, 2) in canonical order (:func:`order_grid_by_homography`),
-        ``object_ids = arange(N)``.
+        ``points_px`` (K, 2) in canonical order (:func:`order_grid_by_homography`), ``object_ids``
+        (K,): ``arange(N)`` for a whole grid, the found circles' ids for a partial one.
     """
     spec = spec_of(spec, CircleGridSpec, "CircleGridSpec")
     if polarity not in ("auto", "bright", "dark"):
         raise ConfigError(f"polarity: expected 'auto', 'bright' or 'dark', got {polarity!r}")
     if refine not in ("moments", "none"):
         raise ConfigError(f"refine: expected 'moments' or 'none', got {refine!r}")
+    if int(min_partial_points) < 4:
+        raise ConfigError(f"min_partial_points: expected >= 4 circles, got {min_partial_points!r}")
     gray = to_gray_float(image, f"image {image_id!r}" if image_id else "image")
     size = image_size_of(gray)
     u8 = normalize_to_u8(gray)
@@ -551,23 +571,44 @@ def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polar
                                perspective_correction)
     # large discs under strong distortion / perspective: ellipse candidates over several scales of
     # adaptive threshold, grid topology from the candidates' neighbour structure, distortion-aware check
+    cands = {}
     for pol in pols:
-        pts, why = _grid_from_ellipses(gray, spec, pol == "bright")
+        cands[pol] = ellipse_candidates(gray, pol == "bright")
+        pts, why = _grid_from_ellipses(gray, spec, pol == "bright", cands[pol])
         name = f"{pol}-ellipses"
         if pts is not None:
             return _finish(gray, pts, spec, image_id, size, name, tried, pol == "bright", refine, perspective_correction)
         tried.append(f"{name} ({why})")
+    # part of the grid: outside the frame, cut by its border or hidden
+    if partial:
+        for pol in pols:
+            pts, ids, n_place, why = _partial_grid(gray, spec, pol == "bright", cands[pol], int(min_partial_points))
+            name = f"{pol}-partial"
+            if pts is not None:
+                det = _finish(gray, pts, spec, image_id, size, name, tried, pol == "bright", refine,
+                              perspective_correction, ids=ids, min_points=int(min_partial_points), n_placements=n_place)
+                if det.found:
+                    return det
+                why = det.reason
+            tried.append(f"{name} ({why})")
     return Detection.failure(image_id, f"no {pattern[0]}x{pattern[1]} "
                              f"{'asymmetric ' if spec.asymmetric else ''}circle grid found (tried: {', '.join(tried)})", size)
 
 
-def _finish(gray, pts, spec, image_id, size, name, tried, bright, refine, perspective_correction) -> Detection:
-    obj = spec.object_points()[:, :2]
+def _finish(gray, pts, spec, image_id, size, name, tried, bright, refine, perspective_correction, *, ids=None,
+            min_points=None, n_placements=1) -> Detection:
+    """Sub-pixel centres, bias correction and the Detection of grid points ``pts`` (ids: ``arange(N)``
+    for a whole grid; for a partial one (``ids`` given) circles whose window leaves the image or whose
+    centre is unstable are dropped, and fewer than ``min_points`` left is a failure)."""
+    partial = ids is not None
+    ids = np.arange(spec.n_points, dtype=np.int64) if ids is None else np.asarray(ids, np.int64)
+    obj = spec.object_points()[ids, :2]
     H = _fit_h(obj, pts)
     # nearest-neighbour distance in px at every circle, from the homography
     nn_mm = spec.spacing_mm * (np.sqrt(2.0) if spec.asymmetric else 1.0)
-    nn_px = np.min(np.stack([np.linalg.norm(_apply_h(H, obj + d) - _apply_h(H, obj), axis=1)
-                             for d in ([nn_mm, 0], [0, nn_mm], [-nn_mm, 0], [0, -nn_mm])]), axis=0)
+    steps = np.stack([np.linalg.norm(_apply_h(H, obj + d) - _apply_h(H, obj), axis=1)
+                      for d in ([nn_mm, 0], [0, nn_mm], [-nn_mm, 0], [0, -nn_mm])])
+    nn_px = np.min(steps, axis=0)
     # (for asymmetric grids the nearest neighbour is diagonal, s*sqrt(2) away; an axis step of that
     # length approximates its pixel distance)
     if spec.diameter_mm is not None:
@@ -590,9 +631,29 @@ def _finish(gray, pts, spec, image_id, size, name, tried, bright, refine, perspe
             new, ok = refine_circle_centres(gray, pts, r_px, win, bright, plane_background=plane, ring_px=ring)
             moved = np.linalg.norm(new - pts, axis=1) > 0.5 * r_px + 1.0
             keep = ok & ~moved
+            # a circle cut by the frame border (its disc plus 2 px of blur reaching outside) would be
+            # off by pixels (9 px measured on a 60 mm circle cut by the border): dropped; a whole disc
+            # whose window or annulus leaves the frame, or whose centre does not settle, keeps its
+            # blob position
+            h_img, w_img = gray.shape
+            r_mm = 0.5 * spec.diameter_mm if spec.diameter_mm is not None else 0.2 * nn_mm
+            ang = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+            ring_mm = 1.05 * r_mm * np.column_stack([np.cos(ang), np.sin(ang)])
+            cut = np.zeros(len(pts), bool)
+            for k in range(len(pts)):  # the disc's outline by the homography, placed at its blob centre
+                o = _apply_h(H, obj[k] + ring_mm) - _apply_h(H, obj[k:k + 1]) + pts[k]
+                cut[k] = bool(np.any((o[:, 0] < 1.5) | (o[:, 0] > w_img - 2.5) | (o[:, 1] < 1.5) | (o[:, 1] > h_img - 2.5)))
             pts = np.where(keep[:, None], new, pts)
-            if not keep.all():
-                notes.append(f"{int((~keep).sum())} centre(s) kept at blob positions (window at the border or unstable)")
+            if np.any(~keep & ~cut):
+                notes.append(f"{int((~keep & ~cut).sum())} centre(s) kept at blob positions (window at the border "
+                             "or unstable)")
+            if np.any(cut):
+                notes.append(f"{int(cut.sum())} circle(s) cut by the frame border dropped")
+                pts, ids, obj = pts[~cut], ids[~cut], obj[~cut]
+                partial = True
+                if len(ids) < max(min_points or 6, 4):
+                    return Detection.failure(image_id, f"{len(ids)} whole circles left (< {max(min_points or 6, 4)}; "
+                                             "the others are cut by the frame border)", size)
     if perspective_correction and spec.diameter_mm is not None:
         raw = pts.copy()
         for _ in range(2):
@@ -604,9 +665,232 @@ def _finish(gray, pts, spec, image_id, size, name, tried, bright, refine, perspe
     H = _fit_h(obj, pts)
     rms = float(np.sqrt(np.mean(np.sum((_apply_h(H, obj) - pts) ** 2, axis=1))))
     reason = f"found by {name}" + (f" after {', '.join(tried)} failed" if tried else "")
+    if partial:
+        notes.insert(0, f"partial grid: {len(ids)} of {spec.n_points} circles"
+                     + (f" (the patch fits the target at {n_placements} places, equivalent up to the view's pose)"
+                        if n_placements > 1 else ""))
     if notes:
         reason += "; " + "; ".join(notes)
+    extra = {"homography_rms_px": rms, "radius_px": float(np.median(r_px)), "polarity": "bright" if bright else "dark"}
+    if partial:
+        extra.update(partial=True, placements=int(n_placements))
     return Detection(image_id=str(image_id), found=True, points_px=np.ascontiguousarray(pts),
-                     object_ids=np.arange(spec.n_points, dtype=np.int64), reason=reason, image_size=size,
-                     method=name, extra={"homography_rms_px": rms, "radius_px": float(np.median(r_px)),
-                                         "polarity": "bright" if bright else "dark"})
+                     object_ids=np.ascontiguousarray(ids), reason=reason, image_size=size, method=name, extra=extra)
+
+
+# --------------------------------------------------------------------------------------------------
+# partial grids: part of the grid outside the frame or hidden
+# --------------------------------------------------------------------------------------------------
+def _size_group(c: np.ndarray, n: int) -> np.ndarray:
+    """Indices of the largest group of ellipse candidates within a factor 4 in area, preferring
+    candidates found at several scales (grid discs are similar: perspective changes their area by < ~4x)."""
+    la = np.log(c[:, 4])
+    best = None
+    for i in np.argsort(-c[:, 5]):
+        grp = np.flatnonzero(np.abs(la - la[i]) < np.log(4.0) / 2 + 1e-9)
+        score = (len(grp) >= n, c[grp, 5].sum())
+        if best is None or score > best[0]:
+            best = (score, grp)
+    return best[1]
+
+
+def _ellipse_cov(c: np.ndarray) -> np.ndarray:
+    """(2, 2) shape matrix ``R diag(major², minor²) Rᵀ`` of an :func:`ellipse_candidates` row."""
+    ca, sa = np.cos(c[6]), np.sin(c[6])
+    R = np.array([[ca, -sa], [sa, ca]])
+    return R @ np.diag([c[2] ** 2, c[3] ** 2]) @ R.T
+
+
+def _anisotropy(cov: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> float:
+    """Axis ratio (>= 1) of an image ellipse mapped back through the local lattice basis ``[e1 e2]``:
+    1 for the image of a circle when ``e1, e2`` are the images of two orthogonal, equally long
+    target steps (grid axes of a symmetric grid, the diagonals of an asymmetric one)."""
+    J = np.column_stack([e1, e2])
+    if abs(np.linalg.det(J)) < 1e-9:
+        return np.inf
+    Ji = np.linalg.inv(J)
+    w = np.linalg.eigvalsh(Ji @ cov @ Ji.T)
+    return float(np.sqrt(max(w[1], 1e-300) / max(w[0], 1e-300)))
+
+
+def _grow_lattice(p: np.ndarray, cand: np.ndarray | None = None):
+    """Integer lattice coordinates of points that form (part of) a distorted 2-D grid.
+
+    A seed (the candidate with the most neighbours within 1.5 x the typical nearest-neighbour
+    distance, nearest the middle) and two basis steps to its neighbours start a breadth-first growth:
+    the position of a neighbour is predicted by extrapolating along the row or column (``p[k] +
+    (p[k] - p[back])``, exact to first order under smooth distortion) or, without a point behind, by
+    the local step carried along; the nearest candidate within 30 % of the step is taken, else one
+    two steps on (a hidden circle between). A candidate claimed by two lattice positions makes the
+    structure ambiguous (returns None).
+
+    The basis: any two independent lattice vectors generate the same point lattice (a diagonal is
+    as good as an axis to the points alone, and under strong perspective a diagonal can be the
+    shorter step), so the points cannot tell the grid's axes. The circles can: with ``cand`` (the
+    :func:`ellipse_candidates` rows of ``p``) the pair of steps that maps the seed's ellipse back to
+    the roundest shape (:func:`_anisotropy`) is taken; without it, the nearest neighbour and the
+    shortest step at more than 60 degrees to it.
+
+    Returns
+    -------
+    (idx (K,), ab (K, 2) int) or None -- indices into ``p`` and their lattice coordinates (basis
+    right-handed in the image).
+    """
+    m = len(p)
+    if m < 3:
+        return None
+    d = np.linalg.norm(p[:, None] - p[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    nn = float(np.median(d.min(axis=1)))
+    cnt = (d < 1.5 * nn).sum(axis=1)
+    mid = np.median(p, axis=0)
+    seed = int(np.lexsort((np.linalg.norm(p - mid, axis=1), -cnt))[0])
+    nb = np.flatnonzero(d[seed] < 1.5 * nn)
+    if len(nb) < 2:
+        return None
+    v = p[nb] - p[seed]
+    ln = np.linalg.norm(v, axis=1)
+    if cand is not None and cand.shape[1] >= 8:
+        cov = _ellipse_cov(cand[seed])
+        pairs = []
+        for i in range(len(v)):
+            for j in range(len(v)):
+                cr = v[i, 0] * v[j, 1] - v[i, 1] * v[j, 0]
+                if cr <= 0.2 * ln[i] * ln[j]:  # independent (> ~12 degrees apart), right-handed
+                    continue
+                pairs.append((_anisotropy(cov, v[i], v[j]), cr, i, j))
+        if not pairs:
+            return None
+        # the roundest pairs; among them the smallest cell: the diagonals of a square cell are
+        # orthogonal and equally long too, but span a cell twice as large (they skip every other disc)
+        lo = min(q[0] for q in pairs)
+        _, _, i, j = min((q for q in pairs if q[0] <= lo + 0.15 * lo), key=lambda q: q[1])
+        e1, e2 = v[i], v[j]
+    else:
+        e1 = v[np.argmin(ln)]
+        cosang = np.abs(v @ e1) / (ln * np.linalg.norm(e1))
+        perp = np.flatnonzero(cosang < 0.5)
+        if not len(perp):
+            return None
+        e2 = v[perp[np.argmin(ln[perp])]]
+        if e1[0] * e2[1] - e1[1] * e2[0] < 0:
+            e2 = -e2
+    coords = {seed: (0, 0)}
+    pos = {(0, 0): seed}
+    basis = {seed: (e1, e2)}
+    queue = [seed]
+    while queue:
+        k = queue.pop(0)
+        a, b = coords[k]
+        for axis, sgn in ((0, 1), (0, -1), (1, 1), (1, -1)):
+            e = np.array([sgn, 0]) if axis == 0 else np.array([0, sgn])
+            backkey = (a - e[0], b - e[1])
+            step = p[k] - p[pos[backkey]] if backkey in pos else sgn * basis[k][axis]
+            for mult in (1, 2):
+                key = (a + mult * e[0], b + mult * e[1])
+                if key in pos:
+                    break
+                pred = p[k] + mult * step
+                dist = np.linalg.norm(p - pred, axis=1)
+                j = int(np.argmin(dist))
+                if dist[j] > 0.3 * np.linalg.norm(step):
+                    continue
+                if j in coords:
+                    if coords[j] != key:
+                        return None  # one disc at two lattice positions: not a grid
+                    break
+                coords[j] = key
+                pos[key] = j
+                b_new = list(basis[k])
+                b_new[axis] = sgn * (p[j] - p[k]) / mult
+                basis[j] = tuple(b_new)
+                queue.append(j)
+                break
+    idx = np.array(sorted(coords), dtype=int)
+    ab = np.array([coords[i] for i in idx], dtype=int)
+    return idx, ab
+
+
+def _place_on_target(ab: np.ndarray, spec: CircleGridSpec):
+    """Object ids for lattice coordinates ``ab`` (right-handed in the image): every placement of the
+    observed lattice patch on the target by a rotation of the lattice (multiples of 90 degrees) and an
+    integer translation that puts every point on a circle of the target.
+
+    Symmetric grid: lattice steps are the spacing s along x and y. Asymmetric grid: the nearest
+    neighbours are the diagonals ``(±s, ±s)``, so lattice ``(a, b)`` is at ``(a - b, a + b) s``.
+    A rotation or translation of the whole patch is a rigid motion of the target plane, which the
+    view's own pose absorbs: any valid placement gives the same calibration.
+
+    Returns
+    -------
+    list of ndarray (K,) int -- object ids of each valid placement (empty: the patch fits nowhere).
+    """
+    obj = spec.object_points()[:, :2] / spec.spacing_mm
+    lut = {(int(round(x)), int(round(y))): i for i, (x, y) in enumerate(obj)}
+    if spec.asymmetric:
+        uv = np.column_stack([ab[:, 0] - ab[:, 1], ab[:, 0] + ab[:, 1]])
+    else:
+        uv = ab.copy()
+    tx = np.array([k[0] for k in lut])
+    ty = np.array([k[1] for k in lut])
+    out = []
+    for rot in range(4):
+        r = uv.copy()
+        for _ in range(rot):
+            r = np.column_stack([-r[:, 1], r[:, 0]])
+        for du in range(tx.min() - r[:, 0].min(), tx.max() - r[:, 0].max() + 1):
+            for dv in range(ty.min() - r[:, 1].min(), ty.max() - r[:, 1].max() + 1):
+                ids = [lut.get((int(x + du), int(y + dv))) for x, y in r]
+                if all(i is not None for i in ids):
+                    out.append(np.array(ids, dtype=np.int64))
+    return out
+
+
+def _partial_grid(gray, spec, bright, cand, min_points: int):
+    """A partial grid from ellipse candidates (:func:`_grow_lattice`, :func:`_place_on_target`),
+    checked with a second-order map and the polarity test. Returns (points (K, 2), ids (K,),
+    n_placements, why)."""
+    n = spec.n_points
+    if len(cand) < min_points:
+        return None, None, 0, f"{len(cand)} ellipse candidates < {min_points}"
+    # whole discs only: a disc cut by an occluder's edge or the frame border has a straight piece of
+    # outline (relative departure from its fitted ellipse 0.15-0.3, against 0.02-0.05 for whole
+    # blurred discs); its centroid would be off by pixels
+    cand = cand[cand[:, 7] <= 0.1]
+    # one candidate per disc: nested contours of one disc at other thresholds (smaller, found at fewer
+    # scales) are dropped
+    keep = []
+    for i in np.lexsort((-cand[:, 4], -cand[:, 5])):
+        if all(np.hypot(*(cand[i, :2] - cand[j, :2])) > 0.25 * min(cand[i, 3], cand[j, 3])
+               or max(cand[i, 4], cand[j, 4]) > 4.0 * min(cand[i, 4], cand[j, 4]) for j in keep):
+            keep.append(i)
+    cand = cand[np.sort(np.asarray(keep, dtype=int))]
+    if len(cand) < min_points:
+        return None, None, 0, f"{len(cand)} whole-disc ellipse candidates < {min_points}"
+    grp = _size_group(cand, n)
+    c = cand[grp]
+    if len(c) < min_points:
+        return None, None, 0, f"only {len(c)} ellipses of a consistent size"
+    grown = _grow_lattice(c[:, :2], c)
+    if grown is None:
+        return None, None, 0, "ellipses do not form a lattice"
+    idx, ab = grown
+    if len(idx) < min_points or len(np.unique(ab[:, 0])) < 2 or len(np.unique(ab[:, 1])) < 2:
+        return None, None, 0, f"{len(idx)} ellipses on a lattice (< {min_points}, or on one line)"
+    if len(idx) > n:
+        return None, None, 0, f"{len(idx)} ellipses on a lattice: more than the {n} circles of the grid"
+    pts = c[idx, :2]
+    placements = _place_on_target(ab, spec)
+    if not placements:
+        span = ab.max(axis=0) - ab.min(axis=0) + 1
+        return None, None, 0, (f"{len(idx)} ellipses on a {span[0]}x{span[1]} lattice that does not fit the "
+                               f"{spec.columns}x{spec.rows} grid")
+    ids = placements[0]
+    obj = spec.object_points()[ids, :2]
+    rms, mx = _quad_fit_rms(obj, pts)
+    nn_px = float(np.median(np.sort(np.linalg.norm(pts[:, None] - pts[None], axis=2), axis=1)[:, 1]))
+    if mx > 0.15 * nn_px + 0.5:
+        return None, None, 0, f"partial lattice of {len(idx)} ellipses does not fit a smooth map ({mx:.1f} px)"
+    if not _polarity_ok(gray, pts, c, bright):
+        return None, None, 0, "partial lattice fails the polarity check"
+    return pts, ids, len(placements), ""

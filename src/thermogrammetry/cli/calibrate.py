@@ -210,9 +210,8 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
          pixel_pitch_um, focal_mm, output, k45, affinity, name, coded=None):
     coded = coded or {}
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from ..calibration.outputs import flush
+    from .progress import progress
     from ..calibration.pipeline import calibration_steps, observations_dict
     from ..calibration.selfcal import SelfCalibrationOptions
     from ..calibration.workflow import prepare_detections, prepare_testfield
@@ -291,8 +290,7 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
 
         dets = []
         first_size = None
-        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                      console=console, transient=True) as prog:
+        with progress(console, "calibrate") as prog:
             task = prog.add_task("detecting target", total=len(files))
             for f in files:
                 img = read_image(f)
@@ -309,8 +307,7 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
         if unbias and any(d.found for d in dets):
             from ..calibration.circle_bias import unbias_circle_detections
 
-            with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                          console=console, transient=True) as prog:
+            with progress(console, "calibrate") as prog:
                 task = prog.add_task("circle-centre bias", total=3)
                 dets, history, bias = unbias_circle_detections(
                     dets, spec, pixel_pitch_um=pixel_pitch_um, focal_mm=focal_mm, options=opt, iterations=3,
@@ -336,8 +333,7 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
         obs = observations_dict(cams, pts, ims, not_detected=not_detected, meta=meta)
         n_images = len(dets)
     mem = MemoryProject()
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as prog:
+    with progress(console, "calibrate") as prog:
         task = prog.add_task("resection", total=max(n_images, 1))
 
         def cb(stage, done, total):

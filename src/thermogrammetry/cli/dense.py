@@ -30,9 +30,14 @@ def dense(
     from ..dense.workflow import run_dense
     from ..errors import ThermogrammetryError
 
+    from .progress import progress
+
     console = Console(stderr=True)
     try:
-        rep = run_dense(survey_dir, out, gsd=gsd, workers=workers, scheduler=scheduler, fill=fill)
+        with progress(console, "dense") as prog:
+            task = prog.add_task("reference images", total=None)
+            rep = run_dense(survey_dir, out, gsd=gsd, workers=workers, scheduler=scheduler, fill=fill,
+                            on_image=lambda k, n: prog.update(task, completed=k, total=n))
     except (ThermogrammetryError, OSError, ValueError) as exc:
         _fail(console, str(exc))
     console.print(f"{rep['points']} points, DSM {rep['dsm']['width']}×{rep['dsm']['height']} cells at {rep['gsd_m']} m, "

@@ -116,7 +116,10 @@ def _in_quad(px, py, quad) -> np.ndarray:
 def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseConfig | None = None,
               workers: int = 1, scheduler: str | None = None, fill: bool = False, tile: int = 512,
               on_image=None) -> dict:
-    """Dense cloud and DSM of a survey folder (see the module docstring). Returns the ``dense.json`` dict."""
+    """Dense cloud and DSM of a survey folder (see the module docstring). Returns the ``dense.json`` dict.
+
+    ``on_image(done, total)`` is called after each reference image (progress).
+    """
     from .._atomic import write_atomic_text
     from ..products.cloud import CloudWriter, value_dimension
     from ..products.dsm import TileSpill, fill_holes, grid_median
@@ -160,7 +163,7 @@ def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseCon
             else:
                 spill.append(pts)
             if on_image:
-                on_image(i)
+                on_image(i + 1, n)
     finally:
         if client is not None:
             client.close()

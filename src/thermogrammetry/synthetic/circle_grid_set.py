@@ -24,6 +24,7 @@ from .targets import RenderedTarget, render_target_image
 from .testfield import look_at_pose
 
 __all__ = ["CircleGridSet", "DisplacedCircleGrid", "make_circle_grid_set", "displace_centres_in_image",
+           "render_circle_grid_view",
            "STRONG_BARREL_CAMERA"]
 
 #: 640 x 512, 17 µm, c = 7.48 mm (fx 440 px); correction form with K1 such that the correction at the
@@ -121,6 +122,40 @@ def displace_centres_in_image(camera, R: np.ndarray, t: np.ndarray, centres_mm: 
     return off
 
 
+def render_circle_grid_view(camera, pose, target: CircleGridTarget, *, centre_noise_px: float = 0.0, rng=None,
+                            **render_kw):
+    """One view of a circle grid, optionally with a known centre error.
+
+    Parameters
+    ----------
+    camera, pose : as :func:`~thermogrammetry.synthetic.targets.render_target_image` (pose: (R, t), metres).
+    target : CircleGridTarget (mm) -- the nominal grid.
+    centre_noise_px : float
+        σ (px per image coordinate) of an N(0, σ²) shift of every circle's projected centre, made by
+        rendering the circle displaced in the target plane (:func:`displace_centres_in_image`).
+    rng : numpy Generator for the shifts (required when ``centre_noise_px > 0``).
+    **render_kw : passed to ``render_target_image`` (supersample, psf_sigma_px, netd_k, seed, ...).
+
+    Returns
+    -------
+    (RenderedTarget, shift_px (N, 2)) -- the view's ``target`` and ``points_px`` are the nominal
+    grid's (the truth a calibration is told); ``shift_px`` the injected image shifts (zeros without noise).
+    """
+    R, t = pose
+    shift = np.zeros((target.n_points, 2))
+    draw = target
+    if centre_noise_px > 0:
+        if rng is None:
+            raise ConfigError("render_circle_grid_view: centre_noise_px > 0 needs rng (a seeded numpy Generator)")
+        shift = rng.normal(0.0, centre_noise_px, (target.n_points, 2))
+        off = displace_centres_in_image(camera, R, t, target.object_points(), shift)
+        draw = DisplacedCircleGrid(target.columns, target.rows, target.spacing_mm, asymmetric=target.asymmetric,
+                                   diameter_mm=target.diameter_mm, margin_mm=target.margin_mm, offsets_mm=off)
+    r = render_target_image(camera, (R, t), draw, **render_kw)
+    r.target = target  # object points and points_px are the nominal grid's in either case
+    return r, shift
+
+
 @dataclass
 class CircleGridSet:
     """Rendered views with their truth.
@@ -206,19 +241,11 @@ def make_circle_grid_set(n_views: int = 24, seed: int = 13, *, supersample: int 
         rim = cam.project(1e-3 * tgt.outline_points() @ R.T + t)
         if not (np.all(np.isfinite(rim)) and np.all(rim >= 2) and np.all(rim[:, 0] <= w - 3) and np.all(rim[:, 1] <= h - 3)):
             continue
-        draw = tgt
-        shift = np.zeros((tgt.n_points, 2))
-        if centre_noise_px > 0:
-            shift = noise_rng.normal(0.0, centre_noise_px, (tgt.n_points, 2))
-            off = displace_centres_in_image(cam, R, t, tgt.object_points(), shift)
-            draw = DisplacedCircleGrid(tgt.columns, tgt.rows, tgt.spacing_mm, diameter_mm=tgt.diameter_mm,
-                                       margin_mm=tgt.margin_mm, offsets_mm=off)
-        r = render_target_image(cam, (R, t), draw, supersample=supersample, psf_sigma_px=psf_sigma_px, netd_k=netd_k,
-                                seed=len(views))
+        r, shift = render_circle_grid_view(cam, (R, t), tgt, centre_noise_px=centre_noise_px, rng=noise_rng,
+                                           supersample=supersample, psf_sigma_px=psf_sigma_px, netd_k=netd_k,
+                                           seed=len(views))
         if not r.visible.all():
             continue
-        if draw is not tgt:  # the truth is the nominal grid (what the calibration is told)
-            r.target = tgt
         shifts.append(shift)
         views.append(r)
         names.append(f"cg{len(views) - 1:02d}")
