@@ -195,7 +195,7 @@ def test_float_tiff_without_unit_names_the_flag(tmp_path, capsys):
     (["--lever-arm", "0.1,0.2"], "--lever-arm '0.1,0.2': expected 3 finite numbers"),
     (["--lever-arm", "a,b,c"], "expected comma-separated numbers"),
     (["--gnss-sigma", "0.02,-1"], "standard deviations must be > 0"),
-    (["--rig", "rig.json"], "rig mode is not implemented yet"),
+    (["--rig", "rig.json"], "rig mode needs the RGB images"),
 ])
 def test_bad_flags_exit_2_with_the_value(tmp_path, capsys, args, msg):
     from thermogrammetry.cli.main import main

@@ -734,6 +734,15 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
                 return st, cost0, cost, it, Termination.CONVERGED, "trust region collapsed: no further decrease possible"
 
 
+def _scale_observed(pb) -> bool:
+    """Whether the observations fix the scale of a free network: observed distances, or a fixed rig with a
+    non-zero baseline that some rig view uses (its ``t_rel`` is a length in object units)."""
+    if len(pb.distance_observations()[0]):
+        return True
+    used = {r for r in pb.view_rig if r >= 0}
+    return any(pb.rig_fixed[r] and np.linalg.norm(pb.rig_t[r]) > 0 for r in used)
+
+
 def _gauge_basis(pb, lay, st):
     """Null-space basis G (n, 7) of a free network (3 translations, 3 rotations, scale) and the
     selector E (rows of the free points)."""
@@ -769,7 +778,7 @@ def _gauge_basis(pb, lay, st):
         G[c : c + 2, 3:6] = -Bt.T @ skew(n)  # rotation dth: dn = dth x n
         G[c + 2, 0:3] = n  # translation dX: dd = n . dX
         G[c + 2, 6] = d  # scale: dd = s d
-    if len(pb.distance_observations()[0]):  # observed distances define the scale
+    if _scale_observed(pb):  # observed distances or a fixed rig baseline define the scale
         G, E = G[:, :6], E[:, :6]
     return G, E
 
@@ -824,7 +833,7 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
     active = np.ones(K_all, dtype=bool)
     st = _State(pb)
     n = lay.nc + 3 * lay.npf
-    defect = (6 if len(pb.distance_observations()[0]) else 7) if pb.gauge is Gauge.INNER else 0
+    defect = (6 if _scale_observed(pb) else 7) if pb.gauge is Gauge.INNER else 0
     warnings: list[str] = []
 
     def result(term, reason, it, c0, c1, **kw):
@@ -915,7 +924,7 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     w, cost = _robust(r, data.K, opt)
     ne = _Normal(r, Jc, jp, pslot, lay, w)
     n = lay.nc + 3 * lay.npf
-    defect = (6 if len(data.d_a) else 7) if pb.gauge is Gauge.INNER else 0
+    defect = (6 if _scale_observed(pb) else 7) if pb.gauge is Gauge.INNER else 0
     red = data.m - n + defect
     vtpv = float(np.sum((r * w) ** 2))
     sigma0 = float(np.sqrt(vtpv / red)) if red > 0 else float("nan")

@@ -70,11 +70,20 @@ def survey(
     input_unit: Optional[str] = typer.Option(None, "--input-unit", help="K or C: unit of float TIFFs that declare none."),
     camera: Optional[Path] = typer.Option(None, "--camera", help="camera.json from `calibrate`: intrinsics held fixed (else self-calibration)."),
     rgb: List[Path] = typer.Option([], "--rgb", help="RGB images (folder or files) oriented in the same block."),
-    rig: Optional[Path] = typer.Option(None, "--rig", help="rig.json (R*, t between RGB and thermal). Not available yet: refused."),
+    rig: Optional[Path] = typer.Option(None, "--rig", help="rig.json (needs --rgb): RGB and thermal exposed together with a constant "
+                                       "relative orientation cam_thermal_from_cam_rgb {R, t (m)} (Barazzetti et al. 2013 eq. 4-5). "
+                                       "Each thermal image paired with an oriented RGB image (\"frames\": {rgb: thermal}, "
+                                       "\"pairing\": {\"rgb_suffix\", \"thermal_suffix\"}, or identical names) takes its pose "
+                                       "from it; R, t held fixed, or estimated in the block with σ (\"estimate\": true). "
+                                       "Schema: thermogrammetry.sfm.rig."),
     gnss: str = typer.Option("auto", "--gnss", help="auto (EXIF/XMP, RTK σ), none, or gnss.csv (image,X,Y,Z[,sX,sY,sZ] in --crs)."),
     crs: Optional[str] = typer.Option(None, "--crs", help="Output CRS, e.g. EPSG:2056 (default: UTM zone of the GNSS)."),
     gcps: Optional[Path] = typer.Option(None, "--gcps", help="gcps.csv: id,X,Y,Z[,sX,sY,sZ] (E,N,H accepted), metres in --crs."),
-    gcp_measurements: Optional[Path] = typer.Option(None, "--gcp-measurements", help="image,id,x,y (px, (0,0) = centre of the top-left pixel)."),
+    gcp_measurements: Optional[Path] = typer.Option(None, "--gcp-measurements", help="image,id,x,y[,sx,sy] (px, (0,0) = centre of the "
+                                                    "top-left pixel). Rows whose id is in neither gcps.csv nor cp.csv are "
+                                                    "manual tie points: measured by hand in RGB and/or thermal images, they "
+                                                    "enter the adjustment as unknown 3D points and always tie the two "
+                                                    "modalities (usable without --gcps)."),
     checkpoints: Optional[Path] = typer.Option(None, "--checkpoints", help="cp.csv: id,X,Y,Z — never used in the adjustment."),
     check_measurements: Optional[Path] = typer.Option(None, "--check-measurements", help="image,id,x,y of the check points."),
     workers: int = typer.Option(2, "--workers", help="Local dask worker processes for features and matching (0 = in this process)."),
@@ -103,11 +112,16 @@ def survey(
         raise typer.Exit(code)
 
     try:
+        rig_file = None
         if rig is not None:
-            raise ThermogrammetryError(f"--rig {rig}: rig mode is not implemented yet in survey; orient RGB and thermal "
-                                       "together with --rgb (tied by tie points, GNSS and GCP measurements) instead")
-        if (gcps is None) != (gcp_measurements is None):
-            raise ThermogrammetryError("--gcps and --gcp-measurements go together (coordinates and their image measurements)")
+            from ..sfm.rig import read_rig
+
+            if not rgb:
+                raise ThermogrammetryError(f"--rig {rig}: rig mode needs the RGB images (--rgb DIR) whose poses the thermal "
+                                           "images follow")
+            rig_file = read_rig(rig)
+        if gcps is not None and gcp_measurements is None:
+            raise ThermogrammetryError("--gcps needs --gcp-measurements (the image measurements of the GCPs)")
         if (checkpoints is None) != (check_measurements is None):
             raise ThermogrammetryError("--checkpoints and --check-measurements go together")
         for p, flag in ((gcps, "--gcps"), (gcp_measurements, "--gcp-measurements"), (checkpoints, "--checkpoints"),
@@ -139,7 +153,7 @@ def survey(
                             scheduler=scheduler)
         inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,
                           str(gcp_measurements) if gcp_measurements else None, str(checkpoints) if checkpoints else None,
-                          str(check_measurements) if check_measurements else None)
+                          str(check_measurements) if check_measurements else None, rig=rig_file)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         fail(str(exc))
     parent = out.resolve().parent

@@ -164,6 +164,7 @@ class SurveyInput:
     gcp_measurements: str | None = None
     checkpoints: str | None = None
     check_measurements: str | None = None
+    rig: Any = None  # thermogrammetry.sfm.rig.RigFile (rig mode) or None
 
 
 # ------------------------------------------------------------------------------------------------
@@ -277,7 +278,7 @@ def _decode(path: Path, input_unit: str | None):
             exif = ex
             model = ex.get("model")
             focal_length_mm = ex.get("focal_length_mm")
-            pixel_pitch_um = None
+            pixel_pitch_um = ex.get("pixel_pitch_um")  # EXIF FocalPlane resolution, when written
         md = _Md
     except Exception:  # noqa: BLE001 - EXIF is optional for a plain image; its absence is noted below
         md = None
@@ -342,7 +343,7 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
                     exif = ex
                     model = ex.get("model")
                     focal_length_mm = ex.get("focal_length_mm")
-                    pixel_pitch_um = None
+                    pixel_pitch_um = ex.get("pixel_pitch_um")  # EXIF FocalPlane resolution, when written
                 h, w = img.shape[:2]
                 decoded = [("", img[..., ::-1].copy(), "dn", geo, _camera_guess(w, h, _Md), "RGB image")]
             else:
@@ -469,8 +470,8 @@ def _run_tasks(fn, tasks, opt: SurveyOptions, progress: Callable | None, what: s
             cluster.close()
 
 
-def _initial_cameras(inputs: dict, camera=None) -> tuple[dict, list]:
-    """Camera id -> starting Camera, and the camera id of each image."""
+def _initial_cameras(inputs: dict, camera=None, rgb_camera=None) -> tuple[dict, list]:
+    """Camera id -> starting Camera, and the camera id of each image (``rgb_camera``: the rig file's)."""
     from ..camera import Camera
 
     groups: dict[tuple, str] = {}
@@ -485,6 +486,8 @@ def _initial_cameras(inputs: dict, camera=None) -> tuple[dict, list]:
                     raise ConfigError(f"camera file: image size {camera.image_size} differs from the frames' "
                                       f"{im['width']}x{im['height']} ({im['name']})")
                 cams[cid] = camera
+            elif rgb_camera is not None and im["sensor"] == "rgb" and tuple(rgb_camera.image_size) == (im["width"], im["height"]):
+                cams[cid] = rgb_camera
             else:
                 w, h, f = im["width"], im["height"], im["camera_guess"]["f_px"]
                 pitch = im["camera_guess"].get("pitch_um")
@@ -577,14 +580,19 @@ def _gnss_xyz(inputs: dict, opt: SurveyOptions, crs_out: str | None):
     return xyz, sig, crs_out, notes
 
 
-def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None) -> dict:
+def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None, rig=None) -> dict:
     from ..sfm.matching import select_pairs
 
     inputs = project.read_json("work/inputs.json")
-    cams, cam_ids = _initial_cameras(inputs, camera)
+    cams, cam_ids = _initial_cameras(inputs, camera, getattr(rig, "rgb_camera", None))
     xyz, _, crs, _ = _gnss_xyz(inputs, opt, opt.crs)
     names = [im["name"] for im in inputs["images"]]
     pairs = select_pairs(len(names), xyz, options=opt.matching)
+    if rig is not None:  # rig mode: every thermal image is matched with its RGB partner (cross-modal ties)
+        from ..sfm.rig import pair_rig_images
+
+        master, _, _ = pair_rig_images(rig, inputs["images"])
+        pairs = sorted(set(pairs) | {(min(a, b), max(a, b)) for a, b in master.items()})
     store = project if not isinstance(project, FolderProject) else FolderProject(project.root)
 
     def match(pre):
@@ -619,14 +627,14 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
             "median_verified_matches": float(np.median([k[2] for k in kept])) if kept else 0.0}
 
 
-def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None) -> dict:
+def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None, rgb_camera=None) -> dict:
     from ..sfm.reconstruction import reconstruct
     from ..sfm.tracks import build_tracks
 
     inputs = project.read_json("work/inputs.json")
     counts = project.read_json("work/features.json")
     names = [im["name"] for im in inputs["images"]]
-    cams, cam_ids = _initial_cameras(inputs, camera)
+    cams, cam_ids = _initial_cameras(inputs, camera, rgb_camera)
     cam_list = list(cams)
     image_camera = np.array([cam_list.index(c) for c in cam_ids])
     xy = [_load_npz(project, f"features/{n}.npz")["xy"] for n in names]
@@ -671,7 +679,34 @@ def _load_reconstruction(project: ProjectStore):
     return rec, meta
 
 
-def _read_markers(path_pts, path_meas, names, default_sigma_m, default_sigma_px, what):
+def _read_manual_ties(path_meas, names, exclude_ids, default_sigma_px):
+    """Rows of the GCP measurement file whose id is neither a GCP nor a check point: manual tie points.
+
+    Returns (tie ids, observations [(image index, tie index, xy, sigma)], notes).
+    """
+    from ..io.testfield_csv import read_measurements_csv
+
+    if path_meas is None:
+        return [], [], []
+    meas = read_measurements_csv(path_meas)
+    index = {n: k for k, n in enumerate(names)}
+    ids: dict[str, int] = {}
+    obs = []
+    for r in range(len(meas.id)):
+        pid = meas.id[r]
+        if pid in exclude_ids:
+            continue
+        k = index.get(meas.image[r], index.get(Path(meas.image[r]).stem))
+        if k is None:
+            continue  # named by _read_markers' note on images that are not inputs
+        s = meas.std[r] if meas.std is not None else np.array([default_sigma_px, default_sigma_px])
+        obs.append((k, ids.setdefault(pid, len(ids)), meas.xy[r], s))
+    notes = [f"{meas.source}: {len(ids)} id(s) in neither the GCP nor the check-point file used as manual tie points "
+             f"(unknown 3D points): {', '.join(list(ids)[:5])}{' ...' if len(ids) > 5 else ''}"] if ids else []
+    return list(ids), obs, notes
+
+
+def _read_markers(path_pts, path_meas, names, default_sigma_m, default_sigma_px, what, *, unknown_ids_note=True):
     """Control/check CSVs -> ids, xyz, sigma, observations [(image index, point index, xy, sigma)], notes."""
     from ..io.testfield_csv import read_control_csv, read_measurements_csv
 
@@ -703,7 +738,7 @@ def _read_markers(path_pts, path_meas, names, default_sigma_m, default_sigma_px,
         obs.append((k, g, meas.xy[r], s))
     if unknown_img:
         notes.append(f"{meas.source}: measurements in {len(unknown_img)} image(s) that are not inputs, ignored: {', '.join(sorted(unknown_img)[:5])}")
-    if unknown_id:
+    if unknown_id and unknown_ids_note:
         notes.append(f"{meas.source}: {len(unknown_id)} id(s) not in {ctrl.source}, ignored: {', '.join(sorted(unknown_id)[:5])}")
     return list(ctrl.ids), ctrl.xyz, sig, obs, notes
 
@@ -723,13 +758,30 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     c_ids, c_xyz, _, c_obs, n2 = _read_markers(inp.checkpoints, inp.check_measurements, names, opt.gcp_sigma_m,
                                                opt.marker_sigma_px, "check points")
     notes += n1 + n2
+    # ids of the GCP measurement file in neither gcps.csv nor cp.csv: manual tie points (RGB <-> thermal)
+    t_ids, t_obs, n3 = _read_manual_ties(inp.gcp_measurements, names, set(g_ids) | set(c_ids), opt.marker_sigma_px)
+    notes += n3
     ctrl = ControlInputs(gnss, np.where(np.isfinite(gsig), gsig, 1.0), np.asarray(opt.lever_arm_m, float),
                          g_ids, g_xyz, g_sig, g_obs, c_ids, c_xyz, c_obs)
     comps = rec.components()
     results = []
     oriented = np.zeros(len(names), bool)
     fa_all = []
+    rig_master, rig_enabled, rig_out, tie_out = {}, {}, [], []
+    if inp.rig is not None:
+        from ..sfm.rig import attach_rig_images, pair_rig_images, plan_rig_blocks, rig_report, start_rig
+
+        rig_master, nts, rig_unpaired = pair_rig_images(inp.rig, inputs["images"])
+        comps, rig_enabled, nts2 = plan_rig_blocks(rec, inp.rig, rig_master, comps)
+        notes += nts + nts2 + [f"rig: {len(rig_master)} RGB/thermal pair(s) from {inp.rig.source}"]
+    # intrinsics: a given thermal camera (--camera or the rig's) is held fixed, other sensors self-calibrated
+    rgb_cam = getattr(inp.rig, "rgb_camera", None)
+    self_cal = opt.self_calibrate if camera is None and rgb_cam is None else {
+        k: (() if (camera is not None and str(cid).startswith("thermal")) or (rgb_cam is not None and str(cid).startswith("rgb"))
+            else opt.self_calibrate) for k, cid in enumerate(meta["camera_ids"])}
     for ci, images in enumerate(comps):
+        if len(images) == 0:
+            continue
         S, how, nts = similarity_start(rec, images, ctrl)
         notes += [f"block {ci + 1}: {x}" for x in nts]
         geo = S is not None
@@ -738,13 +790,36 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             for i in images:
                 rec.status[i].reason = f"in block {ci + 1} ({len(images)} images) that has no GNSS/GCP datum and no tie to block 1"
             continue
+        rigv = None
+        if ci in rig_enabled:
+            rigv, nts = start_rig(rec, inp.rig, rig_master, images, S.scale if geo else 1.0)
+            notes += [f"block {ci + 1}: {x}" for x in nts]
         if geo:
             apply_similarity(rec, images, S)
-        self_cal = () if camera is not None else opt.self_calibrate
+        elif rigv is not None:
+            notes += [f"block {ci + 1}: {x}" for x in _rig_scale_local(rec, images, inp.rig, rig_master, rigv)]
+        if rigv is not None:
+            images, nts = attach_rig_images(rec, images, rigv, xy, max_error_px=opt.reconstruction.max_error_px,
+                                            min_tri_angle_deg=opt.reconstruction.min_tri_angle_deg)
+            notes += [f"block {ci + 1}: {x}" for x in nts]
+            n_th = _rig_observations(rec, rigv, images, t_obs)
+            if not rigv.fixed and n_th < 30:
+                # too few thermal observations to estimate R*, t: held at its start (reported), never left singular
+                rigv.fixed = True
+                notes.append(f"block {ci + 1}: rig: only {n_th} thermal observation(s) of oriented points: R*, t cannot be "
+                             f"estimated and are held at their start ({rigv.start})")
         fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=self_cal, tie_sigma_px=opt.tie_sigma_px,
                               max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
-                              compute_covariance=len(images) <= 2500)
+                              compute_covariance=len(images) <= 2500, rig=rigv, manual_ties=t_obs or None)
         notes += [f"block {ci + 1}: {x}" for x in fa.notes]
+        if rigv is not None:
+            rig_out.append({"block": ci + 1, **rig_report(rigv, geo)})
+        for mt in fa.manual_ties:
+            v_ = mt["residuals_px"]
+            tie_out.append({"id": t_ids[mt["tie"]], "block": ci + 1, "xyz": mt["xyz"].tolist(),
+                            "images": [names[i] for i in mt["images"]],
+                            "sensors": sorted({inputs["images"][i]["sensor"] for i in mt["images"]}),
+                            "rms_px": float(np.sqrt(np.nanmean(np.sum(v_**2, axis=1))))})
         v = fa.tie_residuals
         rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
         if not rms <= BLOCK_RMS_GATE_PX:
@@ -784,7 +859,20 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         elif c["id"] not in best or best[c["id"]]["xyz"] is None or c["n_images"] > best[c["id"]]["n_images"]:
             best[c["id"]] = c
     checks = [best[k] for k in c_ids if k in best]
-    out = _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results)
+    extra = {}
+    if inp.rig is not None:
+        for s_, m_ in rig_master.items():
+            if not oriented[s_] and not oriented[m_]:
+                rec.status[s_].reason = f"RGB partner {names[m_]} not oriented; on its own: {rec.status[s_].reason or 'not oriented'}"
+        for s_, why in rig_unpaired.items():
+            if not oriented[s_]:
+                rec.status[s_].reason = f"{why}; on its own: {rec.status[s_].reason or 'not oriented'}"
+        extra["rig"] = {"file": inp.rig.source, "pairs": len(rig_master), "fixed": not inp.rig.estimate,
+                        "thermal_unpaired": [names[k] for k in sorted(rig_unpaired)], "blocks": rig_out}
+    if t_ids:
+        extra["manual_ties"] = {"ids": len(t_ids), "used": tie_out}
+    out = _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results,
+                         extra=extra)
     out["seconds_georef"] = time.perf_counter() - t0
     return out
 
@@ -818,7 +906,40 @@ def _point_values(project, inputs, rec, names, images_used, obs_mask):
         return vals / cnt, unit
 
 
-def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results):
+def _rig_observations(rec, rigv, images, manual_obs) -> int:
+    """Observations in the rig views of a block: valid tie observations of points, plus manual measurements."""
+    tr = rec.tracks
+    inb = set(np.asarray(images).tolist())
+    sl = np.zeros(len(rec.registered), bool)
+    sl[[s for s, m in rigv.master.items() if s in inb and m in inb]] = True
+    n = int(np.sum(rec.obs_valid & sl[tr.image] & np.isfinite(rec.points[tr.track]).all(1)))
+    return n + sum(1 for i, *_ in manual_obs if sl[i])
+
+
+def _rig_scale_local(rec, images, rig, master, rigv) -> list:
+    """A block without datum and a rig with a given baseline: scale the model to metres by the baseline of the
+    thermal images oriented together with their partners (else the adjustment's rig constraint sets it)."""
+    from ..geometry import Similarity
+    from ..sfm.georef import apply_similarity
+    from ..sfm.rig import _co_pairs, relative_from_poses
+
+    if rig.R is None or np.linalg.norm(rig.t) <= 0:
+        return []
+    co = _co_pairs(rec, master, images)
+    if not co:
+        return ["rig: no datum and no thermal image oriented with its partner: the scale comes from the rig baseline "
+                "in the adjustment alone"]
+    _, t_m, _ = relative_from_poses(rec.R[[m for _, m in co]], rec.t[[m for _, m in co]], rec.R[[s for s, _ in co]],
+                                    rec.t[[s for s, _ in co]])
+    if not np.linalg.norm(t_m) > 0:
+        return []
+    k = float(np.linalg.norm(rig.t) / np.linalg.norm(t_m))
+    apply_similarity(rec, images, Similarity(k, np.eye(3), np.zeros(3)))
+    return [f"rig: no datum: the model is scaled by {k:.4g} so that {len(co)} co-oriented pair(s) match the rig baseline "
+            f"{np.linalg.norm(rig.t):.3f} m"]
+
+
+def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results, extra=None):
     from ..io.oriented import OrientedCameras, OrientedImage
     from ..sfm.georef import axis_statistics
 
@@ -879,6 +1000,12 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
     obs_mask = rec.obs_valid & used[tr.image] & np.isfinite(rec.points[tr.track]).all(1)
     cnt = np.bincount(tr.track[obs_mask], minlength=len(rec.points))
     pts_ok = (cnt >= 2) & np.isfinite(rec.points).all(1)
+    if oriented_idx and pts_ok.any():
+        # points run away to near infinity (nearly parallel rays left after outlier removal) are not exported
+        d = np.linalg.norm(rec.points[pts_ok] - rec.centers()[oriented_idx].mean(axis=0), axis=1)
+        far = np.zeros(len(pts_ok), bool)
+        far[np.nonzero(pts_ok)[0]] = d > 50.0 * max(float(np.median(d)), 1e-9)
+        pts_ok &= ~far
     values, unit = _point_values(project, inputs, rec, names, oriented_idx, obs_mask)
     mult = cnt[pts_ok]
     units = sorted({inputs["images"][i]["unit"] for i in oriented_idx})
@@ -911,6 +1038,7 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
                                   if c.get("error") is not None else {})} for c in checks],
         "failed_inputs": inputs["failed"],
         "notes": inputs.get("notes", []) + notes + sorted({im["note"] for im in inputs["images"] if im.get("note")}),
+        **(extra or {}),
     }
     if oc is not None:
         project.write_text("cameras.json", json.dumps(oc.to_dict(), indent=1) + "\n")
@@ -1025,6 +1153,8 @@ def survey_steps(inp: SurveyInput, opt: SurveyOptions, progress: Callable | None
     from .steps import Step
 
     cam = inp.camera
+    if cam is None and inp.rig is not None and inp.rig.thermal_camera is not None:
+        cam = inp.rig.thermal_camera  # the rig file's thermal camera, held fixed like --camera
 
     def prog(name):
         return (lambda k, n: progress(name, k, n)) if progress else None
@@ -1032,8 +1162,9 @@ def survey_steps(inp: SurveyInput, opt: SurveyOptions, progress: Callable | None
     return [
         Step("inputs", lambda p: step_inputs(p, inp, opt, prog("inputs")), "decode inputs to frames/"),
         Step("features", lambda p: step_features(p, opt, prog("features")), "tie-point features per image"),
-        Step("matching", lambda p: step_matching(p, opt, cam, prog("matching")), "pairs, matching, geometric verification"),
-        Step("orient", lambda p: step_orient(p, opt, cam, prog("orient")), "tracks and incremental orientation"),
+        Step("matching", lambda p: step_matching(p, opt, cam, prog("matching"), rig=inp.rig), "pairs, matching, geometric verification"),
+        Step("orient", lambda p: step_orient(p, opt, cam, prog("orient"), rgb_camera=getattr(inp.rig, "rgb_camera", None)),
+             "tracks and incremental orientation"),
         Step("georef", lambda p: step_georef(p, inp, opt, cam, prog("georef")), "georeferencing, final adjustment, exports"),
     ]
 

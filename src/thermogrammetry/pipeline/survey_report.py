@@ -72,6 +72,26 @@ def write_survey_report(project) -> None:
         rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{v:.6g}</td><td>{_f(c['std'].get(k), '{:.3g}')}</td></tr>"
                        for k, v in c["params"].items() if v != 0 or c["std"].get(k) is not None)
         parts.append(f"<h3>{html.escape(cid)}</h3><table><tr><th>parameter</th><th>value</th><th>σ</th></tr>{rows}</table>")
+    if s.get("rig"):  # RGB + thermal rig (seed 002 eq. 4-5)
+        rg = s["rig"]
+        parts.append(f"<h2>Rig (RGB + thermal)</h2><p>{html.escape(rg['file'])}: {rg['pairs']} pair(s), R*, t "
+                     f"{'held fixed' if rg['fixed'] else 'estimated in the block'}; thermal images without a partner: "
+                     f"{len(rg['thermal_unpaired'])}</p>")
+        for b in rg["blocks"]:
+            sd = b.get("std", {})
+            rows = "".join(f"<tr><th>{k}</th><td>{v:.4f}</td><td>{_f(sd.get('rotation_deg', [None] * 3)[a], '{:.4f}')}</td></tr>"
+                           for a, (k, v) in enumerate(zip(("ω (deg)", "φ (deg)", "κ (deg)"), b["rotation_vector_deg"])))
+            rows += "".join(f"<tr><th>{k}</th><td>{v:.4f}</td><td>{_f(sd.get('t_base_rgb_frame', [None] * 3)[a], '{:.4f}')}</td></tr>"
+                            for a, (k, v) in enumerate(zip(("bx", "by", "bz"), b["seed002"]["t_base_rgb_frame"])))
+            parts.append(f"<h3>block {b['block']}: cam_thermal_from_cam_rgb ({html.escape(b['start'])})</h3>"
+                         f"<p>rotation vector of R_rel (= R*ᵀ) and base vector b = t of seed 002 eq. 5 (thermal centre in the "
+                         f"RGB camera frame, {html.escape(b['unit'])})</p><table><tr><th></th><th>value</th><th>σ</th></tr>{rows}</table>")
+    if s.get("manual_ties"):
+        mt = s["manual_ties"]
+        parts.append(f"<h2>Manual tie points</h2><p>{len(mt['used'])} of {mt['ids']} used</p><table><tr><th>id</th><th>images</th>"
+                     "<th>sensors</th><th>RMS px</th></tr>" + "".join(
+                         f"<tr><td class=l>{html.escape(t['id'])}</td><td>{len(t['images'])}</td><td>{'+'.join(t['sensors'])}</td>"
+                         f"<td>{t['rms_px']:.2f}</td></tr>" for t in mt["used"]) + "</table>")
     parts.append("<h2>Accuracy</h2>")
     parts.append(_axis_table("GCP residuals (adjusted − given)", s["gcps"]))
     parts.append(_axis_table("Check points (intersected − given; never in the adjustment)", s["checkpoints"]))

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, DataFileError, InvalidInputError, UnsupportedFormatError
+from ..errors import DataFileError, InvalidInputError, UnsupportedFormatError
 
 __all__ = ["read_mesh", "load_views", "load_rig_views", "run_texture", "texture_report_html"]
 
@@ -89,23 +89,15 @@ def load_rig_views(cameras, rig: dict, *, source: str = "rig.json"):
     """
     import tifffile
 
-    from ..camera import Camera
     from ..geometry import Pose
     from ..products.texture import TextureView, thermal_poses_from_rig
+    from ..sfm.rig import parse_rig
 
-    if not isinstance(rig, dict) or rig.get("format") != "thermogrammetry/rig":
-        raise UnsupportedFormatError(f"{source}: expected a JSON object with 'format': 'thermogrammetry/rig'")
-    unknown = sorted(set(rig) - {"format", "cam_thermal_from_cam_rgb", "thermal_camera", "frames", "notes"})
-    if unknown:
-        raise ConfigError(f"{source}: unknown key(s) {unknown}; expected format, cam_thermal_from_cam_rgb, thermal_camera, frames")
-    try:
-        rel = Pose(np.asarray(rig["cam_thermal_from_cam_rgb"]["R"], float), np.asarray(rig["cam_thermal_from_cam_rgb"]["t"], float))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ConfigError(f"{source}: 'cam_thermal_from_cam_rgb' must hold 'R' (3x3) and 't' (3): {exc}") from None
-    cam = Camera.from_dict(rig.get("thermal_camera"), source=f"{source}: thermal_camera")
-    frames = rig.get("frames")
-    if not isinstance(frames, dict) or not frames:
-        raise ConfigError(f"{source}: 'frames' must map RGB image names to thermal frame files")
+    # one rig schema for texture and survey (thermogrammetry.sfm.rig); texture needs R, t, the camera and frames
+    rf = parse_rig(rig, source=source, require_relative=True, require_camera=True, require_frames=True)
+    rel = Pose(rf.R, rf.t)
+    cam = rf.thermal_camera
+    frames = rf.frames
     views, skipped = [], []
     for name, rel_path in frames.items():
         try:

@@ -148,14 +148,21 @@ class FinalAdjustment:
     center_std: np.ndarray  # (n, 3) m, NaN where unknown
     rotation_std_deg: np.ndarray  # (n, 3)
     notes: list
+    manual_ties: list = field(default_factory=list)  # dicts: id index, xyz, n_images, residuals px
 
 
 def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_calibrate=(), tie_sigma_px: float = 1.0,
                      max_error_px: float = 4.0, gcp_reject_px: float = 5.0, compute_covariance: bool = True,
-                     georeferenced: bool = True, max_iterations: int = 50) -> FinalAdjustment:
+                     georeferenced: bool = True, max_iterations: int = 50, rig=None, manual_ties=None) -> FinalAdjustment:
     """Joint adjustment of the block with GNSS priors and weighted GCPs (see the module docstring).
 
     ``rec`` is updated in place (cameras, poses, points).
+
+    ``self_calibrate`` is a tuple of parameter names for every camera, or a dict camera index -> names.
+    ``rig`` (:class:`~thermogrammetry.sfm.rig.RigViews`): its slave images of the block are rig views of
+    their masters (seed 002 eq. 4-5); the rig is fixed or estimated (``rig.R, rig.t, rig.std`` updated).
+    ``manual_ties``: list of (image index, tie index, (2,) xy px, σ px) -- points measured by hand in
+    several images (RGB and thermal), unknown 3D points of the adjustment (at least 2 images of the block).
     """
     from ..adjustment import BundleProblem, SolverOptions, solve
 
@@ -201,10 +208,16 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
         cam_block = {}
         for c in np.unique(rec.image_camera[images]):
             cam = rec.cameras[c]
-            free = {n.lower() for n in self_calibrate}
+            sc = self_calibrate.get(int(c), ()) if isinstance(self_calibrate, dict) else self_calibrate
+            free = {n.lower() for n in sc}
             fixed = [n for n in cam.param_names if n.lower() not in free]
             cam_block[int(c)] = pb.add_camera(cam, fixed=fixed if fixed else False, name=f"camera{c}")
-        view = {int(i): pb.add_pose((rec.R[i], rec.t[i]), name=f"image{i}") for i in images}
+        slaves = {} if rig is None else {int(s): int(m) for s, m in rig.master.items() if in_block[s] and in_block[m]}
+        view = {int(i): pb.add_pose((rec.R[i], rec.t[i]), name=f"image{i}") for i in images if int(i) not in slaves}
+        if slaves:
+            rig_block = pb.add_rig((rig.R, rig.t), fixed=rig.fixed)
+            for s_, m_ in slaves.items():
+                view[s_] = pb.add_rig_view(rig_block, view[m_])
         pidx = pb.add_points(rec.points[pts]) if len(pts) else np.zeros(0, np.int64)
         pmap = np.full(len(rec.points), -1, np.int64)
         pmap[pts] = pidx
@@ -228,6 +241,8 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
                 i, gi, xy, s = ctrl.gcp_obs[k]
                 pb.add_image_points(cam_block[int(rec.image_camera[i])], view[int(i)], np.array([gcp_point[gi]]),
                                     np.atleast_2d(xy), sigma_px=s)
+        tie_pts = _add_manual_ties(pb, rec, manual_ties, in_block, view, cam_block) if manual_ties else {}
+        have_gnss = have_gnss & ~np.isin(images, list(slaves))  # GNSS priors on plain pose views only
         gnss_views = [view[int(i)] for i, h in zip(images, have_gnss) if h]
         if georeferenced and gnss_views:
             sel = images[have_gnss]
@@ -247,6 +262,8 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
         for i, v in view.items():
             rec.R[i], rec.t[i] = p.view_transform(v)
         rec.points[pts] = p.points[pidx]
+        if slaves:
+            rig.R, rig.t = p.rig_R[0].copy(), p.rig_t[0].copy()
         v_img = res.image_residuals
         changed = False
         if robust:
@@ -258,7 +275,7 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
             # proportion and σ0 of the final solve tests the whole model
             good = ~big
             n_obs = 2 * int(good.sum())
-            n_unk = 3 * len(pts) + 6 * len(images) + int(sum((~np.asarray(f)).sum() for f in pb.camera_fixed))
+            n_unk = 3 * len(pts) + 6 * len(pb.pose_R) + int(sum((~np.asarray(f)).sum() for f in pb.camera_fixed))
             if n_obs > n_unk + 10:
                 sig_hat = float(np.sqrt(np.sum(tie_v[good] ** 2) / (n_obs - n_unk)))
                 notes.append(f"tie-point σ estimated from the residuals: {sig_hat:.3f} px (a priori {tie_sigma_px:g} px)")
@@ -293,6 +310,8 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
     rstd = np.full((n, 3), np.nan)
     if res.pose_std is not None:
         for i, v in view.items():
+            if p.view_rig[v] >= 0:  # rig views: propagated below from the master pose and the rig
+                continue
             pi = p.view_pose[v]
             cstd[i] = res.pose_std[pi, 3:]
             rstd[i] = np.degrees(res.pose_std[pi, :3])
@@ -307,9 +326,69 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
             with np.errstate(all="ignore"):
                 tie_v[k0:k0 + len(o)] = rec.cameras[rec.image_camera[i]].project(Xc) - xy_by_image[i][tr.feature[o]]
             k0 += len(o)
-    return FinalAdjustment(res, images, view, tie_v, tie_obs_image, gcp_res, used, rejected,
-                           res.gnss_residuals if res.gnss_residuals is not None else np.zeros((0, 3)),
-                           res.covariance, list(res.param_names or []), cstd, rstd, notes)
+    fa = FinalAdjustment(res, images, view, tie_v, tie_obs_image, gcp_res, used, rejected,
+                         res.gnss_residuals if res.gnss_residuals is not None else np.zeros((0, 3)),
+                         res.covariance, list(res.param_names or []), cstd, rstd, notes)
+    if tie_pts:
+        fa.manual_ties = _manual_tie_results(res, p, tie_pts, n_tie + sum(1 for k in use_gcp), manual_ties, in_block)
+    if slaves:
+        from .rig import slave_std
+
+        names_ = list(res.param_names or [])
+        if res.std is not None and "rig0.wx" in names_ and not rig.fixed:
+            k0 = names_.index("rig0.wx")
+            rig.std = np.asarray(res.std[k0:k0 + 6], float)
+            if res.covariance is not None:
+                rig.covariance = np.asarray(res.covariance[k0:k0 + 6, k0:k0 + 6], float)
+        for s_ in slaves:
+            cstd[s_], rstd[s_] = slave_std(rig, rec, fa, s_)
+    return fa
+
+
+def _add_manual_ties(pb, rec, manual_ties, in_block, view, cam_block) -> dict:
+    """Manual tie points (measured by hand in RGB and thermal images) as unknown points of ``pb``.
+
+    Returns tie index -> (problem point index, list of manual_ties rows used); ties seen in fewer than 2
+    images of the block, or whose rays do not intersect in front of the cameras, are left out.
+    """
+    from .reconstruction import triangulate_tracks
+
+    by_id: dict[int, list] = {}
+    for r, (i, ti, xy, s) in enumerate(manual_ties):
+        if in_block[i] and int(i) in view:
+            by_id.setdefault(int(ti), []).append(r)
+    out = {}
+    for ti, rows in sorted(by_id.items()):
+        if len({manual_ties[r][0] for r in rows}) < 2:
+            continue
+        ii = np.array([manual_ties[r][0] for r in rows])
+        xy = np.array([np.asarray(manual_ties[r][2], float) for r in rows])
+        Rs = np.array([pb.view_transform(view[int(i)])[0] for i in ii])
+        ts = np.array([pb.view_transform(view[int(i)])[1] for i in ii])
+        rays = np.concatenate([rec.cameras[rec.image_camera[i]].unproject(xy[k:k + 1])[:, :2] for k, i in enumerate(ii)])
+        X, _ = triangulate_tracks(np.array([0]), np.zeros(len(ii), int), Rs, ts, rays)
+        X = X[0]
+        if not np.isfinite(X).all() or np.any(np.einsum("kij,j->ki", Rs, X)[:, 2] + ts[:, 2] <= 0):
+            continue
+        pi = int(pb.add_points(X[None, :])[0])
+        for r, i in zip(rows, ii):
+            pb.add_image_points(cam_block[int(rec.image_camera[i])], view[int(i)], np.array([pi]),
+                                np.atleast_2d(xy[rows.index(r)]), sigma_px=manual_ties[r][3])
+        out[ti] = (pi, rows)
+    return out
+
+
+def _manual_tie_results(res, p, tie_pts, offset, manual_ties, in_block) -> list:
+    """Per manual tie point: adjusted coordinates, images and residuals (px), in the order they entered."""
+    out = []
+    k = offset
+    v = res.image_residuals
+    for ti, (pi, rows) in sorted(tie_pts.items()):
+        r = v[k:k + len(rows)] if v is not None else np.full((len(rows), 2), np.nan)
+        k += len(rows)
+        out.append({"tie": ti, "xyz": p.points[pi].copy(), "images": [int(manual_ties[q][0]) for q in rows],
+                    "residuals_px": np.asarray(r, float)})
+    return out
 
 
 def _project(cam, R, t, X):

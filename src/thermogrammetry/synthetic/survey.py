@@ -62,7 +62,7 @@ from .terrain import HeightfieldCaster, Terrain, TerrainConfig, add_square_marke
 
 __all__ = [
     "SurveyConfig", "SurveyScene", "FramePlan", "make_survey", "render_frame", "render_frames", "write_survey",
-    "marker_observations", "tie_points",
+    "marker_observations", "tie_points", "render_rgb_frame",
 ]
 
 
@@ -394,6 +394,40 @@ def render_frame(scene: SurveyScene, frame: FramePlan | int, *, with_truth: bool
             angle_rad=full(theta),
         )
     return out
+
+
+def render_rgb_frame(scene: SurveyScene, pose, camera, *, noise_dn: float = 2.0, seed: int = 0,
+                     sun=(0.35, -0.3, 0.89)) -> np.ndarray:
+    """An RGB-like 8-bit image (H, W, 3) of the scene from ``pose`` with ``camera`` (one sample per pixel).
+
+    Colour = an albedo per material, modulated by the fine structure of the temperature field (the same
+    texture the thermal frames see, ±25 %), times Lambert shading by ``sun`` (world direction) plus 35 %
+    ambient light; Gaussian noise of ``noise_dn`` (seeded). Sky: a flat blue. Not a radiometric model: a
+    visible-band stand-in whose geometry is exact (the RGB camera of a rig, seed 002 §2.3).
+    """
+    ter = scene.terrain
+    w, h = camera.image_size
+    gy, gx = np.mgrid[0:h, 0:w].astype(np.float64)
+    rays = unproject_fast(camera, np.stack([gx.ravel(), gy.ravel()], axis=1))
+    d = np.einsum("...i,ij->...j", rays, pose.R)
+    C = ter.to_local(pose.center)
+    pts, hit = _cast(scene, C, d)
+    rgb = np.tile(np.array([150.0, 185.0, 225.0]), (len(d), 1))
+    ph = pts[hit]
+    r_i, c_i = ter.texture_index(ph[:, 0], ph[:, 1])
+    mat = ter.material[r_i, c_i].astype(np.int64)
+    temp = ter.temperature_k[r_i, c_i].astype(np.float64)
+    rng_pal = np.random.default_rng(1234)
+    palette = 60.0 + 150.0 * rng_pal.random((max(len(ter.materials), int(mat.max()) + 1), 3))
+    base = np.array([m.base_temperature_k for m in ter.materials] + [300.0] * (len(palette) - len(ter.materials)))
+    tex = np.clip((temp - base[mat]) / 4.0, -1.0, 1.0)
+    nrm = _surface_normals(ter, ph[:, 0], ph[:, 1])
+    sun = np.asarray(sun, float) / np.linalg.norm(sun)
+    shade = 0.35 + 0.65 * np.clip(nrm @ sun, 0.0, 1.0)
+    rgb[hit] = palette[mat] * (1.0 + 0.25 * tex)[:, None] * shade[:, None]
+    rng = np.random.default_rng([scene.config.seed, 0x2B6, int(seed)])
+    img = rgb.reshape(h, w, 3) + rng.normal(0.0, noise_dn, (h, w, 3))
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
 def _scatter(n, mask, vals):
