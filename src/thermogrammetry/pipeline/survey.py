@@ -404,8 +404,10 @@ def feature_task(args) -> tuple[str, int]:
     project, name, fopt, *rest = args
     folder = rest[0] if rest else "features"
     from ..sfm.features import extract_features
+    from ..sfm.keypoints import to_pixel_centre_convention
 
-    f = extract_features(_read_frame(project, name), fopt)
+    # (0, 0) = centre of the top-left pixel, like the camera model, GCP and manual-tie measurements
+    f = to_pixel_centre_convention(extract_features(_read_frame(project, name), fopt), fopt)
     _save_npz(project, f"{folder}/{name}.npz", **f.to_npz_dict())
     return name, len(f)
 
