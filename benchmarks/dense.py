@@ -38,21 +38,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 H, W = 512, 640
 
 
-def make_pair(a=22.0, b=0.02, c=0.01, noise_k=0.02, seed=0, hot=True, amp=1.0):
-    from scipy.ndimage import gaussian_filter, map_coordinates
+def make_pair(**kw):
+    """640×512 pair with its true disparity: :func:`thermogrammetry.synthetic.stereo.make_stereo_pair`."""
+    from thermogrammetry.synthetic.stereo import make_stereo_pair
 
-    rng = np.random.default_rng(seed)
-    big = 300 + amp * (gaussian_filter(rng.normal(size=(H + 40, W + 200)), 1.5) * 0.8
-                       + gaussian_filter(rng.normal(size=(H + 40, W + 200)), 6) * 3)
-    if hot:
-        big[40:140, 420:600] += 60.0
-    y, x = np.mgrid[0:H, 0:W].astype(float)
-    d = a + b * x + c * y
-    left = map_coordinates(big, [y + 10, x + 100], order=3)
-    xl = (x + a + c * y) / (1 - b)
-    right = map_coordinates(big, [y + 10, xl + 100], order=3)
-    return ((left + rng.normal(0, noise_k, left.shape)).astype(np.float32),
-            (right + rng.normal(0, noise_k, left.shape)).astype(np.float32), d)
+    return make_stereo_pair((H, W), **kw)
 
 
 def score(d, truth, band):
