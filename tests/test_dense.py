@@ -83,6 +83,28 @@ def test_disparity_accepts_uint16_uint8_colour_and_marks_nodata():
     assert np.isfinite(dw).mean() < 0.4 * np.isfinite(disparity(L, R, 0, 64)).mean()
 
 
+def test_normalisation_is_invariant_to_dtype_offset_and_scale():
+    """The float32 local normalisation removes the mean in the input's precision: the codes of a 0.06 K texture
+    are the same on 300 K (float32), on 1e5 (float64), scaled by 1e-6 (float64) and as uint16 counts (one code
+    of rounding on a measured 0 % of the pixels, max 1)."""
+    from thermogrammetry.dense.stereo import normalise_for_matching
+
+    L, _, _ = _pair(hot=False, amp=0.3)
+    x = L.astype(np.float64) - 300.0
+    c0, v0 = normalise_for_matching(x)
+    assert c0.dtype == np.uint8 and v0.all() and c0.std() > 30  # the texture uses the 8-bit range
+    for a in (L, x + 1e5, x * 1e-6):
+        assert np.array_equal(normalise_for_matching(a)[0], c0)
+    u16 = np.rint((x - x.min()) / np.ptp(x) * 60000).astype(np.uint16)
+    e = np.abs(normalise_for_matching(u16)[0].astype(int) - c0)
+    assert e.max() <= 1 and np.mean(e > 0) < 0.01
+    # no data: marked invalid, and codes 3 windows away from the hole unchanged
+    a = L.copy()
+    a[100:140, 150:200] = np.nan
+    c, v = normalise_for_matching(a)
+    assert (~v).sum() == 40 * 50 and np.array_equal(c[:55], normalise_for_matching(L)[0][:55])
+
+
 def test_disparity_full_dynamic_range_beats_global_8bit_rendering():
     """With a hot block taking most of the range, a global 8-bit rendering leaves the ±1 K texture a few grey
     levels; our local normalisation in float keeps it (fewer bad pixels than the same matcher on 8 bits).
