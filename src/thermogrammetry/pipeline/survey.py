@@ -52,6 +52,7 @@ BLOCK_RMS_GATE_PX = 3.0
 #: below this share of images with a verified pair, the low-texture features are tried as well
 LOW_TEXTURE_SHARE = 0.8
 LOW_TEXTURE_GUIDED_RADIUS_PX = 10.0  # search radius of guided matching in the low-texture fallback
+LOW_TEXTURE_SEQUENCE_WINDOW = 3  # without positions, the low-texture fallback matches each frame with its next 3
 
 VIDEO_SUFFIXES = {".mp4", ".mkv", ".mov", ".avi", ".ts", ".m4v", ".webm"}
 SELF_CALIBRATION = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
@@ -632,9 +633,10 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
         pairs = sorted(set(pairs) | {(min(a, b), max(a, b)) for a, b in master.items()})
     store = project if not isinstance(project, FolderProject) else FolderProject(project.root)
 
-    def match(pre, mopt=None):
+    def match(pre, mopt=None, pair_list=None):
         mopt = mopt or opt.matching
-        tasks = [(store, i, j, names[i], names[j], cams[cam_ids[i]], cams[cam_ids[j]], mopt, pre) for i, j in pairs]
+        tasks = [(store, i, j, names[i], names[j], cams[cam_ids[i]], cams[cam_ids[j]], mopt, pre)
+                 for i, j in (pairs if pair_list is None else pair_list)]
         return _run_tasks(match_task, tasks, opt, progress, "matching")
 
     def connected(res):
@@ -652,7 +654,15 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
                      max_features=max(opt.features.max_features, 4000))
         counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key) for nm in names],
                                     opt, None, "features"))
-        res_lt = match("lowtexture/", replace(opt.matching, guided_radius_px=LOW_TEXTURE_GUIDED_RADIUS_PX))
+        mopt_lt = replace(opt.matching, guided_radius_px=LOW_TEXTURE_GUIDED_RADIUS_PX)
+        pairs_lt = pairs
+        have_pos = xyz is not None and int(np.all(np.isfinite(xyz), axis=1).sum()) >= 2
+        if not have_pos:
+            # no positions: sequence neighbours only (frames in acquisition order). Weak, repetitive texture
+            # matched across the whole set links frames that cannot overlap (a window to its neighbour)
+            pairs_lt = select_pairs(n, None, options=replace(opt.matching, exhaustive_up_to=0,
+                                                               window=LOW_TEXTURE_SEQUENCE_WINDOW))
+        res_lt = match("lowtexture/", mopt_lt, pairs_lt)
         info["low_texture"] = {"features": "sift/clahe on pattern-corrected frames, guided matching",
                                "fixed_pattern": bool(pattern_key), "connected": connected(res_lt)}
         if connected(res_lt) > connected(res):
