@@ -96,11 +96,15 @@ class SurveyOptions:
         thermal sensor's fixed pattern estimated from the frames themselves and subtracted
         (:func:`~thermogrammetry.sfm.features.fixed_pattern`), SIFT with a low contrast threshold, and
         matches guided by a homography from the few that pass the global ratio test
-        (:func:`~thermogrammetry.sfm.matching.guided_matches`). On the real Thermitage fresco walls
-        (40 Workswell frames) this orients 8/40 frames against 0/40 without it and 5/40 with the earlier
-        ORB fallback. Off by default: on a synthetic facade with 15 identical, evenly spaced windows it
-        connects all 14 frames but matches windows to their neighbours, a consistent and wrong block
-        (centres 5.7 m RMS off after a similarity); periodic structure is not detected yet.
+        (:func:`~thermogrammetry.sfm.matching.guided_matches`); without positions only sequence neighbours
+        (the next 3 frames) are matched. Off by default, because the blocks it yields are not yet right:
+
+        - real Thermitage fresco walls (40 Workswell frames, hand-held, mostly panning): the guided matches
+          follow the image motion of the synchronised RGB frames (median shift within ~20 px), but the
+          block of 6/40 frames has relative rotations 24 deg (median) off those of the RGB block: a
+          panning camera in front of a flat wall gives no usable baseline for the essential matrix;
+        - synthetic facade with 15 identical windows: frames one window period apart look identical;
+          exhaustive matching built a consistent wrong block (5.7 m), sequence matching orients none.
     workers : int
         0 = in-process; N = local dask cluster of N worker processes.
     scheduler : str or None
