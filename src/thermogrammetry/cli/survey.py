@@ -96,8 +96,9 @@ def survey(
     gnss_sigma: Optional[str] = typer.Option(None, "--gnss-sigma", help="σ of every GNSS position, H,V or X,Y,Z in metres "
                                              "(overrides the RTK status / CSV columns)."),
     low_texture: str = typer.Option("off", "--low-texture", help="auto: when < 80 % of the frames find a verified pair, also "
-                                    "try ORB on local-contrast-normalised frames (smooth walls, fields, water). Not safe on "
-                                    "periodic facades (identical windows can be matched to their neighbours)."),
+                                    "try the low-texture tie points (sensor fixed pattern estimated from the frames and "
+                                    "removed, more SIFT features, homography-guided matching). Not safe on periodic "
+                                    "facades (identical windows can be matched to their neighbours)."),
 ) -> None:
     """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report."""
     from rich.console import Console

@@ -51,6 +51,8 @@ BLOCK_RMS_GATE_PX = 3.0
 
 #: below this share of images with a verified pair, the low-texture features are tried as well
 LOW_TEXTURE_SHARE = 0.8
+LOW_TEXTURE_GUIDED_RADIUS_PX = 10.0  # search radius of guided matching in the low-texture fallback
+LOW_TEXTURE_SEQUENCE_WINDOW = 3  # without positions, the low-texture fallback matches each frame with its next 3
 
 VIDEO_SUFFIXES = {".mp4", ".mkv", ".mov", ".avi", ".ts", ".m4v", ".webm"}
 SELF_CALIBRATION = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
@@ -90,10 +92,19 @@ class SurveyOptions:
         Target forward overlap of frames extracted from a video.
     low_texture : "off" | "auto"
         ``auto``: when fewer than 80 % of the images have a verified pair with the primary features
-        (``features``), ORB on local-contrast-normalised frames is tried too and kept if it connects more
-        images (low-texture facades, water, uniform fields). Off by default: on a synthetic facade with
-        identical, evenly spaced windows it connects every frame but matches windows to their neighbours,
-        giving a consistent and wrong block (periodic structure is not detected yet).
+        (``features``), low-texture tie points are tried too and kept if they connect more images: the
+        thermal sensor's fixed pattern estimated from the frames themselves and subtracted
+        (:func:`~thermogrammetry.sfm.features.fixed_pattern`), SIFT with a low contrast threshold, and
+        matches guided by a homography from the few that pass the global ratio test
+        (:func:`~thermogrammetry.sfm.matching.guided_matches`); without positions only sequence neighbours
+        (the next 3 frames) are matched. Off by default, because the blocks it yields are not yet right:
+
+        - real Thermitage fresco walls (40 Workswell frames, hand-held, mostly panning): the guided matches
+          follow the image motion of the synchronised RGB frames (median shift within ~20 px), but the
+          block of 6/40 frames has relative rotations 24 deg (median) off those of the RGB block: a
+          panning camera in front of a flat wall gives no usable baseline for the essential matrix;
+        - synthetic facade with 15 identical windows: frames one window period apart look identical;
+          exhaustive matching built a consistent wrong block (5.7 m), sequence matching orients none.
     workers : int
         0 = in-process; N = local dask cluster of N worker processes.
     scheduler : str or None
@@ -403,11 +414,17 @@ def feature_task(args) -> tuple[str, int]:
     """Unit of work: features of one frame, written to ``<folder>/<name>.npz`` (``features/`` by default)."""
     project, name, fopt, *rest = args
     folder = rest[0] if rest else "features"
+    pattern_key = rest[1] if len(rest) > 1 else None
     from ..sfm.features import extract_features
     from ..sfm.keypoints import to_pixel_centre_convention
 
+    frame = _read_frame(project, name)
+    if pattern_key and frame.ndim == 2:
+        pat = _load_npz(project, pattern_key)["pattern"]
+        if pat.shape == frame.shape:  # the sensor's fixed pattern, estimated from the sequence
+            frame = frame.astype(np.float32) - pat
     # (0, 0) = centre of the top-left pixel, like the camera model, GCP and manual-tie measurements
-    f = to_pixel_centre_convention(extract_features(_read_frame(project, name), fopt), fopt)
+    f = to_pixel_centre_convention(extract_features(frame, fopt), fopt)
     _save_npz(project, f"{folder}/{name}.npz", **f.to_npz_dict())
     return name, len(f)
 
@@ -416,11 +433,17 @@ def match_task(args) -> tuple[int, int, int, int, str]:
     """Unit of work: match and verify one pair, written to ``matches/<i>_<j>.npz`` (or ``<prefix>matches/``)."""
     project, i, j, ni, nj, cam_i, cam_j, mopt, *rest = args
     pre = rest[0] if rest else ""
-    from ..sfm.matching import match_descriptors, verify_pair
+    from ..sfm.matching import guided_matches, homography_prior, match_descriptors, verify_pair
 
     fi = _load_npz(project, f"{pre}features/{ni}.npz")
     fj = _load_npz(project, f"{pre}features/{nj}.npz")
     m = match_descriptors(fi["descriptors"], fj["descriptors"], ratio=mopt.ratio)
+    if mopt.guided_radius_px > 0 and fi["descriptors"].dtype != np.uint8:
+        H = homography_prior(fi["xy"], fj["xy"], m, seed=mopt.seed)
+        if H is not None:
+            g = guided_matches(fi["xy"], fi["descriptors"], fj["xy"], fj["descriptors"], H, radius_px=mopt.guided_radius_px)
+            if len(g) > len(m):
+                m = g
     if cam_i is not None and cam_j is not None and len(m) >= mopt.min_inliers:
         ri = cam_i.unproject(fi["xy"][m[:, 0]])[:, :2]
         rj = cam_j.unproject(fj["xy"][m[:, 1]])[:, :2]
@@ -582,6 +605,25 @@ def _gnss_xyz(inputs: dict, opt: SurveyOptions, crs_out: str | None):
     return xyz, sig, crs_out, notes
 
 
+def _fixed_pattern(project: ProjectStore, inputs: dict, names: list) -> str | None:
+    """Estimate the thermal sensor's fixed pattern from its frames (the most common frame size); its key or None."""
+    from ..sfm.features import fixed_pattern
+
+    groups: dict = {}
+    for im in inputs["images"]:
+        if im.get("sensor", "thermal") == "thermal" and im["name"] in names:
+            groups.setdefault((int(im["height"]), int(im["width"])), []).append(im["name"])
+    if not groups:
+        return None
+    members = max(groups.values(), key=len)
+    frames = [f for f in (_read_frame(project, nm) for nm in members[:: max(1, len(members) // 60)]) if f.ndim == 2]
+    pat = fixed_pattern(frames)
+    if pat is None:
+        return None
+    _save_npz(project, "lowtexture/pattern.npz", pattern=pat)
+    return "lowtexture/pattern.npz"
+
+
 def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None, rig=None) -> dict:
     from ..sfm.matching import select_pairs
 
@@ -597,8 +639,10 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
         pairs = sorted(set(pairs) | {(min(a, b), max(a, b)) for a, b in master.items()})
     store = project if not isinstance(project, FolderProject) else FolderProject(project.root)
 
-    def match(pre):
-        tasks = [(store, i, j, names[i], names[j], cams[cam_ids[i]], cams[cam_ids[j]], opt.matching, pre) for i, j in pairs]
+    def match(pre, mopt=None, pair_list=None):
+        mopt = mopt or opt.matching
+        tasks = [(store, i, j, names[i], names[j], cams[cam_ids[i]], cams[cam_ids[j]], mopt, pre)
+                 for i, j in (pairs if pair_list is None else pair_list)]
         return _run_tasks(match_task, tasks, opt, progress, "matching")
 
     def connected(res):
@@ -608,12 +652,25 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
     n = len(names)
     info = {"features": f"{opt.features.detector.value}/{opt.features.enhancement.value}", "connected": connected(res)}
     if opt.low_texture == "auto" and n >= 2 and connected(res) < LOW_TEXTURE_SHARE * n:
-        # low-texture frames (facades, water, fields): ORB on local-contrast-normalised frames
-        lt = replace(opt.features, detector="orb", enhancement="local")
-        counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features") for nm in names], opt, None,
-                                    "features"))
-        res_lt = match("lowtexture/")
-        info["low_texture"] = {"features": "orb/local", "connected": connected(res_lt)}
+        # low-texture frames (facades, walls, water, fields): the sensor's fixed pattern estimated from the
+        # sequence and removed, more SIFT features (lower contrast threshold), and matches guided by a
+        # homography from the few that pass the global ratio test
+        pattern_key = _fixed_pattern(project, inputs, names)
+        lt = replace(opt.features, detector="sift", enhancement="clahe", contrast_threshold=0.005,
+                     max_features=max(opt.features.max_features, 4000))
+        counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key) for nm in names],
+                                    opt, None, "features"))
+        mopt_lt = replace(opt.matching, guided_radius_px=LOW_TEXTURE_GUIDED_RADIUS_PX)
+        pairs_lt = pairs
+        have_pos = xyz is not None and int(np.all(np.isfinite(xyz), axis=1).sum()) >= 2
+        if not have_pos:
+            # no positions: sequence neighbours only (frames in acquisition order). Weak, repetitive texture
+            # matched across the whole set links frames that cannot overlap (a window to its neighbour)
+            pairs_lt = select_pairs(n, None, options=replace(opt.matching, exhaustive_up_to=0,
+                                                               window=LOW_TEXTURE_SEQUENCE_WINDOW))
+        res_lt = match("lowtexture/", mopt_lt, pairs_lt)
+        info["low_texture"] = {"features": "sift/clahe on pattern-corrected frames, guided matching",
+                               "fixed_pattern": bool(pattern_key), "connected": connected(res_lt)}
         if connected(res_lt) > connected(res):
             for nm in names:
                 project.write_bytes(f"features/{nm}.npz", project.read_bytes(f"lowtexture/features/{nm}.npz"))
@@ -622,7 +679,8 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
                     project.write_bytes(f"matches/{i}_{j}.npz", project.read_bytes(f"lowtexture/matches/{i}_{j}.npz"))
             project.write_json("work/features.json", {**project.read_json("work/features.json"), **counts_lt})
             res = res_lt
-            info["used"] = "low-texture fallback (ORB on local-contrast-normalised frames)"
+            info["used"] = ("low-texture fallback (fixed pattern removed, SIFT with a low contrast threshold, "
+                            "homography-guided matching)")
     kept = [(i, j, nv) for i, j, npu, nv, reason in res if not reason]
     project.write_json("work/pairs.json", {"pairs": [[i, j, npu, nv, reason] for i, j, npu, nv, reason in res], "features": info})
     return {"pairs_tried": len(pairs), "pairs_verified": len(kept), "images_connected": connected(res), "features": info,

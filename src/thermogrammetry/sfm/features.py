@@ -17,6 +17,8 @@ Lowe, D. G. (2004). Distinctive image features from scale-invariant keypoints. I
 Arandjelović, R., Zisserman, A. (2012). Three things everyone should know to improve object retrieval. CVPR.
 Rublee, E., Rabaud, V., Konolige, K., Bradski, G. (2011). ORB: an efficient alternative to SIFT or SURF. ICCV.
 Zuiderveld, K. (1994). Contrast limited adaptive histogram equalization. Graphics Gems IV, 474-485.
+Harris, J. G., Chiang, Y.-M. (1999). Nonuniformity correction of infrared image sequences using the
+constant-statistics constraint. IEEE Trans. Image Processing 8(8), 1148-1151.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numpy as np
 from ..enums import StrChoice
 from ..errors import ConfigError, ShapeError
 
-__all__ = ["Detector", "Enhancement", "FeatureOptions", "Features", "detector_input", "extract_features"]
+__all__ = ["Detector", "Enhancement", "FeatureOptions", "Features", "detector_input", "extract_features", "fixed_pattern"]
 
 
 class Detector(StrChoice):
@@ -226,3 +228,43 @@ def extract_features(image, options: FeatureOptions | None = None) -> Features:
         desc /= np.maximum(desc.sum(axis=1, keepdims=True), 1e-12)  # L1
         desc = np.sqrt(desc)  # RootSIFT: unit L2 norm
     return Features(xy, size, angle, desc)
+
+
+def fixed_pattern(frames, *, max_frames: int = 60) -> np.ndarray | None:
+    """Fixed pattern of a sensor (offset non-uniformity, column stripes, vignetting) from its own frames.
+
+    Scene-based non-uniformity estimate in the spirit of the constant-statistics constraint (Harris &
+    Chiang 1999): when the scene moves between frames, the per-pixel median of ``frame − median(frame)``
+    over the sequence keeps what stays at the same pixel in every frame -- the sensor's pattern -- and
+    averages the scene away. Subtracting it before detection stops features from locking onto the
+    pattern (they would "match" at the same pixel in every pair, a false zero motion) and lets the weak
+    scene texture of low-contrast thermal frames through.
+
+    Parameters
+    ----------
+    frames : sequence of (H, W) arrays
+        Frames of one sensor (same shape), any numeric dtype; NaN = invalid. At most ``max_frames``,
+        evenly spaced, are used.
+
+    Returns
+    -------
+    (H, W) float32 or None
+        The pattern in the frames' unit (zero median), or None with fewer than 5 frames (too few for
+        the scene to average out).
+    """
+    frames = list(frames)
+    if len(frames) < 5:
+        return None
+    shape = np.asarray(frames[0]).shape
+    if any(np.asarray(f).shape != shape for f in frames) or len(shape) != 2:
+        return None
+    pick = np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int)
+    stack = np.empty((len(pick), *shape), np.float32)
+    for k, i in enumerate(pick):
+        a = np.asarray(frames[i], np.float32)
+        med = np.nanmedian(a) if np.isfinite(a).any() else 0.0
+        stack[k] = a - med
+    with np.errstate(all="ignore"):
+        pat = np.nanmedian(stack, axis=0)
+    pat = np.where(np.isfinite(pat), pat, 0.0).astype(np.float32)
+    return pat - np.float32(np.median(pat))

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import ConfigError
 
-__all__ = ["MatchOptions", "PairMatches", "select_pairs", "match_descriptors", "verify_pair"]
+__all__ = ["MatchOptions", "PairMatches", "select_pairs", "match_descriptors", "verify_pair", "homography_prior", "guided_matches"]
 
 
 @dataclass(frozen=True)
@@ -53,6 +53,10 @@ class MatchOptions:
         confidence down to an inlier ratio of ~0.3).
     seed : int
         RANSAC seed (``cv2.setRNGSeed``).
+    guided_radius_px : float
+        0: off. Otherwise a homography from the ratio-test matches (:func:`homography_prior`) guides a
+        second search within this radius (:func:`guided_matches`), kept when it finds more matches
+        (low-texture and repetitive frames).
     """
 
     ratio: float = 0.85
@@ -63,12 +67,15 @@ class MatchOptions:
     min_inliers: int = 20
     max_ransac_iterations: int = 4000
     seed: int = 0
+    guided_radius_px: float = 0.0
 
     def __post_init__(self):
         if not 0 < self.ratio < 1:
             raise ConfigError(f"MatchOptions.ratio={self.ratio!r}: expected a number in (0, 1)")
         if self.min_inliers < 8:
             raise ConfigError(f"MatchOptions.min_inliers={self.min_inliers!r}: expected >= 8")
+        if not (np.isfinite(self.guided_radius_px) and self.guided_radius_px >= 0):
+            raise ConfigError(f"MatchOptions.guided_radius_px={self.guided_radius_px!r}: expected a number >= 0 (0 = off)")
 
     @classmethod
     def from_dict(cls, d: dict) -> "MatchOptions":
@@ -276,3 +283,95 @@ def verify_pair(xy1: np.ndarray, xy2: np.ndarray, matches: np.ndarray, *, camera
     if len(inl) < opt.min_inliers:
         return np.zeros((0, 2), np.int32), model, f"{len(inl)} verified matches < {opt.min_inliers}"
     return inl.astype(np.int32), model, ""
+
+
+def homography_prior(xy1: np.ndarray, xy2: np.ndarray, matches: np.ndarray, *, threshold_px: float = 3.0,
+                     min_inliers: int = 8, seed: int = 0) -> np.ndarray | None:
+    """A homography ``x2 ~ H x1`` from a few putative matches (MAGSAC++), or None.
+
+    Low-texture pairs pass the ratio test with a few dozen matches only -- too few for the essential
+    matrix, enough for a homography that predicts where every keypoint of image 1 lands in image 2
+    (walls are nearly planar; parallax is absorbed by the search radius of :func:`guided_matches`).
+
+    Parameters
+    ----------
+    xy1, xy2 : (N1, 2), (N2, 2) px keypoints
+    matches : (M, 2) int putative index pairs
+    threshold_px : float
+        MAGSAC++ inlier threshold (px).
+    min_inliers : int
+    seed : int
+
+    Returns
+    -------
+    (3, 3) float64 or None
+    """
+    import cv2
+
+    if len(matches) < max(min_inliers, 4):
+        return None
+    cv2.setRNGSeed(int(seed))
+    H, mask = cv2.findHomography(np.ascontiguousarray(xy1[matches[:, 0]]), np.ascontiguousarray(xy2[matches[:, 1]]),
+                                 cv2.USAC_MAGSAC, threshold_px, maxIters=4000, confidence=0.9999)
+    if H is None or mask is None or int(mask.sum()) < min_inliers or not np.all(np.isfinite(H)):
+        return None
+    return H
+
+
+def guided_matches(xy1: np.ndarray, d1: np.ndarray, xy2: np.ndarray, d2: np.ndarray, H: np.ndarray, *,
+                   radius_px: float = 10.0, ratio: float = 0.9, max_candidates: int = 16) -> np.ndarray:
+    """Matches searched only near where ``H`` predicts each keypoint (guided matching).
+
+    Each keypoint of image 1 is mapped by ``H``; its match is the nearest descriptor among the keypoints
+    of image 2 within ``radius_px`` of the prediction, kept when it passes the ratio test against the
+    second-nearest *in that neighbourhood*. Repeated structure (identical windows, tiles) and weak
+    texture, which defeat a global ratio test, are disambiguated by position. Each keypoint of image 2
+    is used once (the closest descriptor wins).
+
+    Parameters
+    ----------
+    xy1, xy2 : (N1, 2), (N2, 2) px
+    d1, d2 : (N1, D), (N2, D) float32 descriptors (Euclidean)
+    H : (3, 3) homography, image 1 -> image 2
+    radius_px, ratio : float
+    max_candidates : int
+        Keypoints of image 2 considered per prediction (nearest first).
+
+    Returns
+    -------
+    (M, 2) int32 index pairs
+
+    References
+    ----------
+    Hartley, R., Zisserman, A. (2004). Multiple View Geometry, 2nd ed., sec. 11.6 (guided matching).
+    """
+    from scipy.spatial import cKDTree
+
+    if len(xy1) == 0 or len(xy2) == 0:
+        return np.zeros((0, 2), np.int32)
+    p = np.c_[xy1, np.ones(len(xy1))] @ np.asarray(H, float).T
+    with np.errstate(all="ignore"):
+        p = p[:, :2] / p[:, 2:3]
+    ok = np.all(np.isfinite(p), axis=1)
+    k = int(min(max_candidates, len(xy2)))
+    dist, idx = cKDTree(xy2).query(np.where(ok[:, None], p, 1e12), k=k, distance_upper_bound=radius_px)
+    dist, idx = dist.reshape(len(p), k), idx.reshape(len(p), k)
+    near = np.isfinite(dist) & ok[:, None]
+    idx_c = np.where(near, idx, 0)
+    dd = np.linalg.norm(np.asarray(d2, np.float32)[idx_c] - np.asarray(d1, np.float32)[:, None, :], axis=2)
+    dd = np.where(near, dd, np.inf)
+    o = np.argsort(dd, axis=1, kind="stable")
+    r = np.arange(len(p))
+    best = dd[r, o[:, 0]]
+    second = dd[r, o[:, 1]] if k > 1 else np.full(len(p), np.inf)
+    keep = np.isfinite(best) & (best < ratio * second)
+    q = np.nonzero(keep)[0]
+    if len(q) == 0:
+        return np.zeros((0, 2), np.int32)
+    j = idx_c[q, o[q, 0]]
+    # one use per keypoint of image 2: the closest descriptor wins
+    order = np.lexsort((best[q], j))
+    q, j = q[order], j[order]
+    first = np.r_[True, j[1:] != j[:-1]]
+    m = np.stack([q[first], j[first]], axis=1).astype(np.int32)
+    return m[np.argsort(m[:, 0], kind="stable")]

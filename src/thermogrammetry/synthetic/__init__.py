@@ -12,6 +12,7 @@ targets    calibration targets (circle grids, chessboards) rendered by supersamp
 surfaces   radiometrically exact rendering of a flat surface (temperature, emissivity, angle).
 terrain    DSM with buildings, temperature and emissivity fields, heightfield ray casting.
 survey     UAV survey: flight lines, thermal frames / video, GNSS, GCPs, ground truth in a project.
+stereo     rectified thermal pairs with a known disparity field (dense-matching tests, benchmarks).
 facade     facade mesh (OBJ) with a temperature field, thermal + RGB cameras on a rig.
 """
 
@@ -43,6 +44,9 @@ _LAZY = {
     "SurveyConfig": "survey",
     "make_survey": "survey",
     "write_survey": "survey",
+    # stereo
+    "StereoPair": "stereo",
+    "make_stereo_pair": "stereo",
     "FacadeConfig": "facade",
     "make_facade": "facade",
     "write_facade": "facade",
