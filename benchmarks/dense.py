@@ -73,7 +73,8 @@ def rendered_pair(i: int = 2, j: int = 3, seed: int = 0):
     and a search range that holds the truth with 8 px to spare on each side.
     """
     from thermogrammetry.dense.rectify import rectify_pair, remap_frame
-    from thermogrammetry.synthetic.survey import _cast, make_survey, render_frame
+    from thermogrammetry.synthetic.stereo import rectified_disparity_truth
+    from thermogrammetry.synthetic.survey import make_survey, render_frame
     from thermogrammetry.synthetic.survey_files import uav_thermal_config
 
     sc = make_survey(uav_thermal_config(seed=seed, image_size=(512, 640), pixel_pitch_um=6.0))
@@ -86,15 +87,10 @@ def rendered_pair(i: int = 2, j: int = 3, seed: int = 0):
     L = remap_frame(render_frame(sc, i)["image_k"].astype(np.float32), rp.map_left)[r0:r0 + H, c0:c0 + W]
     R = remap_frame(render_frame(sc, j)["image_k"].astype(np.float32), rp.map_right)[r0:r0 + H, c0:c0 + W]
     u, v = np.meshgrid(np.arange(c0, c0 + W, dtype=float), np.arange(r0, r0 + H, dtype=float))
-    rays = np.stack([(u - rp.cx_left) / rp.f_px, (v - rp.cy) / rp.f_px, np.ones_like(u)], -1).reshape(-1, 3)
-    Cl, Cr = sc.terrain.to_local(rp.C_left), sc.terrain.to_local(rp.C_right)
-    pts, hit = _cast(sc, Cl, rays @ rp.R_rect)
-    Xr = (pts - Cr) @ rp.R_rect.T
-    ur = rp.f_px * Xr[:, 0] / Xr[:, 2] + rp.cx_right  # right rectified column (uncropped)
-    truth = (u.ravel() - ur).reshape(H, W)
-    pr, hr = _cast(sc, Cr, np.where(hit[:, None], pts - Cr, [0.0, 0.0, -1.0]))
-    seen = (hit & hr & (np.linalg.norm(pr - pts, axis=1) < 0.05)).reshape(H, W)  # not occluded in the right view
-    xr = np.rint(ur.reshape(H, W) - c0)
+    truth, seen = rectified_disparity_truth(sc, rp.R_rect, rp.C_left, rp.C_right, rp.f_px, rp.cx_left, rp.cx_right,
+                                            rp.cy, u, v)
+    ur = u - truth  # right rectified column (uncropped)
+    xr = np.rint(ur - c0)
     inside = np.isfinite(xr) & (xr >= 0) & (xr < W)
     okr = np.zeros((H, W), bool)
     yy, xx = np.nonzero(inside)

@@ -141,6 +141,56 @@ def test_disparity_full_dynamic_range_beats_global_8bit_rendering():
     del cv2
 
 
+def _rendered_pairs(pairs):
+    """Rectified pairs of consecutive frames of the small survey scene (TRUE poses), with the true disparity of
+    the scored pixels (surface seen by both cameras, matched right pixel on data, columns >= the largest
+    searched disparity) and a search range holding the truth with 8 px to spare."""
+    from survey_truth import small_survey_config
+
+    from thermogrammetry.dense.rectify import rectify_pair, remap_frame
+    from thermogrammetry.synthetic.stereo import rectified_disparity_truth
+    from thermogrammetry.synthetic.survey import make_survey, render_frame
+
+    sc = make_survey(small_survey_config())
+    for i, j in pairs:
+        a, b = sc.frames[i], sc.frames[j]
+        rp = rectify_pair(sc.camera, a.pose.R, a.pose.t, sc.camera, b.pose.R, b.pose.t)
+        L = remap_frame(render_frame(sc, i)["image_k"].astype(np.float32), rp.map_left)
+        R = remap_frame(render_frame(sc, j)["image_k"].astype(np.float32), rp.map_right)
+        h, w = L.shape
+        u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+        truth, seen = rectified_disparity_truth(sc, rp.R_rect, rp.C_left, rp.C_right, rp.f_px, rp.cx_left,
+                                                rp.cx_right, rp.cy, u, v)
+        xr = np.rint(u - truth)
+        ok = seen & np.isfinite(truth) & np.isfinite(L) & (xr >= 0) & (xr < w)
+        yy, xx = np.nonzero(ok)
+        ok[yy, xx] = np.isfinite(R[yy, xr[yy, xx].astype(int)])
+        lo, hi = np.percentile(truth[ok], [0, 100])
+        mn = int(np.floor(lo)) - 8
+        num = -(-(int(np.ceil(hi)) + 8 - mn) // 16) * 16
+        ok[:, : mn + num] = False
+        yield L, R, truth, ok, mn, num
+
+
+def test_disparity_on_rendered_survey_pairs_against_true_disparity():
+    """Five pairs of consecutive rendered frames (buildings, trees, roads; NETD 0.05 K, fixed-pattern noise,
+    PSF, vignetting), rectified with the true poses; truth by ray casting the true surface. Bad-pixel share
+    (|d - truth| > 1 px, invalid counted as bad) per pair, measured: 0.0469 0.0368 0.0386 0.0172 0.0436 (mean
+    0.0366); with the local normalisation alone and no no-data fill (the matcher before the equalised blend):
+    0.0610 0.0512 0.0565 0.0289 0.0562 (mean 0.0508); plain OpenCV SGBM on a global 8-bit stretch: 0.0479
+    0.0285 0.0195 0.0170 0.0479 (mean 0.0322, better on two pairs: edges of buildings). Bounds: the mean
+    halfway between the two matchers, each pair 20 % above its measured value."""
+    measured = [0.0469, 0.0368, 0.0386, 0.0172, 0.0436]
+    bad = []
+    for L, R, truth, ok, mn, num in _rendered_pairs([(17, 18), (18, 19), (20, 21), (5, 6), (31, 32)]):
+        assert ok.sum() > 40000
+        d = disparity(L, R, mn, num)
+        bad.append(float(np.mean(~(np.abs(d - truth)[ok] <= 1.0))))
+    assert np.mean(bad) < 0.044, bad
+    assert all(b < 1.2 * m for b, m in zip(bad, measured)), bad
+    assert min(bad) > 0.005, bad  # buildings' edges and occlusion borders stay hard (measured >= 0.017)
+
+
 def test_disparity_bad_input():
     with pytest.raises(InvalidInputError, match="same size"):
         disparity(np.zeros((10, 20)), np.zeros((10, 21)))

@@ -8,6 +8,10 @@ sun, a chimney) that takes most of the frame's global range, and white sensor no
 frame independently. Both frames are sampled from one texture by cubic interpolation, so the disparity of
 every left pixel is exact up to the interpolation.
 
+:func:`rectified_disparity_truth` gives the true disparity of a rectified pair of frames rendered from a
+survey scene (terrain, buildings, trees), by ray casting the true surface, and which pixels the right camera
+sees.
+
 References
 ----------
 Scharstein D., Szeliski R. (2002), A taxonomy and evaluation of dense two-frame stereo correspondence
@@ -22,7 +26,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 
-__all__ = ["StereoPair", "make_stereo_pair"]
+__all__ = ["StereoPair", "make_stereo_pair", "rectified_disparity_truth"]
 
 
 class StereoPair(NamedTuple):
@@ -95,3 +99,44 @@ def make_stereo_pair(shape: tuple[int, int] = (512, 640), *, a: float = 22.0, b:
     right = map_coordinates(big, [y + my, xl + mx], order=3)
     return StereoPair((left + rng.normal(0, noise_k, left.shape)).astype(np.float32),
                       (right + rng.normal(0, noise_k, left.shape)).astype(np.float32), d)
+
+
+def rectified_disparity_truth(scene, R_rect, C_left, C_right, f_px: float, cx_left: float, cx_right: float,
+                              cy: float, u, v) -> tuple[np.ndarray, np.ndarray]:
+    """True disparity of rectified left pixels of a rendered survey scene, by ray casting its true surface.
+
+    The rectified pair is described by plain numbers (as :class:`thermogrammetry.dense.rectify.RectifiedPair`
+    holds them), so that this bottom layer does not import ``dense``: both rectified cameras have the world-to-
+    rectified rotation ``R_rect``, the focal length ``f_px`` and the row of the principal point ``cy``; their
+    centres and principal-point columns differ.
+
+    Parameters
+    ----------
+    scene : :class:`thermogrammetry.synthetic.survey.SurveyScene`
+    R_rect : (3, 3) world-to-rectified rotation
+    C_left, C_right : (3,) camera centres, world coordinates (m)
+    f_px, cx_left, cx_right, cy : rectified focal length and principal point (px)
+    u, v : (H, W) rectified left pixel columns and rows (px)
+
+    Returns
+    -------
+    disparity : (H, W) float64 ``u_left − u_right`` (px), NaN where the ray misses the surface
+    seen : (H, W) bool, the surface point is also visible from the right camera (not occluded, 5 cm tolerance)
+    """
+    from .survey import _cast
+
+    u = np.asarray(u, float)
+    v = np.asarray(v, float)
+    if u.shape != v.shape or u.ndim != 2:
+        raise InvalidInputError(f"u {u.shape} and v {v.shape}: expected two (H, W) arrays of the same shape")
+    R = np.asarray(R_rect, float)
+    rays = np.stack([(u - cx_left) / f_px, (v - cy) / f_px, np.ones_like(u)], -1).reshape(-1, 3)
+    Cl = scene.terrain.to_local(np.asarray(C_left, float))
+    Cr = scene.terrain.to_local(np.asarray(C_right, float))
+    pts, hit = _cast(scene, Cl, rays @ R)
+    Xr = (pts - Cr) @ R.T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ur = f_px * Xr[:, 0] / Xr[:, 2] + cx_right
+    pr, hr = _cast(scene, Cr, np.where(hit[:, None], pts - Cr, [0.0, 0.0, -1.0]))
+    seen = hit & hr & (np.linalg.norm(np.where(hit[:, None], pr - pts, np.inf), axis=1) < 0.05)
+    return (u.ravel() - ur).reshape(u.shape), seen.reshape(u.shape)
