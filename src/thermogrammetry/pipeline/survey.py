@@ -21,7 +21,14 @@ Outputs (OUT): ``cameras.json`` (:mod:`thermogrammetry.io.oriented`), ``survey.j
 ``survey.json`` keys: ``images_total``, ``images_oriented``, ``components`` (images per oriented block,
 largest first), ``reprojection_rms_px`` (root mean square of the residual vector length of the tie
 observations, px), ``gcps`` / ``checkpoints`` (``n, rmse_x.., mae_x.., min_x.., max_x..`` in metres; n = 0
-and nulls when none), ``crs``, ``seconds`` and more detail (per image, per step, camera).
+and nulls when none), ``crs``, ``seconds`` and more detail (per image, per step, camera). Rig mode
+(``--rig``) adds ``rig`` (file, pairs, blocks with R*, t, σ, own observations per thermal image, or the reason an
+estimate was refused; ``rig_only``: thermal images posed by the rig alone) and ``images_rig_only``; those images
+count in ``images_oriented`` (R*, t given, or estimated from enough evidence) and carry ``rig_only: true`` and a
+``reason`` in ``images`` (see :mod:`thermogrammetry.sfm.rig`).
+
+Tie-point coordinates follow the pixel-centre convention (:mod:`thermogrammetry.sfm.keypoints`: OpenCV's SIFT
+offset of +0.25 px removed).
 """
 
 from __future__ import annotations
