@@ -113,11 +113,13 @@ def test_normalisation_is_invariant_to_dtype_offset_and_scale():
     u16 = np.rint((x - x.min()) / np.ptp(x) * 60000).astype(np.uint16)
     e = np.abs(normalise_for_matching(u16)[0].astype(int) - c0)
     assert e.max() <= 1 and np.mean(e > 0) < 0.01
-    # no data: marked invalid, and codes 3 windows away from the hole unchanged
+    # no data: marked invalid, and codes 3 windows away from the hole unchanged (up to one code of rounding:
+    # the floor, 1e-4 x the mean local variance, moves a little; measured max 1 on 0.006 % of the pixels)
     a = L.copy()
     a[100:140, 150:200] = np.nan
     c, v = normalise_for_matching(a)
-    assert (~v).sum() == 40 * 50 and np.array_equal(c[:55], normalise_for_matching(L)[0][:55])
+    e = np.abs(c[:55].astype(int) - normalise_for_matching(L)[0][:55])
+    assert (~v).sum() == 40 * 50 and e.max() <= 1 and np.mean(e > 0) < 0.01
 
 
 def test_disparity_full_dynamic_range_beats_global_8bit_rendering():
@@ -175,20 +177,20 @@ def _rendered_pairs(pairs):
 def test_disparity_on_rendered_survey_pairs_against_true_disparity():
     """Five pairs of consecutive rendered frames (buildings, trees, roads; NETD 0.05 K, fixed-pattern noise,
     PSF, vignetting), rectified with the true poses; truth by ray casting the true surface. Bad-pixel share
-    (|d - truth| > 1 px, invalid counted as bad) per pair, measured: 0.0469 0.0368 0.0386 0.0172 0.0436 (mean
-    0.0366); with the local normalisation alone and no no-data fill (the matcher before the equalised blend):
+    (|d - truth| > 1 px, invalid counted as bad) per pair, measured: 0.0441 0.0391 0.0364 0.0109 0.0406 (mean
+    0.0342); with the local normalisation alone and no no-data fill (the matcher before the equalised blend):
     0.0610 0.0512 0.0565 0.0289 0.0562 (mean 0.0508); plain OpenCV SGBM on a global 8-bit stretch: 0.0479
     0.0285 0.0195 0.0170 0.0479 (mean 0.0322, better on two pairs: edges of buildings). Bounds: the mean
-    halfway between the two matchers, each pair 20 % above its measured value."""
-    measured = [0.0469, 0.0368, 0.0386, 0.0172, 0.0436]
+    between the two matchers (0.042), each pair 20 % above its measured value."""
+    measured = [0.0441, 0.0391, 0.0364, 0.0109, 0.0406]
     bad = []
     for L, R, truth, ok, mn, num in _rendered_pairs([(17, 18), (18, 19), (20, 21), (5, 6), (31, 32)]):
         assert ok.sum() > 40000
         d = disparity(L, R, mn, num)
         bad.append(float(np.mean(~(np.abs(d - truth)[ok] <= 1.0))))
-    assert np.mean(bad) < 0.044, bad
+    assert np.mean(bad) < 0.042, bad
     assert all(b < 1.2 * m for b, m in zip(bad, measured)), bad
-    assert min(bad) > 0.005, bad  # buildings' edges and occlusion borders stay hard (measured >= 0.017)
+    assert min(bad) > 0.005, bad  # buildings' edges and occlusion borders stay hard (measured >= 0.011)
 
 
 def test_disparity_bad_input():

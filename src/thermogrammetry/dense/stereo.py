@@ -57,8 +57,7 @@ def normalise_for_matching(img, *, window_px: int = 15, clip_sigma: float = 3.0)
     """Local (Wallis-type) normalisation of a grey image to 8-bit codes, computed in float.
 
     ``z = (x − m) / sqrt(v + floor)`` with ``m`` the box mean of ``x`` over ``window_px`` and ``v`` the box mean
-    of ``(x − m)²``; ``floor`` = 1e-4 × the median of ``v`` (taken on every 4th row and column) keeps flat areas
-    from amplifying pure quantisation. Computed in float32 after removing the image mean in the input's
+    of ``(x − m)²``; ``floor`` = 1e-4 × the mean of ``v`` keeps flat areas from amplifying pure quantisation. Computed in float32 after removing the image mean in the input's
     precision (float32 resolves 3e-5 K on 300 K; the box sums of OpenCV accumulate in float64).
 
     Parameters
@@ -95,7 +94,7 @@ def _local_levels(img, window_px: int, clip_sigma: float, gain: float = 1.0) -> 
     k = (int(window_px), int(window_px))
     rb = cv2.BORDER_REFLECT
     if all_valid:
-        fill = float(a.mean(dtype=np.float64))
+        fill = float(cv2.mean(a)[0]) if a.dtype in (np.float32, np.float64) else float(a.mean(dtype=np.float64))
         x = np.subtract(a, wdt(fill), dtype=wdt).astype(np.float32, copy=False)
         m = cv2.blur(x, k, borderType=rb)
     else:
@@ -108,10 +107,9 @@ def _local_levels(img, window_px: int, clip_sigma: float, gain: float = 1.0) -> 
         np.maximum(w, np.float32(1e-6), out=w)
         m = cv2.divide(cv2.blur(x, k, borderType=rb), w)
         np.copyto(x, m, where=invalid)
-    d = x - m
-    v = cv2.blur(d * d, k, borderType=rb)
-    np.maximum(v, 0.0, out=v)
-    floor = max(float(np.median(v[::4, ::4])) * 1e-4, 1e-20)  # 1/16 sample: 0.1 ms instead of 3
+    d = cv2.subtract(x, m)
+    v = cv2.sqrBoxFilter(d, cv2.CV_32F, k, borderType=rb)  # box mean of d², >= 0
+    floor = max(float(cv2.mean(v)[0]) * 1e-4, 1e-20)  # flat areas: no amplification of pure quantisation
     # levels (z / clip + 1) * 127.5 clipped to 0..255 (+ 0.5: the codes are floor(t), i.e. rounded)
     g = float(gain)
     v += np.float32(floor)
@@ -122,59 +120,46 @@ def _local_levels(img, window_px: int, clip_sigma: float, gain: float = 1.0) -> 
     return t, valid
 
 
-def _equalised_levels(L, R, vl, vr, all_valid: bool, gain: float = 1.0,
+def _equalised_levels(L, R, vl=None, vr=None, gain: float = 1.0,
                       bins: int = 65536) -> tuple[np.ndarray, np.ndarray]:
     """Joint histogram equalisation of a pair: one monotonic map of the values of both images onto 0..255.
 
     The map is the mid-rank of each value in the pooled histogram (``bins`` equal bins between the pair's
-    minimum and maximum), so that the same temperature gets the same level in both images, steps and low
-    frequencies are kept (no halo), and the levels go where the pixels are: a hot object taking most of the
-    range but few pixels gets few levels. Returns ``gain`` × float32 levels in 0..255.5 (floor = the rounded
-    code); invalid pixels get level 0.
+    minimum and maximum; the histogram of every other row and column), so that the same temperature gets the
+    same level in both images, steps and low frequencies are kept (no halo), and the levels go where the pixels
+    are: a hot object taking most of the range but few pixels gets few levels. ``L``, ``R`` must be finite
+    (no-data already filled); ``vl``, ``vr`` (bool, optional) restrict the histogram to the valid pixels.
+    Returns ``gain`` × float32 levels in 0..255.5 (floor = the rounded code).
     """
-    import cv2
-
-    if all_valid:
-        lo = float(min(L.min(), R.min()))
-        hi = float(max(L.max(), R.max()))
-    else:
-        ml = cv2.minMaxLoc(np.asarray(L, np.float64 if L.dtype == np.float64 else np.float32), vl.view(np.uint8))
-        mr = cv2.minMaxLoc(np.asarray(R, np.float64 if R.dtype == np.float64 else np.float32), vr.view(np.uint8))
-        lo, hi = float(min(ml[0], mr[0])), float(max(ml[1], mr[1]))
+    lo = float(min(L.min(), R.min()))
+    hi = float(max(L.max(), R.max()))
     g = float(gain)
     if not hi > lo:
         return np.full(L.shape, 128.0 * g, np.float32), np.full(R.shape, 128.0 * g, np.float32)
     sc = (bins - 1) / (hi - lo)
     idx = []
-    for a, v in ((L, vl), (R, vr)):
+    for a in (L, R):
         f = np.subtract(a, lo, dtype=np.float64 if a.dtype == np.float64 else np.float32)
         f *= sc
-        if not all_valid:
-            np.copyto(f, 0.0, where=~v)
         idx.append(f.astype(np.intp))  # the index type of bincount and take (no conversion inside)
-    h = np.bincount(idx[0].ravel(), minlength=bins) + np.bincount(idx[1].ravel(), minlength=bins)
-    if not all_valid:
-        h[0] -= int((~vl).sum() + (~vr).sum())
+    h = np.zeros(bins, np.intp)
+    for i, v in ((idx[0], vl), (idx[1], vr)):
+        sub = i[::2, ::2]
+        h += np.bincount(sub.ravel() if v is None else sub[v[::2, ::2]], minlength=bins)
     c = np.cumsum(h)
-    lut = ((c - 0.5 * h) * (255.0 * g / c[-1]) + 0.5 * g).astype(np.float32)
-    out = [np.take(lut, i) for i in idx]
-    if not all_valid:
-        np.copyto(out[0], np.float32(0.0), where=~vl)
-        np.copyto(out[1], np.float32(0.0), where=~vr)
-    return out[0], out[1]
+    lut = ((c - 0.5 * h) * (255.0 * g / max(int(c[-1]), 1)) + 0.5 * g).astype(np.float32)
+    return np.take(lut, idx[0]), np.take(lut, idx[1])
 
 
-def _fill_nearest(codes: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 codes with every invalid pixel set to the code of its nearest valid pixel (L1 distance;
-    OpenCV's labelled distance transform numbers the valid pixels in raster order)."""
+def _fill_nearest_value(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(H, W) float32/float64 copy of ``a`` with every invalid pixel set to the value of its nearest valid pixel
+    (L1 distance; OpenCV's labelled distance transform numbers the valid pixels in raster order)."""
     import cv2
 
-    if valid.all() or not valid.any():
-        return codes
     _, lab = cv2.distanceTransformWithLabels((~valid).view(np.uint8), cv2.DIST_L1, 3,
                                              labelType=cv2.DIST_LABEL_PIXEL)
-    lut = np.zeros(int(np.count_nonzero(valid)) + 1, np.uint8)
-    lut[1:] = codes[valid]
+    lut = np.zeros(int(np.count_nonzero(valid)) + 1, np.float64 if a.dtype == np.float64 else np.float32)
+    lut[1:] = a[valid]
     return lut[lab]
 
 
@@ -186,14 +171,18 @@ def matching_codes(left, right, *, window_px: int = 15, clip_sigma: float = 3.0,
     The local part (:func:`normalise_for_matching`) gives every neighbourhood the whole 8-bit range but
     removes low frequencies and leaves a halo of suppressed texture within ``window_px``/2 of strong edges
     (tree crowns, roof edges); the equalised part (:func:`_equalised_levels`) keeps edges and low frequencies
-    and is the same monotonic map for both images. Measured (bad pixels > 1 px against the true disparity;
-    benchmarks/dense.py: 4 planar pairs / 2 rendered 640x512 survey pairs; with the no-data fill of
-    :func:`disparity`): local only (w = 0) 0.159 0.0014 0.0002 0.0013 / 0.0880 0.0260; w = 0.5 0.155 0.0011
-    0.0001 0.0011 / 0.0863 0.0192; w = 0.7 0.155 0.0009 0.0001 0.0009 / 0.0857 0.0176; equalised only (w = 1,
-    no fill) 0.157 0.0010 0.0001 0.0010 / 0.0873 0.0196; plain OpenCV on a global 8-bit stretch 0.741 0.0098
-    0.0010 0.0033 / 0.0871 0.0200. The default w = 0.5 rather than 0.7: on the 16-frame block of
-    tests/test_dense.py (true poses) the DSM's ground RMSE is 0.104 m at w = 0.5 (0.103 at w = 0) but 0.112 m,
-    above its 1-GSD bound of 0.11 m, at w = 0.7.
+    and is the same monotonic map for both images. No-data pixels take the value of their nearest valid
+    pixel before both (no artificial edge at a rectified frame's border).
+
+    Measured (bad pixels > 1 px against the true disparity, invalid counted as bad; benchmarks/dense.py:
+    4 planar pairs / 2 rendered 640x512 survey pairs): w = 0.5 (default) 0.150 0.0010 0.0001 0.0011 /
+    0.0862 0.0193; plain OpenCV on a global 8-bit stretch 0.741 0.0098 0.0010 0.0033 / 0.0871 0.0200. While
+    choosing w (codes filled by nearest code, floor by median): local only (w = 0) 0.159 0.0014 0.0002
+    0.0013 / 0.0880 0.0260; w = 0.5 0.155 0.0011 0.0001 0.0011 / 0.0863 0.0192; w = 0.7 0.155 0.0009 0.0001
+    0.0009 / 0.0857 0.0176; equalised only (w = 1, no fill) 0.157 0.0010 0.0001 0.0010 / 0.0873 0.0196. w = 0.5
+    rather than 0.7: on the 16-frame block of tests/test_dense.py (true poses) the DSM's ground RMSE was
+    0.105 m at w = 0.5 (0.103 at w = 0) but 0.112 m, above its 1-GSD bound of 0.11 m, at w = 0.7; now
+    (w = 0.5, fill by value) ground 0.094 m, overall 0.456 m, completeness 0.936.
 
     Parameters
     ----------
@@ -208,13 +197,24 @@ def matching_codes(left, right, *, window_px: int = 15, clip_sigma: float = 3.0,
     w = float(equalised_weight)
     if not 0.0 <= w <= 1.0:
         raise InvalidInputError(f"equalised_weight={equalised_weight!r}: expected a number in 0..1")
-    tl, vl = _local_levels(left, window_px, clip_sigma, gain=1.0 - w)
-    tr, vr = _local_levels(right, window_px, clip_sigma, gain=1.0 - w)
+    L, R = np.asarray(left), np.asarray(right)
+    if L.shape != R.shape or L.ndim != 2:
+        raise InvalidInputError(f"left {L.shape} and right {R.shape}: expected two (H, W) arrays of the same size")
+    vl = np.isfinite(L) if L.dtype.kind == "f" else np.ones(L.shape, bool)
+    vr = np.isfinite(R) if R.dtype.kind == "f" else np.ones(R.shape, bool)
+    all_l, all_r = bool(vl.all()), bool(vr.all())
+    if not (vl.any() and vr.any()):
+        return np.zeros(L.shape, np.uint8), np.zeros(R.shape, np.uint8), vl, vr
+    # no-data pixels (outside a rectified frame) take the value of their nearest valid pixel: no artificial
+    # edge at the frame's border for SGBM to lock onto (5 rendered survey pairs of 320x256 px, bad pixels > 1 px:
+    # 0.0505 0.0399 0.0424 0.0197 0.0491 -> 0.0441 0.0391 0.0364 0.0109 0.0406, tests/test_dense.py), and the
+    # all-valid (fast) paths below
+    Lf = L if all_l else _fill_nearest_value(L, vl)
+    Rf = R if all_r else _fill_nearest_value(R, vr)
+    tl, _ = _local_levels(Lf, window_px, clip_sigma, gain=1.0 - w)
+    tr, _ = _local_levels(Rf, window_px, clip_sigma, gain=1.0 - w)
     if w > 0.0:
-        L, R = np.asarray(left), np.asarray(right)
-        if L.shape != R.shape:
-            raise InvalidInputError(f"left {L.shape} and right {R.shape}: a rectified pair must have the same size")
-        el, er = _equalised_levels(L, R, vl, vr, bool(vl.all() and vr.all()), gain=w)
+        el, er = _equalised_levels(Lf, Rf, None if all_l else vl, None if all_r else vr, gain=w)
         tl += el
         tr += er
     return tl.astype(np.uint8), tr.astype(np.uint8), vl, vr
@@ -295,11 +295,6 @@ def disparity(left, right, min_disparity: int = 0, num_disparities: int = 64, *,
     # column (d = min_disparity) uniquely instead of being left invalid. A few mirrored columns on the right
     # of both images move that border out of the frame (cropped after matching; +0.6 % of SGBM's work at
     # 640 px); bad pixels of the last 6 columns measured 664 -> 54 of 3072 (benchmarks/dense.py, pair 3).
-    # no-data pixels (outside a rectified frame) take the code of the nearest valid pixel: no artificial edge
-    # at the frame's border for SGBM to lock onto (5 rendered survey pairs of 320x256 px, bad pixels > 1 px:
-    # 0.0505 0.0399 0.0424 0.0197 0.0491 -> 0.0469 0.0368 0.0386 0.0172 0.0436)
-    cl = _fill_nearest(cl, vl)
-    cr = _fill_nearest(cr, vr)
     pad = block_size // 2 + 2
     cl = cv2.copyMakeBorder(cl, 0, 0, 0, pad, cv2.BORDER_REFLECT)
     cr = cv2.copyMakeBorder(cr, 0, 0, 0, pad, cv2.BORDER_REFLECT)
@@ -308,7 +303,7 @@ def disparity(left, right, min_disparity: int = 0, num_disparities: int = 64, *,
     d = raw.astype(np.float32)
     d *= np.float32(1.0 / 16.0)
     bad = (raw < int(min_disparity) * 16) | (d >= min_disparity + num) | ~vl
-    d[bad] = np.nan
+    np.copyto(d, np.float32(np.nan), where=bad)
     # the matched right pixel (nearest) must hold data too
     if not vr.all():
         h, w = d.shape

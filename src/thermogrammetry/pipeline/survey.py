@@ -33,6 +33,8 @@ offset of +0.25 px removed).
 
 from __future__ import annotations
 
+import contextlib
+
 import io
 import json
 import os
@@ -417,6 +419,34 @@ def _load_npz(project: ProjectStore, key: str) -> dict:
         return {k: z[k] for k in z.files}
 
 
+_FEATURE_CACHE: "dict[tuple, dict]" = {}
+_FEATURE_CACHE_SIZE = 48  # images (~1.5 MB each at 3000 RootSIFT features): memory stays bounded
+
+
+def _load_features_cached(project: ProjectStore, key: str) -> dict:
+    """Features of one image for matching, from a small per-process LRU cache.
+
+    Pairs come image-major, so each image's file would otherwise be read and decompressed once per pair.
+    Folder projects key the cache by the file's path, size and modification time (a rewritten file is
+    read again); other stores are read every time.
+    """
+    if not isinstance(project, FolderProject):
+        return _load_npz(project, key)
+    path = project.root / key
+    try:
+        st = path.stat()
+    except OSError:
+        return _load_npz(project, key)  # the store reports the missing file with its own message
+    ck = (str(path), st.st_size, st.st_mtime_ns)
+    hit = _FEATURE_CACHE.pop(ck, None)
+    if hit is None:
+        hit = _load_npz(project, key)
+    _FEATURE_CACHE[ck] = hit  # most recently used last
+    while len(_FEATURE_CACHE) > _FEATURE_CACHE_SIZE:
+        _FEATURE_CACHE.pop(next(iter(_FEATURE_CACHE)))
+    return hit
+
+
 def feature_task(args) -> tuple[str, int]:
     """Unit of work: features of one frame, written to ``<folder>/<name>.npz`` (``features/`` by default)."""
     project, name, fopt, *rest = args
@@ -442,8 +472,8 @@ def match_task(args) -> tuple[int, int, int, int, str]:
     pre = rest[0] if rest else ""
     from ..sfm.matching import guided_matches, homography_prior, match_descriptors, verify_pair
 
-    fi = _load_npz(project, f"{pre}features/{ni}.npz")
-    fj = _load_npz(project, f"{pre}features/{nj}.npz")
+    fi = _load_features_cached(project, f"{pre}features/{ni}.npz")
+    fj = _load_features_cached(project, f"{pre}features/{nj}.npz")
     m = match_descriptors(fi["descriptors"], fj["descriptors"], ratio=mopt.ratio)
     if mopt.guided_radius_px > 0 and fi["descriptors"].dtype != np.uint8:
         H = homography_prior(fi["xy"], fj["xy"], m, seed=mopt.seed)
@@ -1312,6 +1342,26 @@ def survey_steps(inp: SurveyInput, opt: SurveyOptions, progress: Callable | None
     ]
 
 
+@contextlib.contextmanager
+def _local_cluster(opt: SurveyOptions):
+    """One local dask cluster for every step that runs tasks (started once, not per step: ~2-4 s each).
+
+    Yields the options with ``scheduler`` set to its address; unchanged when ``workers`` is 0 or a
+    scheduler was given.
+    """
+    if opt.scheduler is not None or opt.workers == 0:
+        yield opt
+        return
+    from distributed import LocalCluster
+
+    cluster = LocalCluster(n_workers=int(opt.workers), threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=40)
+    try:
+        yield replace(opt, scheduler=cluster.scheduler_address)
+    finally:
+        cluster.close()
+
+
 def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | None = None, *, progress: Callable | None = None,
                on_step: Callable | None = None):
     """Run every step; writes ``report.html`` and the step reports. Returns the list of StepReport."""
@@ -1320,7 +1370,8 @@ def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | Non
 
     opt = opt or SurveyOptions()
     t0 = time.perf_counter()
-    reports = run_steps(project, survey_steps(inp, opt, progress), on_step=on_step)
+    with _local_cluster(opt) as opt_run:
+        reports = run_steps(project, survey_steps(inp, opt_run, progress), on_step=on_step)
     if project.exists("survey.json"):
         s = project.read_json("survey.json")
         s["seconds"] = time.perf_counter() - t0

