@@ -10,14 +10,14 @@ vignetting) rectified with their TRUE poses by :func:`thermogrammetry.dense.rect
 cropped to 640×512, the true disparity of every rectified left pixel from ray casting the true surface;
 pixels hidden from the right camera (occlusions) are not scored. Plain OpenCV is run the way a user would:
 both frames mapped to 8 bits with one global stretch over the pair, then ``StereoSGBM`` (MODE_SGBM_3WAY,
-block 5, P1 = 8·25, P2 = 32·25, uniquenessRatio 10, speckle window 100 / range 2, disp12MaxDiff 1: the
-settings of OpenCV's stereo_match sample, fixed here so that tuning ours does not move the baseline).
-Ours maps each frame locally in float (Wallis-type) before SGBM with the same settings.
+block 5, P1 = 8·25, P2 = 32·25 as OpenCV's documentation suggests, uniquenessRatio 10, speckle window 100 /
+range 2 px, disp12MaxDiff 1: ours' settings, written out here so that tuning ours does not move the
+baseline). Ours computes the 8-bit codes of the pair in float (joint histogram equalisation blended with a
+local Wallis-type normalisation, :func:`thermogrammetry.dense.stereo.matching_codes`) before the same SGBM.
 
-Scores (left image, columns ≥ the largest searched disparity; rendered pair: of those, the pixels whose
-surface both cameras see): bad = share of
-pixels with |d − truth| > 1 px, invalid pixels counted as bad; valid share; median error of the valid
-pixels; time per pair (median of ``--repeats``; both run in this process, interleaved, the 8-bit mapping
+Scores (left image, columns ≥ the largest searched disparity; rendered pairs: of those, the pixels whose
+surface both cameras see): bad = share of pixels with |d − truth| > 1 px, invalid pixels counted as bad;
+valid share; median error of the valid pixels; time per pair (median of ``--repeats``; both run in this process, interleaved, the 8-bit mapping
 inside OpenCV's time). The machine's load average is printed before and after.
 
 Part 2 (``--chain N [N ...]``): the whole chain on a synthetic block of about N frames shaped like a DJI M3T
@@ -55,7 +55,7 @@ def make_pair(**kw):
 
 
 def plain_sgbm(min_disparity: int, num_disparities: int):
-    """OpenCV's StereoSGBM as its stereo_match sample sets it up (3-way mode), independent of our settings."""
+    """Plain OpenCV StereoSGBM (3-way mode, documented penalties), written out independently of our settings."""
     import cv2
 
     b = 5
