@@ -97,7 +97,28 @@ def write_rig_block(root, *, seed: int = 0, n_frames: int | None = None):
     (root / "measurements.csv").write_text("\n".join(meas) + "\n")
     return {"scene": scene, "rig": rig, "ties": ties, "gcps": scene.gcps, "rgb_poses": {f"{k:04d}_rgb": fr.pose for k, fr in enumerate(scene.frames)},
             "thermal_poses": {f.name: f.pose for f in th_frames}, "thermal_camera": scene.camera, "rgb_camera": cam_rgb,
+            # realised mean GNSS error of the block (its datum inherits it; σ only carries its expectation)
+            "gnss_mean_error": np.mean([fr.gnss_enh - fr.pose.center for fr in scene.frames], axis=0),
             "epsg": scene.terrain.epsg, "root": root}
+
+
+def blank_thermal_copy(root, name, blank):
+    """A copy of ``root/thermal`` in ``root/name`` where the frames with index in ``blank`` are featureless (a uniform
+    295 K): thermal images without any observation of their own (they can only be posed through the rig)."""
+    import shutil
+
+    from thermogrammetry.io.tiff import encode_temperature_tiff
+
+    root = Path(root)
+    dst = root / name
+    dst.mkdir(exist_ok=True)
+    for f in sorted((root / "thermal").glob("*.tif")):
+        if int(f.stem[:4]) in set(blank):
+            data, _ = encode_temperature_tiff(np.full((256, 320), 295.0, np.float32))
+            (dst / f.name).write_bytes(data)
+        else:
+            shutil.copy(f, dst / f.name)
+    return dst
 
 
 def write_rig_json(path, *, rig=None, estimate=False, pairing=True, extra=None):

@@ -6,14 +6,14 @@ rotated by (0.5, -0.4, 0.3) deg; GNSS σ 3/5 cm on the RGB images only, 4 GCPs (
 points measured with 0.3 px noise (tie points: in RGB and thermal images). The rig file gives both cameras
 (a rig calibration yields them), so what is tested is the rig, not self-calibration.
 
-Tolerances: the estimated tie-point σ is 0.3 px; the final adjustment reports σ of every pose (rig views:
-propagated from the master pose and the rig). Poses are checked per axis against 4 of their own σ
-(two-sided: σ is also bounded from above and below, so an inflated σ cannot pass). The estimated rig is
-checked against 3σ plus a floor (0.03 deg, 1.5 cm), and the poses against 4σ plus a floor (6 cm, 0.06 deg),
-for the block's systematic error that σ does not carry: with both cameras known, the RGB poses of this block
-show a common rotation of ~0.1 deg about the camera y axis and a shift of 4-8 cm in X (3-5 of their σ; GCP
-residuals are mm), not explained yet (correlated feature-localisation errors over the rendered texture are
-the suspect); the rig's ry (0.025 deg = 5σ measured) inherits part of it. See /work/notes/rig.md.
+Tolerances (measured on this block, seed 0, and on seeds 1-2; /work/notes/rigfix.md): the estimated tie-point
+σ is 0.3 px; the final adjustment reports σ of every pose (rig views: propagated from the master pose and the
+rig). Rotations are checked per axis against 3.5 of their own σ (measured at most 2.0σ; before the keypoint
+convention fix of sfm.keypoints the block was tilted by up to 4.1σ). Centres: against 4σ after removing the
+block's realised mean GNSS error (the datum is the GNSS: its σ carries the expected mean error, not the
+draw; this block's draw is (-2.9, -1.2, +2.6) cm, 3.3σ of the mean in X). σ itself is bounded two-sided. The
+estimated rig is checked against 4σ (measured 3.7σ in ry and 3.5σ in tx: its σ comes from tie points whose
+errors are correlated across frames of rendered texture, like the poses of tests/test_survey.py).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from thermogrammetry.geometry.rotations import axis_angle_from_matrix
 from thermogrammetry.io.oriented import OrientedCameras
 
 sys.path.insert(0, str(Path(__file__).parent))
-from rig_block import rgb_camera, write_rig_block, write_rig_json  # noqa: E402
+from rig_block import blank_thermal_copy, rgb_camera, write_rig_block, write_rig_json  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -38,10 +38,10 @@ def block(tmp_path_factory):
     return write_rig_block(tmp_path_factory.mktemp("rig"))
 
 
-def _run(block, name, rig_json, *extra):
+def _run(block, name, rig_json, *extra, thermal="thermal"):
     root = block["root"]
     out = root / name
-    code = main(["survey", str(root / "thermal"), "--rgb", str(root / "rgb"), "--rig", str(rig_json), "-o", str(out),
+    code = main(["survey", str(root / thermal), "--rgb", str(root / "rgb"), "--rig", str(rig_json), "-o", str(out),
                  "--workers", "0", "--gnss", str(root / "gnss.csv"), "--crs", f"EPSG:{block['epsg']}",
                  "--gcps", str(root / "gcps.csv"), "--gcp-measurements", str(root / "measurements.csv"), *extra])
     return code, out
@@ -63,6 +63,22 @@ def estimated(block):
     return _run(block, "out_est", rig)
 
 
+@pytest.fixture(scope="module")
+def fixed_blank(block):
+    """Given rig; thermal frames 3, 4, 8 featureless: posed only through the rig."""
+    blank_thermal_copy(block["root"], "thermal_blank348", (3, 4, 8))
+    rig = write_rig_json(block["root"] / "rig_fixed.json", rig=block["rig"], extra=_cams(block))
+    return _run(block, "out_fixed_blank", rig, thermal="thermal_blank348")
+
+
+@pytest.fixture(scope="module")
+def estimated_two(block):
+    """Rig to be estimated, but only thermal frames 0 and 11 have texture: too little evidence."""
+    blank_thermal_copy(block["root"], "thermal_only0_11", [k for k in range(12) if k not in (0, 11)])
+    rig = write_rig_json(block["root"] / "rig_est.json", estimate=True, extra=_cams(block))
+    return _run(block, "out_est_two", rig, thermal="thermal_only0_11")
+
+
 def _pose_errors(block, out):
     oc = OrientedCameras.load(out / "cameras.json")
     truth = {**block["rgb_poses"], **block["thermal_poses"]}
@@ -74,16 +90,16 @@ def _pose_errors(block, out):
     return rows
 
 
-def _check_thermal_poses(block, out):
+def _check_thermal_poses(block, out, n=12):
     rows = [r for r in _pose_errors(block, out) if r[1] == "thermal"]
-    assert len(rows) == 12
+    assert len(rows) == n
+    g = block["gnss_mean_error"]
     for name, _, dC, sC, dr, sr in rows:
-        # σ two-sided: GNSS 3/5 cm over 12 images and GCPs of 1 cm give 0.5-3 cm; rotations 0.005-0.1 deg
+        # σ two-sided: GNSS 3/5 cm over 12 images and GCPs of 1 cm give 1.1-1.7 cm; rotations 0.019-0.029 deg
         assert np.all((sC > 0.005) & (sC < 0.03)), (name, sC)
-        assert np.all((sr > 0.005) & (sr < 0.1)), (name, sr)
-        # 4σ plus the block's common systematic (module docstring: ~4-5 cm, ~0.1 deg in the RGB poses as well)
-        assert np.all(np.abs(dC) <= 4 * sC + 0.06), (name, dC, sC)
-        assert np.all(np.abs(dr) <= 4 * sr + 0.06), (name, dr, sr)
+        assert np.all((sr > 0.01) & (sr < 0.05)), (name, sr)
+        assert np.all(np.abs(dC - g) <= 4 * sC), (name, dC, g, sC)
+        assert np.all(np.abs(dr) <= 3.5 * sr), (name, dr, sr)
 
 
 def test_fixed_rig_orients_every_thermal_image_through_its_partner(block, fixed):
@@ -93,6 +109,7 @@ def test_fixed_rig_orients_every_thermal_image_through_its_partner(block, fixed)
     assert s["images_total"] == 24 and s["images_oriented"] == 24 and s["components"] == [24]
     rb = s["rig"]["blocks"][0]
     assert rb["estimated"] is False and rb["pairs"] == 12 and "std" not in rb
+    assert s["images_rig_only"] == 0 and s["rig"]["rig_only"] == [] and min(rb["own_observations"].values()) > 500
     np.testing.assert_allclose(rb["seed002"]["t_base_rgb_frame"], [0.10, 0.02, -0.01], atol=1e-12)
     _check_thermal_poses(block, out)
     # thermal images are in every export
@@ -104,18 +121,23 @@ def test_fixed_rig_orients_every_thermal_image_through_its_partner(block, fixed)
 
 def test_manual_tie_points_tie_rgb_and_thermal(block, fixed):
     """Ids MT01..06 are in neither gcps.csv nor a check-point file: they enter the adjustment as unknown points
-    measured in both modalities. Bounds: 0.06 m horizontally (0.3 px at 8.8 cm RGB / 13 cm thermal GSD over 8 rays:
-    σ ≈ 1.5 cm, plus the block systematic of the module docstring), 0.3 m vertically (measured up to 0.19 m on flat
-    ground; the survey's own check-point criterion is 1 GSD = 0.13 m in Z: this block is weaker, 12 stations)."""
+    measured in both modalities. σ of a tie (0.3 px in 4 RGB + 4 thermal images, 8.8 / 13 cm GSD, base/height
+    ~0.4 between the strips): ~1.3 cm horizontally, ~5 cm vertically. Bounds 3σ per tie (0.04 m, 0.15 m) and
+    0.08 m on the mean height error of the ties (3σ of a mean of 5-6 ties with the datum's error). Measured:
+    <= 2.8 cm horizontally, -2 ... +13 cm vertically, mean +4.8 cm (seeds 1-2: +1.3, +2.6 cm); before the
+    keypoint convention fix the ties were 12-22 cm low (mean -13, -16, -20 cm on seeds 0-2)."""
     code, out = fixed
     s = json.loads((out / "survey.json").read_text())
     used = {t["id"]: t for t in s["manual_ties"]["used"]}
     assert set(used) == set(block["ties"])
+    dz = []
     for tid, t in used.items():
         assert t["sensors"] == ["rgb", "thermal"]
-        assert t["rms_px"] < 1.5  # 0.3 px noise: rms ~0.3-0.5 px
+        assert t["rms_px"] < 1.0  # 0.3 px noise: rms ~0.3-0.5 px
         e = np.array(t["xyz"]) - block["ties"][tid]
-        assert np.linalg.norm(e[:2]) < 0.06 and abs(e[2]) < 0.3, (tid, e)
+        assert np.linalg.norm(e[:2]) < 0.04 and abs(e[2]) < 0.15, (tid, e)
+        dz.append(e[2])
+    assert abs(np.mean(dz)) < 0.08, dz
     # the GCPs still act as GCPs (4 used, mm residuals at σ 1 cm)
     assert s["gcps"]["n"] == 4 and max(s["gcps"]["rmse_x"], s["gcps"]["rmse_y"], s["gcps"]["rmse_z"]) < 0.02
 
@@ -131,14 +153,57 @@ def test_estimated_rig_agrees_with_truth_within_its_sigma(block, estimated):
     t = np.array(rb["cam_thermal_from_cam_rgb"]["t"])
     s_rot = np.array(rb["std"]["rotation_deg"])
     s_t = np.array(rb["std"]["t"])
-    # σ two-sided: ~0.005 deg and ~4 mm measured here
-    assert np.all((s_rot > 5e-4) & (s_rot < 0.05)), s_rot
-    assert np.all((s_t > 5e-4) & (s_t < 0.02)), s_t
+    # σ two-sided: (0.005, 0.005, 0.0015) deg and (4.1, 4.4, 1.4) mm measured here
+    assert np.all((s_rot > 5e-4) & (s_rot < 0.02)), s_rot
+    assert np.all((s_t > 5e-4) & (s_t < 0.01)), s_t
     e_rot = np.degrees(axis_angle_from_matrix(R @ block["rig"].R.T))
     e_t = t - block["rig"].t
-    assert np.all(np.abs(e_rot) <= 3 * s_rot + 0.03), (e_rot, s_rot)
-    assert np.all(np.abs(e_t) <= 3 * s_t + 0.015), (e_t, s_t)
+    assert np.all(np.abs(e_rot) <= 4 * s_rot), (e_rot, s_rot)
+    assert np.all(np.abs(e_t) <= 4 * s_t), (e_t, s_t)
+    # enough evidence: all 12 thermal frames have their own observations; none is rig-only
+    assert rb["evidence"].startswith("12 thermal frames") and s["images_rig_only"] == 0
     _check_thermal_poses(block, out)
+
+
+def test_rig_only_thermal_images_are_counted_and_flagged(block, fixed_blank):
+    """A given (calibrated) rig: thermal frames without a single feature of their own still get a pose -- their
+    partner's moved by R*, t -- and count in images_oriented, but they are flagged and listed apart."""
+    code, out = fixed_blank
+    assert code == 0
+    s = json.loads((out / "survey.json").read_text())
+    assert s["images_total"] == 24 and s["images_oriented"] == 24 and s["components"] == [24]
+    blank = {"0003_ir", "0004_ir", "0008_ir"}
+    assert s["images_rig_only"] == 3 and set(s["rig"]["rig_only"]) == blank
+    st = {im["name"]: im for im in s["images"]}
+    for n in blank:  # no tie points; at most a few manual measurements (< 6)
+        assert st[n]["oriented"] and st[n]["rig_only"] is True and st[n]["reason"].startswith("pose from the rig only"), st[n]
+        assert s["rig"]["blocks"][0]["own_observations"][n] < 6
+    assert not any(im.get("rig_only") for n, im in st.items() if n not in blank)
+    assert "posed by the rig only" in (out / "report.html").read_text()
+    _check_thermal_poses(block, out)  # the rig-only poses are as good as their partners'
+
+
+def test_rig_estimation_refused_without_evidence(block, estimated_two):
+    """estimate: true, but only 2 thermal frames have observations: R*, t is not estimated (>= 3 spread frames
+    needed), the block is adjusted without the rig, the two frames keep their own orientation and the 10
+    featureless ones are not oriented -- each with the reason."""
+    code, out = estimated_two
+    assert code == 0
+    s = json.loads((out / "survey.json").read_text())
+    rb = s["rig"]["blocks"][0]
+    assert rb["estimated"] is False and "only 2 thermal frame(s)" in rb["refused"]
+    st = {im["name"]: im for im in s["images"]}
+    assert all(st[f"{k:04d}_rgb"]["oriented"] for k in range(12))
+    assert st["0000_ir"]["oriented"] and st["0011_ir"]["oriented"]
+    for k in range(1, 11):
+        im = st[f"{k:04d}_ir"]
+        assert not im["oriented"] and "R*, t not estimated" in im["reason"], im
+    assert s["images_oriented"] == 14 and s["images_rig_only"] == 0
+    assert "R*, t not estimated" in (out / "report.html").read_text()
+    oc = OrientedCameras.load(out / "cameras.json")
+    truth = {**block["rgb_poses"], **block["thermal_poses"]}
+    for im in oc.images:  # the two thermal frames oriented on their own are in the georeferenced block
+        assert np.linalg.norm(im.pose.center - truth[im.name].center) < 0.3, im.name
 
 
 def test_rig_file_errors_and_pairing(tmp_path, block):

@@ -74,7 +74,10 @@ def survey(
                                        "relative orientation cam_thermal_from_cam_rgb {R, t (m)} (Barazzetti et al. 2013 eq. 4-5). "
                                        "Each thermal image paired with an oriented RGB image (\"frames\": {rgb: thermal}, "
                                        "\"pairing\": {\"rgb_suffix\", \"thermal_suffix\"}, or identical names) takes its pose "
-                                       "from it; R, t held fixed, or estimated in the block with σ (\"estimate\": true). "
+                                       "from it; R, t held fixed, or estimated in the block with σ (\"estimate\": true; only "
+                                       "with >= 3 thermal frames with own tie points spread over the block and a converged "
+                                       "adjustment, else refused with the reason). Thermal images posed by the rig alone (no "
+                                       "own tie points) are listed in survey.json images_rig_only / rig.rig_only. "
                                        "Schema: thermogrammetry.sfm.rig."),
     gnss: str = typer.Option("auto", "--gnss", help="auto (EXIF/XMP, RTK σ), none, or gnss.csv (image,X,Y,Z[,sX,sY,sZ] in --crs)."),
     crs: Optional[str] = typer.Option(None, "--crs", help="Output CRS, e.g. EPSG:2056 (default: UTM zone of the GNSS)."),

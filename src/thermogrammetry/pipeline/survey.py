@@ -21,7 +21,14 @@ Outputs (OUT): ``cameras.json`` (:mod:`thermogrammetry.io.oriented`), ``survey.j
 ``survey.json`` keys: ``images_total``, ``images_oriented``, ``components`` (images per oriented block,
 largest first), ``reprojection_rms_px`` (root mean square of the residual vector length of the tie
 observations, px), ``gcps`` / ``checkpoints`` (``n, rmse_x.., mae_x.., min_x.., max_x..`` in metres; n = 0
-and nulls when none), ``crs``, ``seconds`` and more detail (per image, per step, camera).
+and nulls when none), ``crs``, ``seconds`` and more detail (per image, per step, camera). Rig mode
+(``--rig``) adds ``rig`` (file, pairs, blocks with R*, t, σ, own observations per thermal image, or the reason an
+estimate was refused; ``rig_only``: thermal images posed by the rig alone) and ``images_rig_only``; those images
+count in ``images_oriented`` (R*, t given, or estimated from enough evidence) and carry ``rig_only: true`` and a
+``reason`` in ``images`` (see :mod:`thermogrammetry.sfm.rig`).
+
+Tie-point coordinates follow the pixel-centre convention (:mod:`thermogrammetry.sfm.keypoints`: OpenCV's SIFT
+offset of +0.25 px removed).
 """
 
 from __future__ import annotations
@@ -446,13 +453,15 @@ def feature_task(args) -> tuple[str, int]:
     folder = rest[0] if rest else "features"
     pattern_key = rest[1] if len(rest) > 1 else None
     from ..sfm.features import extract_features
+    from ..sfm.keypoints import to_pixel_centre_convention
 
     frame = _read_frame(project, name)
     if pattern_key and frame.ndim == 2:
         pat = _load_npz(project, pattern_key)["pattern"]
         if pat.shape == frame.shape:  # the sensor's fixed pattern, estimated from the sequence
             frame = frame.astype(np.float32) - pat
-    f = extract_features(frame, fopt)
+    # (0, 0) = centre of the top-left pixel, like the camera model, GCP and manual-tie measurements
+    f = to_pixel_centre_convention(extract_features(frame, fopt), fopt)
     _save_npz(project, f"{folder}/{name}.npz", **f.to_npz_dict())
     return name, len(f)
 
@@ -856,8 +865,10 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     oriented = np.zeros(len(names), bool)
     fa_all = []
     rig_master, rig_enabled, rig_out, tie_out = {}, {}, [], []
+    rig_only: dict[int, str] = {}  # oriented rig views without observations of their own -> reason
     if inp.rig is not None:
-        from ..sfm.rig import attach_rig_images, pair_rig_images, plan_rig_blocks, rig_report, start_rig
+        from ..sfm.rig import (RIG_MIN_OWN_OBSERVATIONS, attach_rig_images, own_observations, pair_rig_images,
+                               plan_rig_blocks, rig_estimate_accepted, rig_estimation_evidence, rig_report, start_rig)
 
         rig_master, nts, rig_unpaired = pair_rig_images(inp.rig, inputs["images"])
         comps, rig_enabled, nts2 = plan_rig_blocks(rec, inp.rig, rig_master, comps)
@@ -886,22 +897,52 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             apply_similarity(rec, images, S)
         elif rigv is not None:
             notes += [f"block {ci + 1}: {x}" for x in _rig_scale_local(rec, images, inp.rig, rig_master, rigv)]
+        block_images, snap, refused = images, None, ""
         if rigv is not None:
+            snap = _rig_snapshot(rec)
             images, nts = attach_rig_images(rec, images, rigv, xy, max_error_px=opt.reconstruction.max_error_px,
                                             min_tri_angle_deg=opt.reconstruction.min_tri_angle_deg)
             notes += [f"block {ci + 1}: {x}" for x in nts]
-            n_th = _rig_observations(rec, rigv, images, t_obs)
-            if not rigv.fixed and n_th < 30:
-                # too few thermal observations to estimate R*, t: held at its start (reported), never left singular
-                rigv.fixed = True
-                notes.append(f"block {ci + 1}: rig: only {n_th} thermal observation(s) of oriented points: R*, t cannot be "
-                             f"estimated and are held at their start ({rigv.start})")
-        fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=self_cal, tie_sigma_px=opt.tie_sigma_px,
-                              max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
-                              compute_covariance=len(images) <= 2500, rig=rigv, manual_ties=t_obs or None)
+            if not rigv.fixed:
+                # R*, t estimated only from enough evidence (sfm.rig: >= 3 thermal frames with own observations,
+                # spread over the block); a guess held at its start is not an orientation
+                ok, why = rig_estimation_evidence(rec, rigv, images, _rig_own_before(rec, rigv, images, t_obs))
+                refused = "" if ok else why
+        fa = None
+        if rigv is not None and not refused:
+            fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=self_cal, tie_sigma_px=opt.tie_sigma_px,
+                                  max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
+                                  compute_covariance=len(images) <= 2500, rig=rigv, manual_ties=t_obs or None)
+            if not rigv.fixed:
+                ok, why = rig_estimate_accepted(rigv, fa)
+                refused = "" if ok else why
+                if refused:
+                    notes += [f"block {ci + 1}: {x}" for x in fa.notes]
+        if refused:
+            # estimation refused: the block is adjusted without the rig; thermal frames oriented on their own in
+            # this block stay (as plain images), the others are not oriented
+            images = _rig_refuse(rec, snap, rigv, block_images, names, refused, ci, S if geo else None)
+            notes.append(f"block {ci + 1}: rig: R*, t not estimated: {refused}; the thermal frames of this block are "
+                         "oriented only where they have an orientation of their own")
+            rig_out.append({"block": ci + 1, "estimated": False, "refused": refused, "start": rigv.start,
+                            "pairs": len(rigv.master)})
+            rigv = None
+            fa = None
+        if fa is None:
+            fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=self_cal, tie_sigma_px=opt.tie_sigma_px,
+                                  max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
+                                  compute_covariance=len(images) <= 2500, rig=rigv, manual_ties=t_obs or None)
         notes += [f"block {ci + 1}: {x}" for x in fa.notes]
         if rigv is not None:
-            rig_out.append({"block": ci + 1, **rig_report(rigv, geo)})
+            own = own_observations(rigv, images, fa.tie_obs_image,
+                                   [(mt_i,) for mt in fa.manual_ties for mt_i in mt["images"]])
+            for s_, n_ in own.items():
+                if n_ < RIG_MIN_OWN_OBSERVATIONS:
+                    rig_only[s_] = ("pose from the rig only (no own tie points)" if n_ == 0 else
+                                    f"pose from the rig only ({n_} own observation(s) < {RIG_MIN_OWN_OBSERVATIONS})")
+            rig_out.append({"block": ci + 1, **rig_report(rigv, geo),
+                            "own_observations": {names[s_]: n_ for s_, n_ in sorted(own.items())},
+                            **({"evidence": rig_estimation_evidence(rec, rigv, images, own)[1]} if not rigv.fixed else {})})
         for mt in fa.manual_ties:
             v_ = mt["residuals_px"]
             tie_out.append({"id": t_ids[mt["tie"]], "block": ci + 1, "xyz": mt["xyz"].tolist(),
@@ -955,12 +996,20 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         for s_, why in rig_unpaired.items():
             if not oriented[s_]:
                 rec.status[s_].reason = f"{why}; on its own: {rec.status[s_].reason or 'not oriented'}"
+        r_only = sorted(k for k in rig_only if oriented[k])
         extra["rig"] = {"file": inp.rig.source, "pairs": len(rig_master), "fixed": not inp.rig.estimate,
-                        "thermal_unpaired": [names[k] for k in sorted(rig_unpaired)], "blocks": rig_out}
+                        "thermal_unpaired": [names[k] for k in sorted(rig_unpaired)], "blocks": rig_out,
+                        "rig_only": [names[k] for k in r_only],
+                        "rig_only_counted": (
+                            "thermal images posed only through the rig (no or too few observations of their own) are "
+                            "counted in images_oriented: R*, t is given by the rig file (calibrated) or was estimated in "
+                            "their block from >= 3 spread thermal frames with a converged adjustment and finite σ; "
+                            "when that evidence is missing R*, t is not estimated and they are not oriented")}
+        extra["images_rig_only"] = len(r_only)
     if t_ids:
         extra["manual_ties"] = {"ids": len(t_ids), "used": tie_out}
     out = _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results,
-                         extra=extra)
+                         extra=extra, rig_only={k: w for k, w in rig_only.items() if oriented[k]})
     out["seconds_georef"] = time.perf_counter() - t0
     return out
 
@@ -994,14 +1043,48 @@ def _point_values(project, inputs, rec, names, images_used, obs_mask):
         return vals / cnt, unit
 
 
-def _rig_observations(rec, rigv, images, manual_obs) -> int:
-    """Observations in the rig views of a block: valid tie observations of points, plus manual measurements."""
+def _rig_own_before(rec, rigv, images, manual_obs) -> dict:
+    """Own observations per rig view before the adjustment: valid observations of triangulated points + manual."""
+    from ..sfm.rig import own_observations
+
     tr = rec.tracks
-    inb = set(np.asarray(images).tolist())
-    sl = np.zeros(len(rec.registered), bool)
-    sl[[s for s, m in rigv.master.items() if s in inb and m in inb]] = True
-    n = int(np.sum(rec.obs_valid & sl[tr.image] & np.isfinite(rec.points[tr.track]).all(1)))
-    return n + sum(1 for i, *_ in manual_obs if sl[i])
+    ok = rec.obs_valid & np.isfinite(rec.points[tr.track]).all(1)
+    return own_observations(rigv, images, tr.image[ok], manual_obs or ())
+
+
+def _rig_snapshot(rec) -> dict:
+    """What attaching rig views and the final adjustment change in ``rec`` (to undo a refused rig)."""
+    return {"R": rec.R.copy(), "t": rec.t.copy(), "registered": rec.registered.copy(), "component": rec.component.copy(),
+            "points": rec.points.copy(), "obs_valid": rec.obs_valid.copy(), "cameras": list(rec.cameras),
+            "status": [(s.registered, s.component, s.reason) for s in rec.status]}
+
+
+def _rig_refuse(rec, snap, rigv, block_images, names, why, ci, S=None) -> np.ndarray:
+    """Undo the rig views of a block; returns its images: the RGB block plus the thermal frames that were oriented
+    on their own in the same component (they keep that orientation, moved by the block's datum similarity ``S``
+    like the block). Other thermal partners: reason set."""
+    rec.R[:], rec.t[:], rec.registered[:], rec.component[:] = snap["R"], snap["t"], snap["registered"], snap["component"]
+    rec.points[:], rec.obs_valid[:] = snap["points"], snap["obs_valid"]
+    rec.cameras[:] = snap["cameras"]
+    for st, (r_, c_, w_) in zip(rec.status, snap["status"]):
+        st.registered, st.component, st.reason = r_, c_, w_
+    block_images = np.asarray(block_images, np.int64)
+    comp = int(rec.component[block_images[0]]) if len(block_images) else -1
+    keep = []
+    for s_, m_ in sorted(rigv.master.items()):
+        if m_ not in set(block_images.tolist()):
+            continue
+        if rec.registered[s_] and int(rec.component[s_]) == comp:
+            keep.append(s_)
+        else:
+            rec.status[s_].reason = (f"rig R*, t not estimated in block {ci + 1} ({why}); no orientation of its own "
+                                     f"(partner {names[m_]})")
+    if keep and S is not None:  # the block was moved to the datum without them (plan_rig_blocks took them out)
+        k = np.asarray(keep, np.int64)
+        Cn = S(rec.centers()[k])
+        rec.R[k] = rec.R[k] @ S.R.T
+        rec.t[k] = -np.einsum("nij,nj->ni", rec.R[k], Cn)
+    return np.unique(np.concatenate([block_images, np.asarray(keep, np.int64)]))
 
 
 def _rig_scale_local(rec, images, rig, master, rigv) -> list:
@@ -1027,7 +1110,8 @@ def _rig_scale_local(rec, images, rig, master, rigv) -> list:
             f"{np.linalg.norm(rig.t):.3f} m"]
 
 
-def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results, extra=None):
+def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results, extra=None,
+                   rig_only=None):
     from ..io.oriented import OrientedCameras, OrientedImage
     from ..sfm.georef import axis_statistics
 
@@ -1074,10 +1158,11 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
         ok = i in set(oriented_idx)
         v = tie_by_image.get(i)
         status.append({"name": n, "oriented": ok, "block": int(rec.component[i]) + 1 if ok else None,
-                       "reason": "" if ok else (s.reason or "not oriented"),
+                       "reason": ((rig_only or {}).get(i, "") if ok else (s.reason or "not oriented")),
                        "tie_points": int(len(v)) if v is not None else 0,
                        "rms_px": float(np.sqrt(np.mean(np.sum(v**2, 1)))) if v is not None and len(v) else None,
-                       "unit": inputs["images"][i]["unit"], "sensor": inputs["images"][i]["sensor"]})
+                       "unit": inputs["images"][i]["unit"], "sensor": inputs["images"][i]["sensor"],
+                       **({"rig_only": True} if ok and i in (rig_only or {}) else {})})
     for f in inputs["failed"]:
         status.append({"name": Path(f["file"]).name, "oriented": False, "block": None, "reason": f["reason"], "tie_points": 0,
                        "rms_px": None, "unit": None, "sensor": None})

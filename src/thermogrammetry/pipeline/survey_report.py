@@ -77,7 +77,17 @@ def write_survey_report(project) -> None:
         parts.append(f"<h2>Rig (RGB + thermal)</h2><p>{html.escape(rg['file'])}: {rg['pairs']} pair(s), R*, t "
                      f"{'held fixed' if rg['fixed'] else 'estimated in the block'}; thermal images without a partner: "
                      f"{len(rg['thermal_unpaired'])}</p>")
+        if rg.get("rig_only"):
+            parts.append(f"<h3>Thermal images posed by the rig only ({len(rg['rig_only'])})</h3><p>No (or fewer than 6) "
+                         "observations of their own: their pose is their RGB partner's moved by R*, t, unchecked by the "
+                         f"image itself. {html.escape(rg.get('rig_only_counted', ''))}.</p><p>"
+                         + ", ".join(html.escape(n) for n in rg["rig_only"]) + "</p>")
         for b in rg["blocks"]:
+            if b.get("refused"):
+                parts.append(f"<h3>block {b['block']}: R*, t not estimated</h3><p>{html.escape(b['refused'])} (start: "
+                             f"{html.escape(b['start'])}). Thermal frames without an orientation of their own are not "
+                             "oriented.</p>")
+                continue
             sd = b.get("std", {})
             rows = "".join(f"<tr><th>{k}</th><td>{v:.4f}</td><td>{_f(sd.get('rotation_deg', [None] * 3)[a], '{:.4f}')}</td></tr>"
                            for a, (k, v) in enumerate(zip(("ω (deg)", "φ (deg)", "κ (deg)"), b["rotation_vector_deg"])))

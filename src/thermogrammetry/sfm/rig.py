@@ -16,6 +16,17 @@ measurements enter the final adjustment through the rig. ``R_rel, t_rel`` is eit
 or estimated in the block (started from the given value or from thermal images oriented together with
 their partners) with its a-posteriori σ.
 
+Evidence (what counts as oriented). A rig view whose image contributes fewer than
+``RIG_MIN_OWN_OBSERVATIONS`` observations of its own (tie points kept by the final adjustment plus manual
+measurements) is *rig-only*: its pose is nothing but its partner's pose moved by R*, t. It counts as
+oriented when R*, t is calibrated -- given in the rig file, or estimated in this block from enough
+evidence -- and is listed apart (``survey.json`` ``images_rig_only``, ``rig.rig_only``, a status reason).
+R*, t is estimated in a block only with :func:`rig_estimation_evidence`: at least ``RIG_EST_MIN_FRAMES``
+thermal frames with ``RIG_EST_MIN_OBSERVATIONS`` observations each whose partners span at least
+``RIG_EST_MIN_SPREAD`` of the block, and after the adjustment a converged solve with finite σ of all six
+rig parameters; otherwise the estimate is refused with the reason and the thermal frames without an
+orientation of their own stay unoriented (a guessed R*, t is not an orientation).
+
 The rig file (one schema, shared with the ``texture`` verb)::
 
     {"format": "thermogrammetry/rig",
@@ -48,9 +59,19 @@ from ..errors import ConfigError, DataFileError, UnsupportedFormatError
 from ..geometry.rotations import axis_angle_from_matrix, matrix_from_axis_angle
 
 __all__ = ["RigFile", "RigViews", "read_rig", "parse_rig", "pair_rig_images", "relative_from_poses",
-           "attach_rig_images", "rig_report", "RIG_KEYS"]
+           "attach_rig_images", "rig_report", "RIG_KEYS", "own_observations", "rig_estimation_evidence",
+           "rig_estimate_accepted", "RIG_MIN_OWN_OBSERVATIONS", "RIG_EST_MIN_FRAMES", "RIG_EST_MIN_OBSERVATIONS",
+           "RIG_EST_MIN_SPREAD"]
 
 RIG_FORMAT = "thermogrammetry/rig"
+#: below this many own observations a rig view is "rig-only" (3 points: the minimum of a resection)
+RIG_MIN_OWN_OBSERVATIONS = 6
+#: estimating R*, t needs this many thermal frames ...
+RIG_EST_MIN_FRAMES = 3
+#: ... each with this many own observations (tie + manual) ...
+RIG_EST_MIN_OBSERVATIONS = 20
+#: ... whose RGB partners span this fraction of the block's largest camera-centre distance
+RIG_EST_MIN_SPREAD = 1.0 / 3.0
 RIG_KEYS = ("format", "cam_thermal_from_cam_rgb", "estimate", "thermal_camera", "rgb_camera", "frames", "pairing", "notes")
 
 
@@ -502,3 +523,64 @@ def start_rig(rec, rig: RigFile, master: dict, images, scale: float = 1.0) -> tu
         t0 = t0 * scale
         how = f"mean of {len(co)} thermal image(s) oriented with their RGB partners (rotation spread median {float(np.median(spread)):.2f} deg)"
     return RigViews(dict(master), R0, t0, fixed=not rig.estimate, start=how), notes
+
+
+def own_observations(views: RigViews, images, obs_image, manual_obs=()) -> dict:
+    """Observations of its own per rig view of a block: slave image -> count.
+
+    Parameters
+    ----------
+    views : RigViews
+    images : (n,) int, the block's images (masters and slaves)
+    obs_image : (K,) int, image index of every tie observation that counts (e.g. ``FinalAdjustment.tie_obs_image``
+        after the adjustment, or the valid observations of triangulated points before it)
+    manual_obs : iterable of (image index, ...) manual measurements (tie points, GCPs) in the block
+    """
+    inb = set(np.asarray(images).tolist())
+    slaves = [s for s, m in views.master.items() if s in inb and m in inb]
+    cnt = np.bincount(np.asarray(obs_image, np.int64), minlength=max(slaves, default=-1) + 1) if len(obs_image) else None
+    out = {s: int(cnt[s]) if cnt is not None and s < len(cnt) else 0 for s in slaves}
+    for o in manual_obs:
+        if int(o[0]) in out:
+            out[int(o[0])] += 1
+    return out
+
+
+def rig_estimation_evidence(rec, views: RigViews, images, counts: dict, *, min_frames: int = RIG_EST_MIN_FRAMES,
+                            min_obs: int = RIG_EST_MIN_OBSERVATIONS, min_spread: float = RIG_EST_MIN_SPREAD) -> tuple[bool, str]:
+    """Is there enough evidence in a block to estimate R*, t? Returns ``(ok, reason)``.
+
+    ``counts`` (slave -> own observations, :func:`own_observations`) before the adjustment. Enough: at least
+    ``min_frames`` thermal frames with ``min_obs`` observations each, and the camera centres of their RGB
+    partners spanning at least ``min_spread`` of the largest distance between the block's camera centres (a
+    rig seen from a few neighbouring stations is a rig seen once: its rotation about the baseline and the
+    baseline length trade against the block's own errors).
+    """
+    good = sorted(s for s, n in counts.items() if n >= min_obs)
+    need = f"(>= {min_frames} thermal frames with >= {min_obs} own observations each, spread over the block, are needed)"
+    if len(good) < min_frames:
+        return False, (f"only {len(good)} thermal frame(s) with >= {min_obs} own observations {need}")
+    C = rec.centers()
+    Cb = C[np.asarray(images, np.int64)]
+    Cg = C[[views.master[s] for s in good]]
+
+    def span(P):
+        return float(np.max(np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2))) if len(P) > 1 else 0.0
+
+    full = span(Cb)
+    frac = span(Cg) / full if full > 0 else 0.0
+    if not frac >= min_spread:
+        return False, (f"the {len(good)} thermal frames with own observations are bunched: their partners span "
+                       f"{frac:.0%} of the block (< {min_spread:.0%}) {need}")
+    return True, f"{len(good)} thermal frames with >= {min_obs} own observations, spanning {frac:.0%} of the block"
+
+
+def rig_estimate_accepted(views: RigViews, fa) -> tuple[bool, str]:
+    """After the final adjustment: a converged solve and finite σ of all six rig parameters."""
+    res = fa.result
+    term = getattr(getattr(res, "termination", None), "value", str(getattr(res, "termination", "")))
+    if not getattr(res, "success", False) or term != "converged":
+        return False, f"the adjustment did not converge ({term}: {getattr(res, 'reason', '')})"
+    if views.std is None or not np.all(np.isfinite(views.std)) or not np.all(views.std > 0):
+        return False, "no finite σ of R*, t (covariance not available or singular)"
+    return True, ""
