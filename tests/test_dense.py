@@ -69,8 +69,9 @@ def test_disparity_last_columns_match_like_the_others(seed):
     """Bad-pixel share (|d - truth| > 1 px, invalid counted as bad) against the true disparity. The left image's
     last columns used to lock onto the right image's border (OpenCV's x-Sobel gives the last column a zero
     derivative): 18-20 % bad in the last 6 columns, 0.43-0.47 % overall, seeds 0-3, vs 0 bad inside. With the
-    mirrored columns: measured 0-2.6 % and 0-0.06 % (plain OpenCV SGBM on a global 8-bit rendering: 0.10-0.12 %
-    overall); bounds at about twice the measured worst."""
+    mirrored columns: measured 0-2.6 % and 0-0.06 % with the local normalisation alone, 0.1-1.2 % and 0-0.03 %
+    with today's codes (plain OpenCV SGBM on a global 8-bit rendering: 0.10-0.12 % overall); bounds at about
+    twice the worst of these."""
     L, R, truth = _pair(seed=seed)
     d = disparity(L, R, 0, 64)
     bad = ~(np.abs(d - truth) <= 1.0)
