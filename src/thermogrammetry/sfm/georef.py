@@ -250,7 +250,7 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cali
         robust = round_ == 0
         opt = SolverOptions(loss="huber" if robust else "trivial", loss_scale=2.0, max_iterations=max_iterations,
                             compute_covariance=(not robust) and compute_covariance, compute_redundancy=False,
-                            function_tolerance=1e-7 if not robust else 1e-3)
+                            function_tolerance=1e-8 if not robust else 1e-3)
         res = solve(pb, opt)
         if not res.success:
             notes.append(f"final adjustment (round {round_ + 1}) stopped: {res.reason}")
