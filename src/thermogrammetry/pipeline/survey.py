@@ -669,11 +669,13 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
     xyz, _, crs, _ = _gnss_xyz(inputs, opt, opt.crs)
     names = [im["name"] for im in inputs["images"]]
     pairs = select_pairs(len(names), xyz, options=opt.matching)
+    rig_pairs: set = set()
     if rig is not None:  # rig mode: every thermal image is matched with its RGB partner (cross-modal ties)
         from ..sfm.rig import pair_rig_images
 
         master, _, _ = pair_rig_images(rig, inputs["images"])
-        pairs = sorted(set(pairs) | {(min(a, b), max(a, b)) for a, b in master.items()})
+        rig_pairs = {(min(a, b), max(a, b)) for a, b in master.items()}
+        pairs = sorted(set(pairs) | rig_pairs)
     store = project if not isinstance(project, FolderProject) else FolderProject(project.root)
 
     def match(pre, mopt=None, pair_list=None):
@@ -703,8 +705,9 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
         if not have_pos:
             # no positions: sequence neighbours only (frames in acquisition order). Weak, repetitive texture
             # matched across the whole set links frames that cannot overlap (a window to its neighbour)
-            pairs_lt = select_pairs(n, None, options=replace(opt.matching, exhaustive_up_to=0,
-                                                               window=LOW_TEXTURE_SEQUENCE_WINDOW))
+            pairs_lt = sorted(set(select_pairs(n, None, options=replace(opt.matching, exhaustive_up_to=0,
+                                                                          window=LOW_TEXTURE_SEQUENCE_WINDOW)))
+                              | rig_pairs)
         res_lt = match("lowtexture/", mopt_lt, pairs_lt)
         info["low_texture"] = {"features": "sift/clahe on pattern-corrected frames, guided matching",
                                "fixed_pattern": bool(pattern_key), "connected": connected(res_lt)}
