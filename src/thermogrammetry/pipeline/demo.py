@@ -452,6 +452,11 @@ def _section_closerange(project: ProjectStore, opt: DemoOptions) -> list[DemoRow
     ]
 
 
+def _image_gsd_m(cfg) -> float:
+    """Nadir ground sampling distance of the rendered frames at the planned height (m)."""
+    return cfg.flight_height_m * cfg.pixel_pitch_um * 1e-6 / (cfg.focal_mm * 1e-3)
+
+
 def _demo_survey_config(seed: int):
     from ..synthetic.sensor import SensorEffects
     from ..synthetic.survey import SurveyConfig
@@ -518,7 +523,8 @@ def _section_survey(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
         # start from the GNSS centre and an IMU-grade attitude (2 deg): with 4-5 nearly coplanar markers
         # an uninformed start can land on the mirror solution of planar resection (seen with seed 6)
         R0 = matrix_from_axis_angle(rng.normal(0.0, np.deg2rad(2.0), 3)) @ poses[im].R
-        res = resection(cam, np.array([pts[n] for n in names]), np.array([noisy[(im, n)] for n in names]), sigma_px=sigma_px,
+        obs_xy = np.array([noisy[(im, n)] for n in names])
+        res = resection(cam, np.array([pts[n] for n in names]), obs_xy, sigma_px=sigma_px,
                         initial_pose=Pose.from_center(R0, gnss[im]))
         if not res.success:
             failed_resections.append(f"{im} ({res.reason})")
@@ -526,8 +532,7 @@ def _section_survey(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
         dc = res.center - poses[im].center
         zc.append(np.max(np.abs(dc) / res.center_std_prior))
         dcs.append(np.linalg.norm(dc))
-        xy = np.array([noisy[(im, n)] for n in names], np.float32)
-        covers.append(float(cv2.contourArea(cv2.convexHull(xy))) / (cam.width * cam.height))
+        covers.append(float(cv2.contourArea(cv2.convexHull(obs_xy.astype(np.float32)))) / (cam.width * cam.height))
     if zc:
         rows.append(DemoRow(sec, f"resection of {len(zc)} frames from >= 4 markers (GNSS/IMU start): max |centre error| / sigma",
                             float(np.max(zc)), 4.5,
@@ -547,7 +552,7 @@ def _section_survey(project: ProjectStore, opt: DemoOptions) -> list[DemoRow]:
                         ("none failed" if eligible else "no frame sees >= 4 markers")))
     # triangulation of the check points from the true poses
     checks = [n for n in pts if n.startswith("CHK")]
-    cfg_gsd_cm = scene.config.flight_height_m * scene.config.pixel_pitch_um * 1e-6 / (scene.config.focal_mm * 1e-3) * 100
+    cfg_gsd_cm = _image_gsd_m(scene.config) * 100
     tri_err, tri_z = [], []
     for n in checks:
         ims = [im for (im, nm) in noisy if nm == n]
@@ -646,7 +651,7 @@ def _section_survey_bundle(project: ProjectStore, opt: DemoOptions) -> list[Demo
     if not res.success or res.point_covariance is None:
         return [DemoRow(sec, f"bundle adjustment ({res.termination.value}: {res.reason})", float("nan"), 0.0, "")]
     ck = np.array([pi[n] for n in checks])
-    gsd_cm = cfg.flight_height_m * cfg.pixel_pitch_um * 1e-6 / (cfg.focal_mm * 1e-3) * 100
+    gsd_cm = _image_gsd_m(cfg) * 100
     e = res.points[ck] - (np.array(list(checks.values())) - O)
     sd = np.sqrt(np.diagonal(res.point_covariance[ck], axis1=1, axis2=2))
     C = np.array([p.center for p in res.poses])

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .demo import DemoOptions, DemoRow, DemoSection, register_section
+from .demo import DemoOptions, DemoRow, DemoSection, _image_gsd_m, register_section
 from .project import FolderProject, ProjectStore
 
 SECTION = "survey-sfm"
@@ -57,11 +57,6 @@ def _section_survey_sfm(project: ProjectStore, opt: DemoOptions) -> list[DemoRow
         if tmp is not None:
             tmp.cleanup()
     return rows
-
-
-def _image_gsd_m(cfg) -> float:
-    """Nadir ground sampling distance of the rendered frames at the planned height (m)."""
-    return cfg.flight_height_m * cfg.pixel_pitch_um * 1e-6 / (cfg.focal_mm * 1e-3)
 
 
 def _survey_rows(scene, out, reports, t_render, t_survey) -> list[DemoRow]:

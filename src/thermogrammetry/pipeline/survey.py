@@ -419,16 +419,16 @@ def _load_npz(project: ProjectStore, key: str) -> dict:
         return {k: z[k] for k in z.files}
 
 
-_FEATURE_CACHE: "dict[tuple, dict]" = {}
-_FEATURE_CACHE_SIZE = 48  # images (~1.5 MB each at 3000 RootSIFT features): memory stays bounded
+_NPZ_CACHE: "dict[tuple, dict]" = {}
+_NPZ_CACHE_SIZE = 48  # files (~1.5 MB each for 3000 RootSIFT features): memory stays bounded
 
 
-def _load_features_cached(project: ProjectStore, key: str) -> dict:
-    """Features of one image for matching, from a small per-process LRU cache.
+def _load_npz_cached(project: ProjectStore, key: str) -> dict:
+    """``_load_npz`` through a small per-process LRU cache (features in matching, the fixed pattern per frame).
 
-    Pairs come image-major, so each image's file would otherwise be read and decompressed once per pair.
+    Pairs come image-major, so each image's features would otherwise be read and decompressed once per pair.
     Folder projects key the cache by the file's path, size and modification time (a rewritten file is
-    read again); other stores are read every time.
+    read again); other stores are read every time. The arrays returned are shared: callers must not modify them.
     """
     if not isinstance(project, FolderProject):
         return _load_npz(project, key)
@@ -438,12 +438,12 @@ def _load_features_cached(project: ProjectStore, key: str) -> dict:
     except OSError:
         return _load_npz(project, key)  # the store reports the missing file with its own message
     ck = (str(path), st.st_size, st.st_mtime_ns)
-    hit = _FEATURE_CACHE.pop(ck, None)
+    hit = _NPZ_CACHE.pop(ck, None)
     if hit is None:
         hit = _load_npz(project, key)
-    _FEATURE_CACHE[ck] = hit  # most recently used last
-    while len(_FEATURE_CACHE) > _FEATURE_CACHE_SIZE:
-        _FEATURE_CACHE.pop(next(iter(_FEATURE_CACHE)))
+    _NPZ_CACHE[ck] = hit  # most recently used last
+    while len(_NPZ_CACHE) > _NPZ_CACHE_SIZE:
+        _NPZ_CACHE.pop(next(iter(_NPZ_CACHE)))
     return hit
 
 
@@ -457,7 +457,7 @@ def feature_task(args) -> tuple[str, int]:
 
     frame = _read_frame(project, name)
     if pattern_key and frame.ndim == 2:
-        pat = _load_npz(project, pattern_key)["pattern"]
+        pat = _load_npz_cached(project, pattern_key)["pattern"]
         if pat.shape == frame.shape:  # the sensor's fixed pattern, estimated from the sequence
             frame = frame.astype(np.float32) - pat
     # (0, 0) = centre of the top-left pixel, like the camera model, GCP and manual-tie measurements
@@ -472,8 +472,8 @@ def match_task(args) -> tuple[int, int, int, int, str]:
     pre = rest[0] if rest else ""
     from ..sfm.matching import guided_matches, homography_prior, match_descriptors, verify_pair
 
-    fi = _load_features_cached(project, f"{pre}features/{ni}.npz")
-    fj = _load_features_cached(project, f"{pre}features/{nj}.npz")
+    fi = _load_npz_cached(project, f"{pre}features/{ni}.npz")
+    fj = _load_npz_cached(project, f"{pre}features/{nj}.npz")
     m = match_descriptors(fi["descriptors"], fj["descriptors"], ratio=mopt.ratio)
     if mopt.guided_radius_px > 0 and fi["descriptors"].dtype != np.uint8:
         H = homography_prior(fi["xy"], fj["xy"], m, seed=mopt.seed)
@@ -508,28 +508,21 @@ def _run_tasks(fn, tasks, opt: SurveyOptions, progress: Callable | None, what: s
             if progress:
                 progress(k + 1, n)
         return out
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, as_completed
 
-    cluster = None
-    if opt.scheduler:
-        client = Client(opt.scheduler)
-    else:
-        cluster = LocalCluster(n_workers=int(opt.workers), threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=40)
-        client = Client(cluster)
-    try:
-        futs = client.map(fn, tasks, pure=False)
-        pos = {f.key: k for k, f in enumerate(futs)}
-        out = [None] * n
-        for done, fut in enumerate(as_completed(futs), 1):
-            out[pos[fut.key]] = fut.result()
-            if progress:
-                progress(done, n)
-        return out
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+    with _local_cluster(opt) as run_opt:  # a cluster of its own only when the caller did not start one
+        client = Client(run_opt.scheduler)
+        try:
+            futs = client.map(fn, tasks, pure=False)
+            pos = {f.key: k for k, f in enumerate(futs)}
+            out = [None] * n
+            for done, fut in enumerate(as_completed(futs), 1):
+                out[pos[fut.key]] = fut.result()
+                if progress:
+                    progress(done, n)
+            return out
+        finally:
+            client.close()
 
 
 def _initial_cameras(inputs: dict, camera=None, rgb_camera=None) -> tuple[dict, list]:
@@ -1250,7 +1243,7 @@ def _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, value
         i = name_to_idx[o.name]
         q = quaternion_from_matrix(o.R)
         sel = np.nonzero(obs_mask & (tr.image == i) & pts_ok[tr.track])[0]
-        xy = _load_npz_cached(project, names[i])[tr.feature[sel]]
+        xy = _load_npz(project, f"features/{names[i]}.npz")["xy"][tr.feature[sel]]
         img_lines.append(" ".join([str(k + 1)] + [repr(float(v)) for v in q] + [repr(float(v)) for v in o.t]
                                   + [str(cam_keys.index(o.camera_id) + 1), f"{o.name}.tif"]))
         img_lines.append(" ".join(f"{x + 0.5!r} {y + 0.5!r} {int(pid[t])}" for (x, y), t in zip(xy.tolist(), tr.track[sel].tolist())))
@@ -1268,16 +1261,6 @@ def _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, value
     for k in range(len(P)):
         pl.append(f"{k + 1} {float(P[k, 0])!r} {float(P[k, 1])!r} {float(P[k, 2])!r} {int(g[k])} {int(g[k])} {int(g[k])} 0 " + " ".join(track_elems.get(k + 1, [])))
     project.write_text("colmap/points3D.txt", "\n".join(pl) + "\n")
-    _NPZ_CACHE.clear()
-
-
-_NPZ_CACHE: dict = {}
-
-
-def _load_npz_cached(project, name):
-    if name not in _NPZ_CACHE:
-        _NPZ_CACHE[name] = _load_npz(project, f"features/{name}.npz")["xy"]
-    return _NPZ_CACHE[name]
 
 
 def _write_clouds(project, P, values, unit, mult, crs):
