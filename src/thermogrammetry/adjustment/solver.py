@@ -379,6 +379,7 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
     rows, cols, vals = [], [], []
     jp = np.zeros((m, 3))
     pslot = np.full(m, -1, dtype=np.int64)
+    idx = np.int32 if max(m, lay.nc) < 2**31 - 1 else np.int64
 
     def trip(row0, ncomp, J, start, valid):
         # J (n, ncomp, w) for rows row0 + ncomp*k + a, columns start[k] + j
@@ -386,10 +387,11 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
         if n == 0 or not np.any(valid):
             return
         k = np.nonzero(valid)[0]
-        rr = (row0[k, None, None] + np.arange(ncomp)[None, :, None]) + np.zeros((1, 1, w), dtype=np.int64)
-        cc = (start[k, None, None] + np.arange(w)[None, None, :]) + np.zeros((1, ncomp, 1), dtype=np.int64)
-        rows.append(rr.ravel())
-        cols.append(cc.ravel())
+        # index triplets in int32 when they fit (scipy's CSR uses int32 then anyway): half the memory
+        rr = (row0[k, None, None].astype(idx) + np.arange(ncomp, dtype=idx)[None, :, None])
+        cc = (start[k, None, None].astype(idx) + np.arange(w, dtype=idx)[None, None, :])
+        rows.append(np.broadcast_to(rr, (len(k), ncomp, w)).ravel())
+        cols.append(np.broadcast_to(cc, (len(k), ncomp, w)).ravel())
         vals.append(J[k].ravel())
 
     if K:
@@ -421,9 +423,9 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
                 if len(free):
                     Jw = jint[:, :, free] / data.sig[sel][:, :, None]
                     n = len(sel)
-                    rr = (rowbase[sel][:, None, None] + np.arange(2)[None, :, None]) + np.zeros((1, 1, len(free)), np.int64)
-                    ccol = np.broadcast_to(cc[free][None, None, :], (n, 2, len(free)))
-                    rows.append(rr.ravel())
+                    rr = rowbase[sel][:, None, None].astype(idx) + np.arange(2, dtype=idx)[None, :, None]
+                    ccol = np.broadcast_to(cc[free].astype(idx)[None, None, :], (n, 2, len(free)))
+                    rows.append(np.broadcast_to(rr, (n, 2, len(free))).ravel())
                     cols.append(ccol.ravel())
                     vals.append(Jw.ravel())
             else:
@@ -507,8 +509,9 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
     if rows:
         rows_a, cols_a, vals_a = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
     else:
-        rows_a = cols_a = np.zeros(0, np.int64)
+        rows_a = cols_a = np.zeros(0, idx)
         vals_a = np.zeros(0)
+    del rows, cols, vals
     Jc = sp.csr_matrix((vals_a, (rows_a, cols_a)), shape=(m, lay.nc))
     return r, Jc, jp, pslot
 
@@ -552,11 +555,10 @@ class _Normal:
         # point side
         ps = pslot[prow]
         jpp = jpw[prow]
-        outer = (jpp[:, :, None] * jpp[:, None, :]).reshape(-1, 9)
         V = np.zeros((npf, 9))
         gp = np.zeros((npf, 3))
-        for k in range(9):
-            V[:, k] = np.bincount(ps, weights=outer[:, k], minlength=npf)
+        for k in range(9):  # one product column at a time (no (rows, 9) array of outer products)
+            V[:, k] = np.bincount(ps, weights=jpp[:, k // 3] * jpp[:, k % 3], minlength=npf)
         for k in range(3):
             gp[:, k] = np.bincount(ps, weights=jpp[:, k] * rw[prow], minlength=npf)
         self.V = V.reshape(npf, 3, 3)
@@ -592,7 +594,9 @@ class _Normal:
             Vinv, ok = np.zeros((0, 3, 3)), True
         if not ok:
             return None
-        S = self.U.copy()
+        # Fortran order: the Cholesky factorisation then works in place (no copy of the reduced matrix);
+        # the values are the same whatever the memory layout
+        S = self.U.copy(order="F")
         nc = self.lay.nc
         if lam and nc:
             S[np.diag_indices_from(S)] += lam * self.dU
@@ -602,7 +606,12 @@ class _Normal:
             if want_H or nc * nc * 3 * npf > 5e9 or nc * nc * 3 * npf > 10.0 * self.sparse_flops:
                 Vsp = sp.bsr_matrix((Vinv, np.arange(npf), np.arange(npf + 1)), shape=(3 * npf, 3 * npf)).tocsr()
                 H = (self.B @ Vsp).tocsr()
-                S -= (H @ self.B.T).toarray()
+                HB = (H @ self.B.T).tocsr()
+                # subtracted in row blocks: no second dense nc x nc matrix (same values as one subtraction)
+                step = max(1, int(4e6 // max(nc, 1)))
+                for a in range(0, nc, step):
+                    S[a : a + step] -= HB[a : a + step].toarray()
+                del HB
                 rhs += H @ self.gp.ravel()
             else:
                 # dense slabs of points: S -= (B_k V_k^-1) B_k^T with BLAS (small reduced systems)
@@ -636,6 +645,14 @@ class _Normal:
 
 
 
+def _symmetrised(A):
+    """``0.5 (A + A^T)`` with one temporary instead of two (same values)."""
+    B = A + A.T
+    del A
+    B *= 0.5
+    return B
+
+
 def _tangent_basis(n):
     """(3, 2) orthonormal basis of the plane orthogonal to the unit vector n (deterministic)."""
     a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
@@ -645,10 +662,12 @@ def _tangent_basis(n):
 
 
 def _cho_factor(S):
+    """Cholesky factor of the reduced matrix, computed in place when ``S`` is in Fortran order (``S`` is
+    then overwritten: the callers do not use it afterwards)."""
     if S.shape[0] == 0:
         return ("empty",)
     try:
-        cf = scipy.linalg.cho_factor(S, check_finite=False)
+        cf = scipy.linalg.cho_factor(S, check_finite=False, overwrite_a=S.flags.f_contiguous)
     except (np.linalg.LinAlgError, ValueError):
         return None
     if not np.all(np.isfinite(cf[0])):
@@ -669,6 +688,7 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
     need = True
     while True:
         if need:
+            ne = None  # the previous linearisation is released before the next is built
             r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
             w, cost = _robust(r, data.K, opt)
             ne = _Normal(r, Jc, jp, pslot, lay, w)
@@ -683,7 +703,9 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
         ok = sch is not None
         if ok:
             S, rhs, Vinv, _ = sch
-            cf = _cho_factor(S)
+            del sch
+            cf = _cho_factor(S)  # overwrites S
+            del S
             ok = cf is not None
         if ok:
             D = np.concatenate([ne.dU, ne.dV.ravel()])
@@ -922,7 +944,9 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
 def _precision(pb, lay, st, data, opt, active, warnings):
     r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
     w, cost = _robust(r, data.K, opt)
-    ne = _Normal(r, Jc, jp, pslot, lay, w)
+    if opt.compute_covariance:
+        ne = _Normal(r, Jc, jp, pslot, lay, w)
+    del Jc  # the normal equations are built only for the covariance
     n = lay.nc + 3 * lay.npf
     defect = (6 if _scale_observed(pb) else 7) if pb.gauge is Gauge.INNER else 0
     red = data.m - n + defect
@@ -953,6 +977,8 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     if sch is None:
         return (Termination.RANK_DEFICIENT, "a free point's normal block is singular (too few or parallel rays)")
     S, _, Vinv, H = sch
+    del sch
+    ne.U = None  # not needed any more (dense nc x nc)
     nc = lay.nc
     if pb.gauge is Gauge.INNER:
         if n > opt.max_dense_inner:
@@ -975,8 +1001,15 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     else:
         if nc:
             d = np.sqrt(np.maximum(np.diag(S), 1e-300))
-            ev, evec = np.linalg.eigh(S / d[:, None] / d[None, :])
+            Sn = S / d[:, None]
+            Sn /= d[None, :]
+            # eigenvalues only (the eigenvectors and their LAPACK workspace are 3 more nc x nc matrices);
+            # the null direction is computed only when the test fails
+            ev = scipy.linalg.eigvalsh(Sn, overwrite_a=True, check_finite=False)
             if ev[0] <= opt.rank_tolerance * ev[-1]:
+                Sn = S / d[:, None]
+                Sn /= d[None, :]
+                ev, evec = np.linalg.eigh(Sn)
                 k = np.argsort(-np.abs(evec[:, 0]))[:4]
                 involved = ", ".join(lay.names[i] for i in k)
                 return (
@@ -984,8 +1017,10 @@ def _precision(pb, lay, st, data, opt, active, warnings):
                     f"datum or parameters undetermined (condition {ev[-1] / max(ev[0], 1e-300):.3g}); "
                     f"null direction involves {involved}",
                 )
+            del Sn
             Q = np.linalg.inv(S)
-            Q = 0.5 * (Q + Q.T)
+            del S
+            Q = _symmetrised(Q)
         else:
             Q = np.zeros((0, 0))
         Qfull = None
@@ -1004,11 +1039,16 @@ def _precision(pb, lay, st, data, opt, active, warnings):
         for k, a in enumerate(("X0", "Y0", "Z0")):
             names[c + 3 + k] = f"{pb.pose_names[p]}.{a}"
     T = T.tocsr()
-    cov = s2 * np.asarray(T @ (T @ Q).T)
-    cov = 0.5 * (cov + cov.T)
+    cov = np.asarray(T @ Q)
+    cov = np.asarray(T @ cov.T)
+    cov *= s2
+    cov = _symmetrised(cov)
+    if Qfull is None and not (lay.npf and opt.compute_point_covariance) and not opt.compute_redundancy:
+        del Q  # not needed below
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / std[:, None] / std[None, :]
+        corr = cov / std[:, None]
+        corr /= std[None, :]
     out.update(param_names=names, covariance=cov, std=std, correlation=corr)
     kind = np.zeros(nc, dtype=np.int8)  # 1 = intrinsics or rig (findings), 0 = pose or point
     for cc in lay.cam_cols:
@@ -1032,9 +1072,10 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     out["pose_std"] = pose_std
     # warnings: correlations and insignificant additional parameters
     if nc > 1:
-        iu = np.triu_indices(nc, 1)
-        big = np.abs(corr[iu]) > opt.correlation_warning
-        for a, b in zip(iu[0][big], iu[1][big]):
+        # strict upper triangle, row by row (as np.triu_indices), without nc^2 index arrays
+        big = np.abs(corr) > opt.correlation_warning
+        big = np.triu(big, 1)
+        for a, b in zip(*np.nonzero(big)):
             if kind[a] or kind[b]:  # pose-pose correlations are block geometry, not a finding
                 warnings.append(f"high correlation {corr[a, b]:+.3f} between {names[a]} and {names[b]}")
     if red > 0:
