@@ -370,6 +370,10 @@ class _Data:
         self.m = 2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose) + len(self.d_a) + len(self.pl_k)
 
 
+#: image observations per chunk in :func:`_evaluate` (bounds its temporaries: ~1.5 KB per observation)
+_EVAL_CHUNK = 32768
+
+
 def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
     """Whitened residuals r (m,), and (if wanted) camera-side Jacobian triplets and point
     Jacobian rows. Residual = (computed - observed) / sigma."""
@@ -394,34 +398,56 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
         cols.append(np.broadcast_to(cc, (len(k), ncomp, w)).ravel())
         vals.append(J[k].ravel())
 
-    if K:
-        Rm = st.R[data.vpose]
-        tm = st.t[data.vpose]
-        X = st.X[data.pt]
+    blocks = []
+
+    def flush(r0, r1):
+        # triplets of rows [r0, r1) -> one CSR block (rows relative to r0)
+        if rows:
+            ra, ca, va = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+            ra -= r0
+        else:
+            ra = ca = np.zeros(0, idx)
+            va = np.zeros(0)
+        rows.clear()
+        cols.clear()
+        vals.clear()
+        blocks.append(sp.csr_matrix((va, (ra, ca)), shape=(r1 - r0, lay.nc)))
+
+    # image observations in chunks of observations: the temporaries (projections, Jacobians, index
+    # triplets) are bounded by the chunk, not by the block; each chunk's rows become one CSR block
+    for a in range(0, K, _EVAL_CHUNK):
+        b = min(K, a + _EVAL_CHUNK)
+        nk = b - a
+        vpose, vrig = data.vpose[a:b], data.vrig[a:b]
+        Rm = st.R[vpose]
+        tm = st.t[vpose]
+        X = st.X[data.pt[a:b]]
         Xm = np.einsum("kij,kj->ki", Rm, X) + tm
-        isrig = data.vrig >= 0
-        Rr = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
-        tr = np.zeros((K, 3))
+        isrig = vrig >= 0
+        Rr = np.broadcast_to(np.eye(3), (nk, 3, 3)).copy()
+        tr = np.zeros((nk, 3))
         if np.any(isrig):
-            Rr[isrig] = st.rR[data.vrig[isrig]]
-            tr[isrig] = st.rt[data.vrig[isrig]]
+            Rr[isrig] = st.rR[vrig[isrig]]
+            tr[isrig] = st.rt[vrig[isrig]]
         Xc = np.einsum("kij,kj->ki", Rr, Xm) + tr
-        xy = np.empty((K, 2))
-        Jx = np.empty((K, 2, 3)) if want_jac else None
-        rowbase = 2 * np.arange(K)
+        xy = np.empty((nk, 2))
+        Jx = np.empty((nk, 2, 3)) if want_jac else None
+        rowbase = 2 * np.arange(a, b)
+        sig = data.sig[a:b]
         for c, cam in enumerate(pb.cameras):
-            sel = np.nonzero(data.cam == c)[0]
+            sel = np.nonzero(data.cam[a:b] == c)[0]
             if not len(sel):
                 continue
             camc = cam.with_params(st.cam_params[c]) if not np.array_equal(st.cam_params[c], cam.params) else cam
             if want_jac:
-                xyc, jpt, jint = camc.project_jacobian(Xc[sel])
-                xy[sel] = xyc
-                Jx[sel] = jpt
                 cc = lay.cam_cols[c]
                 free = np.nonzero(cc >= 0)[0]
+                # the parameter Jacobian only when some intrinsics are free (same projection either way)
+                xyc, jpt, jint = camc.project_jacobian(Xc[sel], params=bool(len(free)))
+                xy[sel] = xyc
+                Jx[sel] = jpt
                 if len(free):
-                    Jw = jint[:, :, free] / data.sig[sel][:, :, None]
+                    Jw = jint[:, :, free] / sig[sel][:, :, None]
                     n = len(sel)
                     rr = rowbase[sel][:, None, None].astype(idx) + np.arange(2, dtype=idx)[None, :, None]
                     ccol = np.broadcast_to(cc[free].astype(idx)[None, None, :], (n, 2, len(free)))
@@ -430,26 +456,28 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
                     vals.append(Jw.ravel())
             else:
                 xy[sel] = camc.project(Xc[sel])
-        res = (xy - data.xy) / data.sig
-        r[: 2 * K] = res.ravel()
+        res = (xy - data.xy[a:b]) / sig
+        r[2 * a : 2 * b] = res.ravel()
         if want_jac:
-            Jxw = Jx / data.sig[:, :, None]
+            Jxw = Jx / sig[:, :, None]
             JxR = Jxw @ Rr  # d/dXm
             # master pose: dXm/dw = -[Rm X]x, dXm/dt = I
             Jw_m = -JxR @ skew(np.einsum("kij,kj->ki", Rm, X))
-            pc = lay.pose_col[data.vpose]
+            pc = lay.pose_col[vpose]
             trip(rowbase, 2, np.concatenate([Jw_m, JxR], axis=2), pc, pc >= 0)
             # rig: dXc/dw_r = -[Rr Xm]x, dXc/dt_r = I
             if np.any(isrig):
-                rc = np.where(isrig, lay.rig_col[np.maximum(data.vrig, 0)], -1)
+                rc = np.where(isrig, lay.rig_col[np.maximum(vrig, 0)], -1)
                 Jw_r = -Jxw @ skew(np.einsum("kij,kj->ki", Rr, Xm))
                 trip(rowbase, 2, np.concatenate([Jw_r, Jxw], axis=2), rc, rc >= 0)
             Jpt = JxR @ Rm
-            slot = lay.point_slot[data.pt]
-            jp[: 2 * K] = Jpt.reshape(-1, 3)
-            pslot[: 2 * K] = np.repeat(slot, 2)
-            pcol = lay.point_col[data.pt]
+            slot = lay.point_slot[data.pt[a:b]]
+            jp[2 * a : 2 * b] = Jpt.reshape(-1, 3)
+            pslot[2 * a : 2 * b] = np.repeat(slot, 2)
+            pcol = lay.point_col[data.pt[a:b]]
             trip(rowbase, 2, Jpt, pcol, pcol >= 0)
+        if want_jac:
+            flush(2 * a, 2 * b)
     row = 2 * K
     nc_ = len(data.c_pt)
     if nc_:
@@ -506,13 +534,8 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
                 trip(rws, 1, sgn * u, pcol, pcol >= 0)
     if not want_jac:
         return r
-    if rows:
-        rows_a, cols_a, vals_a = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
-    else:
-        rows_a = cols_a = np.zeros(0, idx)
-        vals_a = np.zeros(0)
-    del rows, cols, vals
-    Jc = sp.csr_matrix((vals_a, (rows_a, cols_a)), shape=(m, lay.nc))
+    flush(2 * K, m)
+    Jc = blocks[0] if len(blocks) == 1 else sp.vstack(blocks, format="csr")
     return r, Jc, jp, pslot
 
 
@@ -692,6 +715,7 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
             r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
             w, cost = _robust(r, data.K, opt)
             ne = _Normal(r, Jc, jp, pslot, lay, w)
+            del Jc, jp  # kept by ne in the form it needs (weighted, sparse)
             need = False
             if ne.grad_max <= opt.gradient_tolerance:
                 return st, cost0, cost, it, Termination.CONVERGED, f"gradient tolerance reached (max|g| = {ne.grad_max:.3g})"
@@ -946,7 +970,7 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     w, cost = _robust(r, data.K, opt)
     if opt.compute_covariance:
         ne = _Normal(r, Jc, jp, pslot, lay, w)
-    del Jc  # the normal equations are built only for the covariance
+    del Jc  # the normal equations are built only for the covariance (ne keeps the weighted Jacobian)
     n = lay.nc + 3 * lay.npf
     defect = (6 if _scale_observed(pb) else 7) if pb.gauge is Gauge.INNER else 0
     red = data.m - n + defect
