@@ -1340,7 +1340,7 @@ def _local_cluster(opt: SurveyOptions):
         return
     from distributed import LocalCluster
 
-    cluster = LocalCluster(n_workers=int(opt.workers), threads_per_worker=1, processes=True, dashboard_address=None,
+    cluster = LocalCluster(n_workers=int(opt.workers), threads_per_worker=1, processes=True, dashboard_address=":0",
                            silence_logs=40)
     try:
         yield replace(opt, scheduler=cluster.scheduler_address)

@@ -15,7 +15,14 @@ length ``s`` around the perimeter, counter-clockwise from the south-west corner)
   damp patch near the ground on the south facade and a fixed random sum of smooth plane waves
   (wavelengths 0.7–3 m, a few tenths of a kelvin; gives texture for tie points);
 * roof 276 K + waves; ground 279 K + waves; occluder 286 K + a vertical gradient (warm, so that a
-  texel taken through the occluder would stand out by several kelvin).
+  texel taken through the occluder would stand out by several kelvin);
+* with ``facade_detail=True`` (off by default, so that the field stays smooth at the pixel scale and every
+  texel is comparable with the truth): windows on every storey (cold glass, a different temperature per
+  window, warm 8 cm frames), a door on the south wall and small Gaussian warm/cool spots (fixings, vents,
+  damp; 0.35 per m²). Real facades carry this structure, and so do their tie points: the smooth walls alone
+  give a few dozen SIFT matches per pair, too few to orient a ring of views. The true temperature jumps at the
+  window, frame and door edges; :func:`discontinuity_distance` tells how far a point is from them (pixels
+  straddling an edge mix both sides and are not comparable with the point truth).
 
 Radiometry: by default the surfaces are black bodies seen through no atmosphere
 (``emissivity = 1``, ``atmosphere = False``), so that the noise-free apparent temperature of a surface
@@ -49,7 +56,7 @@ from .radiance import FlirCurve, fresnel_emissivity
 from .sensor import SensorEffects, apply_sensor_effects
 
 __all__ = ["BuildingConfig", "BuildingScene", "make_building", "render_building_thermal", "apparent_temperature",
-           "write_building_survey", "surface_temperature"]
+           "write_building_survey", "surface_temperature", "discontinuity_distance"]
 
 GROUPS = ("wall", "roof", "ground", "occluder")
 
@@ -78,6 +85,11 @@ class BuildingConfig:
     supersample: int = 2
     sensor: SensorEffects = field(default_factory=lambda: SensorEffects(psf_sigma_px=0.5, netd_k=0.04, fpn_k=0.02, fpn_seed=7))
     seed: int = 0
+    facade_detail: bool = False
+    window_width_m: float = 1.2
+    window_height_m: float = 1.4
+    window_spacing_m: float = 3.0
+    n_spots_per_m2: float = 0.35
 
     def __post_init__(self):
         for f in ("length_m", "depth_m", "height_m", "cell_m", "standoff_m", "thermal_focal_px", "occluder_distance_m"):
@@ -91,6 +103,18 @@ class BuildingConfig:
                               f"(occluder_distance_m={self.occluder_distance_m} <= half its depth)")
         if self.n_stations < 2:
             raise ConfigError(f"BuildingConfig.n_stations={self.n_stations!r}: expected at least 2")
+        for f in ("window_width_m", "window_height_m", "window_spacing_m"):
+            v = float(getattr(self, f))
+            if not np.isfinite(v) or v <= 0:
+                raise ConfigError(f"BuildingConfig.{f}={getattr(self, f)!r}: expected a positive number")
+        if self.window_width_m + 0.4 > self.window_spacing_m:
+            raise ConfigError(f"BuildingConfig: window_width_m={self.window_width_m} leaves no wall between windows "
+                              f"at window_spacing_m={self.window_spacing_m}; expected width + 0.4 m <= spacing")
+        if self.window_height_m + 1.1 > self.height_m / max(self.floors, 1):
+            raise ConfigError(f"BuildingConfig: window_height_m={self.window_height_m} does not fit a storey of "
+                              f"{self.height_m / max(self.floors, 1):.2f} m (sill 0.9 m, lintel 0.2 m)")
+        if not (np.isfinite(self.n_spots_per_m2) and self.n_spots_per_m2 >= 0):
+            raise ConfigError(f"BuildingConfig.n_spots_per_m2={self.n_spots_per_m2!r}: expected a number >= 0")
 
     @classmethod
     def from_dict(cls, d: dict) -> "BuildingConfig":
@@ -110,6 +134,8 @@ class BuildingScene:
     thermal: object  # Camera
     stations: list  # [(name, Pose cam_from_world)]
     waves: np.ndarray  # (K, 4): kx, ky, phase, amplitude of the texture waves
+    openings: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))  # (K, 6): s0, s1, z0, z1, glass K, frame dK
+    spots: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (K, 4): s, z, sigma m, amplitude K
     _mesh: object = field(default=None, repr=False)
 
     def mesh(self):
@@ -200,7 +226,96 @@ def make_building(config: BuildingConfig | None = None) -> BuildingScene:
         C = C + np.array([0.0, 0.0, c.camera_height_m + rng.normal(0, 0.05)])
         target = target + rng.normal(0, 0.3, 3) * np.array([1, 1, 0.5])
         stations.append((f"T{s:02d}", Pose.look_at(C, target, up=(0, 0, 1))))
-    return BuildingScene(c, verts, faces, group, thermal, stations, waves)
+    openings, spots = _facade_detail(c, np.random.default_rng([c.seed, 0xFAC]))
+    return BuildingScene(c, verts, faces, group, thermal, stations, waves, openings, spots)
+
+
+FRAME_M = 0.08  # width of a window's frame (a warm thermal bridge around the glass)
+
+
+def _facade_detail(c: BuildingConfig, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Windows (cold glass that reflects the sky, warm frames), one door and small warm/cool spots (fixings,
+    vents, damp) on the walls, in perimeter coordinates (arc length ``s``, height ``z``).
+
+    Glass temperatures differ per window (curtains, blinds, an open window): real facades repeat their windows,
+    but not their temperatures. Spots are Gaussian (σ 0.12–0.25 m, ±0.4–1.0 K): smooth at the pixel scale, so
+    sampling a frame anywhere but on a window's edge gives the surface temperature.
+    """
+    if not c.facade_detail:
+        return np.zeros((0, 6)), np.zeros((0, 4))
+    L, D, H = c.length_m, c.depth_m, c.height_m
+    starts = np.cumsum([0.0, L, D, L])
+    lengths = [L, D, L, D]
+    storey = H / max(c.floors, 1)
+    door = (0.25 * L - 0.5, 0.25 * L + 0.5, 0.0, min(2.1, storey - 0.3), 283.5, 0.0)
+    ops = [door]
+    for a, wl in zip(starts, lengths):
+        n = int(np.floor((wl - 1.0) / c.window_spacing_m))
+        if n < 1:
+            continue
+        centres = a + wl / 2 + (np.arange(n) - (n - 1) / 2) * c.window_spacing_m
+        for f in range(max(c.floors, 1)):
+            z0 = f * storey + 0.9
+            for sc in centres:
+                s0, s1 = sc - c.window_width_m / 2, sc + c.window_width_m / 2
+                if f == 0 and s0 < door[1] + 0.3 and s1 > door[0] - 0.3:
+                    continue  # no window over the door
+                ops.append((s0, s1, z0, z0 + c.window_height_m, 276.5 + rng.uniform(-1.2, 1.2), rng.uniform(0.8, 1.6)))
+    area = 2 * (L + D) * H
+    n_sp = int(round(c.n_spots_per_m2 * area))
+    sp = np.stack([rng.uniform(0, 2 * (L + D), n_sp), rng.uniform(0.2, H - 0.2, n_sp), rng.uniform(0.12, 0.25, n_sp),
+                   rng.choice([-1.0, 1.0], n_sp) * rng.uniform(0.4, 1.0, n_sp)], axis=1) if n_sp else np.zeros((0, 4))
+    return np.array(ops, float), sp
+
+
+def _wall_s(scene: BuildingScene, x, y) -> np.ndarray:
+    c = scene.config
+    L, D = c.length_m, c.depth_m
+    return np.where(np.abs(y) < 1e-6, x,
+                    np.where(np.abs(x - L) < 1e-6, L + y,
+                             np.where(np.abs(y - D) < 1e-6, L + D + (L - x), 2 * L + D + (D - y))))
+
+
+def _detail(scene: BuildingScene, s, z, t):
+    """Add the spots to, and paint the openings over, the wall temperature ``t`` at (s, z)."""
+    per = 2 * (scene.config.length_m + scene.config.depth_m)
+    for s0, z0, sig, amp in scene.spots:
+        ds = (s - s0 + per / 2) % per - per / 2  # continuous around the building
+        t = t + amp * np.exp(-0.5 * (ds**2 + (z - z0) ** 2) / sig**2)
+    for s0, s1, z0, z1, glass, dframe in scene.openings:
+        inside = (s >= s0) & (s <= s1) & (z >= z0) & (z <= z1)
+        if dframe > 0:
+            frame = inside & ~((s >= s0 + FRAME_M) & (s <= s1 - FRAME_M) & (z >= z0 + FRAME_M) & (z <= z1 - FRAME_M))
+            t = np.where(frame, t + dframe, t)
+            inside = inside & ~frame
+        t = np.where(inside, glass + 0.15 * (z - z0), t)
+    return t
+
+
+def discontinuity_distance(scene: BuildingScene, points, group) -> np.ndarray:
+    """Distance (m, along the wall) from surface points (N, 3) to the nearest edge of a window, frame or door,
+    where the true temperature jumps; ``inf`` off the walls or without facade detail. Pixels that straddle such an
+    edge mix two temperatures: compare sampled values with the truth only away from them."""
+    P = np.asarray(points, float).reshape(-1, 3)
+    g = np.broadcast_to(np.asarray(group), (len(P),))
+    out = np.full(len(P), np.inf)
+    wall = g == GROUPS.index("wall")
+    if not np.any(wall) or not len(scene.openings):
+        return out
+    s = _wall_s(scene, P[wall, 0], P[wall, 1])
+    z = P[wall, 2]
+    best = np.full(len(s), np.inf)
+    for s0, s1, z0, z1, _, dframe in scene.openings:
+        rects = [(s0, s1, z0, z1)] + ([(s0 + FRAME_M, s1 - FRAME_M, z0 + FRAME_M, z1 - FRAME_M)] if dframe > 0 else [])
+        for a0, a1, b0, b1 in rects:
+            # distance to the rectangle's boundary (inside or outside)
+            ds = np.maximum(np.maximum(a0 - s, s - a1), 0.0)
+            dz = np.maximum(np.maximum(b0 - z, z - b1), 0.0)
+            outside = np.hypot(ds, dz)
+            inside_d = np.minimum(np.minimum(s - a0, a1 - s), np.minimum(z - b0, b1 - z))
+            best = np.minimum(best, np.where(outside > 0, outside, np.maximum(inside_d, 0.0)))
+    out[wall] = best
+    return out
 
 
 def _ring_point(u, L, D, H, r):
@@ -245,14 +360,12 @@ def surface_temperature(scene: BuildingScene, points, group) -> np.ndarray:
     if np.any(wall):
         xw, yw, zw = x[wall], y[wall], z[wall]
         # arc length around the perimeter, counter-clockwise from (0, 0) along the south wall
-        s = np.where(np.abs(yw) < 1e-6, xw,
-                     np.where(np.abs(xw - L) < 1e-6, L + yw,
-                              np.where(np.abs(yw - D) < 1e-6, L + D + (L - xw), 2 * L + D + (D - yw))))
+        s = _wall_s(scene, xw, yw)
         t = 281.0 + 0.25 * zw + 0.6 * np.sin(2 * np.pi * s / (2 * (L + D)))
         for k in range(1, c.floors):
             t = t + 1.5 * np.exp(-0.5 * ((zw - k * H / c.floors) / 0.35) ** 2)
         t = t - 1.8 * np.exp(-0.5 * (((s - 0.7 * L) / 1.2) ** 2 + ((zw - 0.7) / 0.5) ** 2))
-        out[wall] = t + _waves(scene, s, zw)
+        out[wall] = _detail(scene, s, zw, t + _waves(scene, s, zw))
     roof = g == GROUPS.index("roof")
     out[roof] = 276.0 + _waves(scene, x[roof], y[roof])
     ground = g == GROUPS.index("ground")
