@@ -253,7 +253,7 @@ def circle_shape_matrices(H: np.ndarray, centres_mm: np.ndarray, radius_mm: floa
 
 
 def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.ndarray, bright: bool, *,
-                        n_rays: int = 180, blur_px: float = 2.0, iterations: int = 3, tol_px: float = 1e-3):
+                        n_rays: int = 180, blur_px: float = 2.0, iterations: int = 8, tol_px: float = 1e-3):
     """Sub-pixel disc centres from the disc's outline: the area centroid of the polygon of sub-pixel
     edge points (each the mid-level crossing of a ray's profile between its own local disc and
     background levels).
@@ -300,6 +300,7 @@ def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.nd
         Q = np.asarray(shape_q[k], float)
         rdir = 1.0 / np.sqrt(np.maximum(np.einsum("ni,ij,nj->n", dirs, Q, dirs), 1e-12))  # expected radius per ray
         start = c[k].copy()
+        moved = np.inf
         for _ in range(iterations):
             step = 0.2
             s_max = 1.45 * rdir + blur_px + np.maximum(3.0, 0.3 * 1.45 * rdir)
@@ -366,10 +367,14 @@ def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.nd
             new = np.array([((x + x1) * cr).sum(), ((y + y1) * cr).sum()]) / (6.0 * area)
             moved = np.linalg.norm(new - start)
             start = new
-            ok[k] = True
             outlines[k] = v
             if moved < tol_px:
+                ok[k] = True
                 break
+        else:
+            # not settled: a start far off the disc's centre gives a lopsided outline; accept only a
+            # last step below 0.05 px
+            ok[k] = bool(moved < 0.05)
         if ok[k]:
             c[k] = start
     return c, ok, outlines
@@ -868,6 +873,31 @@ def _finish(gray, pts, spec, image_id, size, name, tried, bright, refine, perspe
         new, ok_e, outl = refine_circle_edges(gray, pts, Q, bright)
         ok_e &= np.linalg.norm(new - pts, axis=1) < 0.25 * np.sqrt(1.0 / np.linalg.eigvalsh(Q)[:, 0]) + 1.0
         pts = np.where(ok_e[:, None], new, pts)
+        if np.any(~ok_e) and ok_e.sum() >= 8:
+            # a blob detector's centre can be pixels off (a disc merged with a contrast feature): start
+            # again where a second-order map through the other circles puts it
+            good_i = np.flatnonzero(ok_e)
+            sc = max(float(np.abs(obj).max()), 1e-9)
+            A = lambda o: np.column_stack([np.ones(len(o)), o[:, 0] / sc, o[:, 1] / sc, (o[:, 0] / sc) ** 2,
+                                           o[:, 0] * o[:, 1] / sc**2, (o[:, 1] / sc) ** 2])
+            coef, *_ = np.linalg.lstsq(A(obj[good_i]), pts[good_i], rcond=None)
+            bad = np.flatnonzero(~ok_e)
+            guess = A(obj[bad]) @ coef
+            new_b, ok_b, outl_b = refine_circle_edges(gray, guess, Q[bad], bright)
+            ok_b &= np.linalg.norm(new_b - guess, axis=1) < 0.25 * np.sqrt(1.0 / np.linalg.eigvalsh(Q[bad])[:, 0]) + 1.0
+            pts[bad[ok_b]] = new_b[ok_b]
+            outl[bad[ok_b]] = outl_b[ok_b]
+            ok_e[bad[ok_b]] = True
+            if np.any(ok_b):
+                notes.append(f"{int(ok_b.sum())} centre(s) measured again from the grid's prediction")
+            if np.any(~ok_e):
+                # neither the blob's nor the predicted start gives an outline: the circle is dropped
+                # rather than kept at a blob position that may be pixels off
+                keep_e = ok_e.copy()
+                notes.append(f"{int((~keep_e).sum())} circle(s) without a measurable outline dropped")
+                pts, ids, obj, ok_e, outl, cut = (pts[keep_e], ids[keep_e], obj[keep_e], ok_e[keep_e], outl[keep_e],
+                                                  cut[keep_e])
+                partial = True
         # cut by the frame border: the measured outline (rays that left the frame were filled in by the
         # outline's conic) within 1.5 px of the border; without an outline, the homography's estimate
         h_img, w_img = gray.shape

@@ -180,7 +180,8 @@ def _aim(camera, R, t, centre, ax, ay):
 def make_mask_grid_replica(n_views: int = 24, seed: int = 2026, *, supersample: int = 4, psf_sigma_px: float = 0.5,
                            netd_k: float = 0.05, params: dict | None = None, views: list | None = None,
                            centre_noise_px: float = 0.0, centre_noise_seed: int = 2027,
-                           fill_range=(0.25, 0.80), roll_deg: float = 20.0, seed_tilt_deg: float = 52.0) -> MaskGridReplica:
+                           fill_range=(0.25, 0.80), roll_deg: float = 20.0, seed_tilt_deg: float = 52.0,
+                           **scene) -> MaskGridReplica:
     """Render the replica set (see the module docstring).
 
     Poses: the camera looks at the grid from azimuth/elevation up to ±50° (tilt of the plate against
@@ -203,6 +204,7 @@ def make_mask_grid_replica(n_views: int = 24, seed: int = 2026, *, supersample: 
     centre_noise_seed : seed of those shifts
     roll_deg : the camera is rolled by up to ± this about its axis (± 90: portrait views as well)
     seed_tilt_deg : the viewing direction is drawn up to this far off the plate normal
+    **scene : ``temperatures``, ``gradient``, ``plate_rim_mm`` of :func:`render_mask_grid_view`
     fill_range : (min, max) fraction of the frame covered by the plate (its distorted image, clipped by the frame)
     """
     from ..calibration.circle_bias import circle_centroid_bias
@@ -277,7 +279,7 @@ def make_mask_grid_replica(n_views: int = 24, seed: int = 2026, *, supersample: 
         if views is None or idx in views:
             out.images_k.append(render_mask_grid_view(cam, (R, t), tgt, supersample=supersample,
                                                       psf_sigma_px=psf_sigma_px, netd_k=netd_k, seed=seed + idx,
-                                                      centres_mm=made))
+                                                      centres_mm=made, **scene))
         else:
             out.images_k.append(None)
         k += 1
