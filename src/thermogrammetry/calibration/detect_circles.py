@@ -115,14 +115,17 @@ def _apply_h(H, xy):
     return p[:, :2] / p[:, 2:3]
 
 
-def order_grid_by_homography(points_px: np.ndarray, spec: CircleGridSpec, tol_frac: float = 0.2):
+def order_grid_by_homography(points_px: np.ndarray, spec: CircleGridSpec, tol_frac: float = 0.2, *,
+                             distortion_aware: bool = True):
     """Canonical order of a detected grid (row-major, as returned by OpenCV, any start corner).
 
     Candidates: identity, row flip, column flip, 180° rotation of the (rows, cols) index array. A
     candidate is valid when a homography object → image fits it within ``tol_frac`` of the grid
     spacing (this rejects orders that break an asymmetric grid's stagger). Among the valid ones,
     right-handed ones (image cross product of the board x and y axes > 0, image y down) are
-    preferred, then the one whose point 0 is nearest the image's top-left corner.
+    preferred, then the one whose point 0 is nearest the image's top-left corner. When no order fits a
+    homography and ``distortion_aware``, orders that a second-order polynomial map fits within 0.15 of
+    the spacing are accepted (strong lens distortion).
 
     Returns
     -------
@@ -146,6 +149,17 @@ def order_grid_by_homography(points_px: np.ndarray, spec: CircleGridSpec, tol_fr
         if res.max() > tol_frac * spacing_px + 0.5:
             continue
         good.append((not _right_handed(H, obj, spec.spacing_mm), float(p[0].sum()), p, float(np.sqrt(np.mean(res**2)))))
+    if not good and distortion_aware:
+        # strong barrel distortion over a grid that spans much of the frame bends its rows by more
+        # than a homography allows: accept an order that a second-order map fits (a wrong order of an
+        # asymmetric grid breaks its stagger by half a spacing and still fails)
+        for c in cands:
+            p = points_px[c.ravel()]
+            rms, mx = _quad_fit_rms(obj, p)
+            H = _fit_h(obj, p)
+            if H is None or mx > 0.15 * spacing_px + 0.5:
+                continue
+            good.append((not _right_handed(H, obj, spec.spacing_mm), float(p[0].sum()), p, rms))
     if not good:
         return None, np.inf
     good.sort(key=lambda g: (g[0], g[1]))
@@ -239,7 +253,7 @@ def circle_shape_matrices(H: np.ndarray, centres_mm: np.ndarray, radius_mm: floa
 
 
 def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.ndarray, bright: bool, *,
-                        n_rays: int = 180, blur_px: float = 2.0, iterations: int = 3, tol_px: float = 1e-3):
+                        n_rays: int = 180, blur_px: float = 2.0, iterations: int = 8, tol_px: float = 1e-3):
     """Sub-pixel disc centres from the disc's outline: the area centroid of the polygon of sub-pixel
     edge points (each the mid-level crossing of a ray's profile between its own local disc and
     background levels).
@@ -272,11 +286,13 @@ def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.nd
     centres : ndarray (N, 2)
     ok : ndarray (N,) bool -- False when fewer than 60 % of the rays gave an edge (then the input centre
         is returned)
+    outlines : ndarray (N, n_rays, 2) -- the edge polygon of the last round (NaN where not ok), px
     """
     g = np.ascontiguousarray(gray, np.float32)
     h, w = g.shape
     c = np.asarray(centres_px, np.float64).copy()
     ok = np.zeros(len(c), bool)
+    outlines = np.full((len(c), n_rays, 2), np.nan)
     ang = 2.0 * np.pi * np.arange(n_rays) / n_rays
     dirs = np.column_stack([np.cos(ang), np.sin(ang)])
     sgn = -1.0 if bright else 1.0  # profile rises outward for a dark disc
@@ -284,6 +300,7 @@ def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.nd
         Q = np.asarray(shape_q[k], float)
         rdir = 1.0 / np.sqrt(np.maximum(np.einsum("ni,ij,nj->n", dirs, Q, dirs), 1e-12))  # expected radius per ray
         start = c[k].copy()
+        moved = np.inf
         for _ in range(iterations):
             step = 0.2
             s_max = 1.45 * rdir + blur_px + np.maximum(3.0, 0.3 * 1.45 * rdir)
@@ -350,12 +367,17 @@ def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.nd
             new = np.array([((x + x1) * cr).sum(), ((y + y1) * cr).sum()]) / (6.0 * area)
             moved = np.linalg.norm(new - start)
             start = new
-            ok[k] = True
+            outlines[k] = v
             if moved < tol_px:
+                ok[k] = True
                 break
+        else:
+            # not settled: a start far off the disc's centre gives a lopsided outline; accept only a
+            # last step below 0.05 px
+            ok[k] = bool(moved < 0.05)
         if ok[k]:
             c[k] = start
-    return c, ok
+    return c, ok, outlines
 
 
 def _robust_plane(x: np.ndarray, y: np.ndarray, v: np.ndarray, rounds: int = 3) -> np.ndarray:
@@ -707,7 +729,7 @@ def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polar
                 pts = (pts + 0.5) / scale - 0.5
             ordered, rms = order_grid_by_homography(pts, spec)
             if ordered is None:
-                tried.append(f"{name} (rejected: grid does not fit a homography)")
+                tried.append(f"{name} (rejected: grid fits neither a homography nor a second-order map)")
                 continue
             return ordered, name
         return None, ""
@@ -805,6 +827,7 @@ def _finish(gray, pts, spec, image_id, size, name, tried, bright, refine, perspe
     else:
         r_px = 0.2 * nn_px  # seed 003 geometry (20 mm holes, 50 mm spacing) as a guess
     notes = []
+    cut = np.zeros(len(pts), bool)
     if refine in ("moments", "edges"):
         # window: the disc plus ~3 sigma of a typical thermal blur, clear of the neighbouring disc
         # (which starts at nn_px - r_px) with a 2 px background annulus in between
@@ -836,7 +859,7 @@ def _finish(gray, pts, spec, image_id, size, name, tried, bright, refine, perspe
             if np.any(~keep & ~cut) and not (refine == "edges" and spec.diameter_mm is not None):
                 notes.append(f"{int((~keep & ~cut).sum())} centre(s) kept at blob positions (window at the border "
                              "or unstable)")
-            if np.any(cut):
+            if np.any(cut) and not (refine == "edges" and spec.diameter_mm is not None):
                 notes.append(f"{int(cut.sum())} circle(s) cut by the frame border dropped")
                 pts, ids, obj = pts[~cut], ids[~cut], obj[~cut]
                 partial = True
@@ -847,9 +870,48 @@ def _finish(gray, pts, spec, image_id, size, name, tried, bright, refine, perspe
         # outline-based centres (immune to a temperature gradient across the disc and to a moment
         # window that does not hold a strongly foreshortened disc), started from the moment centres
         Q = circle_shape_matrices(_fit_h(obj, pts), obj, 0.5 * spec.diameter_mm)
-        new, ok_e = refine_circle_edges(gray, pts, Q, bright)
+        new, ok_e, outl = refine_circle_edges(gray, pts, Q, bright)
         ok_e &= np.linalg.norm(new - pts, axis=1) < 0.25 * np.sqrt(1.0 / np.linalg.eigvalsh(Q)[:, 0]) + 1.0
         pts = np.where(ok_e[:, None], new, pts)
+        if np.any(~ok_e) and ok_e.sum() >= 8:
+            # a blob detector's centre can be pixels off (a disc merged with a contrast feature): start
+            # again where a second-order map through the other circles puts it
+            good_i = np.flatnonzero(ok_e)
+            sc = max(float(np.abs(obj).max()), 1e-9)
+            A = lambda o: np.column_stack([np.ones(len(o)), o[:, 0] / sc, o[:, 1] / sc, (o[:, 0] / sc) ** 2,
+                                           o[:, 0] * o[:, 1] / sc**2, (o[:, 1] / sc) ** 2])
+            coef, *_ = np.linalg.lstsq(A(obj[good_i]), pts[good_i], rcond=None)
+            bad = np.flatnonzero(~ok_e)
+            guess = A(obj[bad]) @ coef
+            new_b, ok_b, outl_b = refine_circle_edges(gray, guess, Q[bad], bright)
+            ok_b &= np.linalg.norm(new_b - guess, axis=1) < 0.25 * np.sqrt(1.0 / np.linalg.eigvalsh(Q[bad])[:, 0]) + 1.0
+            pts[bad[ok_b]] = new_b[ok_b]
+            outl[bad[ok_b]] = outl_b[ok_b]
+            ok_e[bad[ok_b]] = True
+            if np.any(ok_b):
+                notes.append(f"{int(ok_b.sum())} centre(s) measured again from the grid's prediction")
+            if np.any(~ok_e):
+                # neither the blob's nor the predicted start gives an outline: the circle is dropped
+                # rather than kept at a blob position that may be pixels off
+                keep_e = ok_e.copy()
+                notes.append(f"{int((~keep_e).sum())} circle(s) without a measurable outline dropped")
+                pts, ids, obj, ok_e, outl, cut = (pts[keep_e], ids[keep_e], obj[keep_e], ok_e[keep_e], outl[keep_e],
+                                                  cut[keep_e])
+                partial = True
+        # cut by the frame border: the measured outline (rays that left the frame were filled in by the
+        # outline's conic) within 1.5 px of the border; without an outline, the homography's estimate
+        h_img, w_img = gray.shape
+        with np.errstate(invalid="ignore"):
+            out_e = np.any((outl[..., 0] < 1.5) | (outl[..., 0] > w_img - 2.5) | (outl[..., 1] < 1.5)
+                           | (outl[..., 1] > h_img - 2.5), axis=1)
+        cut = np.where(ok_e, out_e, cut)
+        if np.any(cut):
+            notes.append(f"{int(cut.sum())} circle(s) cut by the frame border dropped")
+            pts, ids, obj, ok_e = pts[~cut], ids[~cut], obj[~cut], ok_e[~cut]
+            partial = True
+            if len(ids) < max(min_points or 6, 4):
+                return Detection.failure(image_id, f"{len(ids)} whole circles left (< {max(min_points or 6, 4)}; "
+                                         "the others are cut by the frame border)", size)
         if np.any(~ok_e):
             notes.append(f"{int((~ok_e).sum())} centre(s) by moments or blob positions (too few edge points)")
     if perspective_correction and spec.diameter_mm is not None:
@@ -880,12 +942,14 @@ def _finish(gray, pts, spec, image_id, size, name, tried, bright, refine, perspe
 # partial grids: part of the grid outside the frame or hidden
 # --------------------------------------------------------------------------------------------------
 def _size_group(c: np.ndarray, n: int) -> np.ndarray:
-    """Indices of the largest group of ellipse candidates within a factor 4 in area, preferring
-    candidates found at several scales (grid discs are similar: perspective changes their area by < ~4x)."""
+    """Indices of the largest group of ellipse candidates within a factor 8 in area, preferring
+    candidates found at several scales (grid discs are similar, but a close view tilted by 50° changes
+    their area by up to ~4x across a 4 x 3 grid: 3.8x measured, so a window of 4x centred on a
+    candidate missed the smallest disc)."""
     la = np.log(c[:, 4])
     best = None
     for i in np.argsort(-c[:, 5]):
-        grp = np.flatnonzero(np.abs(la - la[i]) < np.log(4.0) / 2 + 1e-9)
+        grp = np.flatnonzero(np.abs(la - la[i]) < np.log(8.0) / 2 + 1e-9)
         score = (len(grp) >= n, c[grp, 5].sum())
         if best is None or score > best[0]:
             best = (score, grp)
@@ -1046,11 +1110,12 @@ def _place_on_target(ab: np.ndarray, spec: CircleGridSpec):
 
 def _one_per_disc(cand: np.ndarray) -> np.ndarray:
     """One :func:`ellipse_candidates` row per disc: nested contours of one disc at other thresholds
-    (smaller, found at fewer scales, centre within a quarter of the minor axis, area within 4x) are dropped."""
+    (centre within a quarter of the minor axis, and area within 4x or found at fewer scales) are dropped."""
     keep = []
     for i in np.lexsort((-cand[:, 4], -cand[:, 5])):
         if all(np.hypot(*(cand[i, :2] - cand[j, :2])) > 0.25 * min(cand[i, 3], cand[j, 3])
-               or max(cand[i, 4], cand[j, 4]) > 4.0 * min(cand[i, 4], cand[j, 4]) for j in keep):
+               or (max(cand[i, 4], cand[j, 4]) > 4.0 * min(cand[i, 4], cand[j, 4]) and cand[i, 5] >= cand[j, 5])
+               for j in keep):
             keep.append(i)
     return cand[np.sort(np.asarray(keep, dtype=int))]
 

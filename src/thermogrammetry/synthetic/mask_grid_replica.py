@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from ..errors import ConfigError
@@ -37,6 +38,7 @@ from ..targets import CircleGridTarget
 from ._render import iter_sample_rays
 from .radiance import BandPlanckCurve
 from .sensor import SensorEffects, apply_sensor_effects
+from .circle_grid_set import displace_centres_in_image
 from .testfield import look_at_pose
 
 __all__ = ["MASK_GRID_CAMERA", "MaskGridReplica", "make_mask_grid_replica", "render_mask_grid_view", "quantize"]
@@ -59,7 +61,9 @@ class MaskGridReplica:
     images_k : list of (512, 640) float32 apparent temperature, K
     poses : list of (R, t) cam_from_target, metres
     points_px : list of (12, 2) projections of the circle centres (OpenCV order), px
-    centroid_bias_px : list of (12, 2) area centroid of each imaged circle minus ``points_px``
+    centroid_bias_px : list of (12, 2) area centroid of each imaged circle minus ``points_px`` (the truth of
+        a raw centroid measurement; includes ``centre_shifts_px``)
+    centre_shifts_px : list of (12, 2) injected centre shifts (zeros without ``centre_noise_px``)
     names : list of str
     """
 
@@ -71,6 +75,7 @@ class MaskGridReplica:
     centroid_bias_px: list
     names: list
     fill: list = field(default_factory=list)
+    centre_shifts_px: list = field(default_factory=list)
     tilt_deg: list = field(default_factory=list)
 
 
@@ -90,7 +95,7 @@ def quantize(image_k: np.ndarray, bits: int, *, lo_k: float | None = None, hi_k:
     return np.clip(np.round(255.0 * (t - lo) / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
 
 
-def _scene_temperature(x_mm, y_mm, on_plane, rays, tgt, plate_rim_mm, temps, gradient):
+def _scene_temperature(x_mm, y_mm, on_plane, rays, tgt, plate_rim_mm, temps, gradient, centres_mm):
     """Apparent temperature (K) of every sample: circle, mask (non-uniform), plate rim, room."""
     t_circle, t_mask, t_rim, t_room, t_person = temps
     xmin, xmax, ymin, ymax = tgt.extent_mm()
@@ -100,7 +105,7 @@ def _scene_temperature(x_mm, y_mm, on_plane, rays, tgt, plate_rim_mm, temps, gra
         (ys <= ymax + plate_rim_mm)
     r2 = (0.5 * tgt.diameter_mm) ** 2
     in_circle = np.zeros(xs.shape, bool)
-    for cx, cy, _ in tgt.object_points():
+    for cx, cy in centres_mm:
         in_circle |= (xs - cx) ** 2 + (ys - cy) ** 2 <= r2
     in_circle &= in_mask
     # mild non-uniform plate/mask temperature: a linear gradient plus a broad warm patch (target frame)
@@ -119,7 +124,7 @@ def _scene_temperature(x_mm, y_mm, on_plane, rays, tgt, plate_rim_mm, temps, gra
 
 def render_mask_grid_view(camera, pose, target: CircleGridTarget, *, supersample: int = 4, psf_sigma_px: float = 0.5,
                           netd_k: float = 0.05, seed: int = 0, temperatures=(299.0, 313.0, 318.0, 294.0, 305.0),
-                          gradient=(0.4, -0.3, 0.8), plate_rim_mm: float = 45.0) -> np.ndarray:
+                          gradient=(0.4, -0.3, 0.8), plate_rim_mm: float = 45.0, centres_mm=None) -> np.ndarray:
     """One view of the mask grid scene, (H, W) float32 apparent temperature in kelvin.
 
     Parameters
@@ -133,9 +138,11 @@ def render_mask_grid_view(camera, pose, target: CircleGridTarget, *, supersample
     temperatures : (circle, mask, plate rim, room, person) K
     gradient : (K per 100 mm in x, in y, broad warm patch K) of the mask's non-uniform temperature
     plate_rim_mm : width of the heated plate visible around the mask
+    centres_mm : (N, 2) where the circles are made (default: the target's nominal centres)
     """
     R, t = np.asarray(pose[0], float), np.asarray(pose[1], float)
     C = -R.T @ t
+    centres = target.object_points()[:, :2] if centres_mm is None else np.asarray(centres_mm, float)
     curve = BandPlanckCurve()
     lo, hi = min(temperatures) - 3.0, max(temperatures) + 3.0
     t_tab = np.linspace(lo, hi, 4096)
@@ -149,7 +156,7 @@ def render_mask_grid_view(camera, pose, target: CircleGridTarget, *, supersample
             ok = np.isfinite(lam) & (lam > 0)
             x = np.where(ok, 1e3 * (C[0] + lam * d[..., 0]), np.nan)
             y = np.where(ok, 1e3 * (C[1] + lam * d[..., 1]), np.nan)
-        tk = _scene_temperature(x, y, ok, rays, target, plate_rim_mm, temperatures, gradient)
+        tk = _scene_temperature(x, y, ok, rays, target, plate_rim_mm, temperatures, gradient, centres)
         signal[rows] = np.interp(np.clip(tk, lo, hi), t_tab, s_tab).mean(axis=-1)
     eff = SensorEffects(psf_sigma_px=psf_sigma_px, netd_k=netd_k)
     return apply_sensor_effects(signal, curve, eff, np.random.default_rng(seed))
@@ -171,11 +178,14 @@ def _aim(camera, R, t, centre, ax, ay):
 
 
 def make_mask_grid_replica(n_views: int = 24, seed: int = 2026, *, supersample: int = 4, psf_sigma_px: float = 0.5,
-                           netd_k: float = 0.05, params: dict | None = None, views: list | None = None) -> MaskGridReplica:
+                           netd_k: float = 0.05, params: dict | None = None, views: list | None = None,
+                           centre_noise_px: float = 0.0, centre_noise_seed: int = 2027,
+                           fill_range=(0.25, 0.80), roll_deg: float = 20.0, seed_tilt_deg: float = 52.0,
+                           **scene) -> MaskGridReplica:
     """Render the replica set (see the module docstring).
 
     Poses: the camera looks at the grid from azimuth/elevation up to ±50° (tilt of the plate against
-    the image plane up to ~50°), 0.30-0.80 m away, rolled ±20° around landscape; the grid centre is
+    the image plane up to ~50°), 0.24-0.62 m away, rolled ±20° around landscape; the grid centre is
     put at aim points spread over the frame, a third of them near the corners. A pose is kept when
     every circle (plus 4 px) is inside the frame. Seeded: the same arguments give the same set.
 
@@ -186,6 +196,16 @@ def make_mask_grid_replica(n_views: int = 24, seed: int = 2026, *, supersample: 
     supersample, psf_sigma_px, netd_k : see :func:`render_mask_grid_view`
     params : camera parameters (default :data:`MASK_GRID_CAMERA`)
     views : indices of the views to render (the poses of the others are drawn, not rendered), or None
+    centre_noise_px : σ (px per coordinate) of a known centre error: every circle is made displaced in the
+        target plane so that its projected centre moves by an N(0, σ²) shift
+        (:func:`~thermogrammetry.synthetic.circle_grid_set.displace_centres_in_image`); ``points_px``
+        stay the nominal grid's projections (the calibration's truth), ``centre_shifts_px`` hold the
+        shifts, ``centroid_bias_px`` is the displaced circles' centroid minus ``points_px``
+    centre_noise_seed : seed of those shifts
+    roll_deg : the camera is rolled by up to ± this about its axis (± 90: portrait views as well)
+    seed_tilt_deg : the viewing direction is drawn up to this far off the plate normal
+    **scene : ``temperatures``, ``gradient``, ``plate_rim_mm`` of :func:`render_mask_grid_view`
+    fill_range : (min, max) fraction of the frame covered by the plate (its distorted image, clipped by the frame)
     """
     from ..calibration.circle_bias import circle_centroid_bias
     from ..camera import Camera
@@ -194,24 +214,30 @@ def make_mask_grid_replica(n_views: int = 24, seed: int = 2026, *, supersample: 
     tgt = CircleGridTarget(4, 3, 90.0, diameter_mm=60.0, margin_mm=75.0)
     obj_m = tgt.object_points() * 1e-3
     centre = obj_m.mean(axis=0)
+    if not (np.isfinite(centre_noise_px) and centre_noise_px >= 0):
+        raise ConfigError(f"centre_noise_px={centre_noise_px!r}: expected a standard deviation >= 0 px")
     rng = np.random.default_rng(seed)
+    noise_rng = np.random.default_rng(centre_noise_seed)
     w, h = cam.image_size
     aims = [(0.5, 0.5), (0.3, 0.3), (0.7, 0.7), (0.7, 0.3), (0.3, 0.7), (0.5, 0.35), (0.5, 0.65), (0.35, 0.5),
-            (0.65, 0.5), (0.22, 0.25), (0.78, 0.75), (0.78, 0.25), (0.22, 0.75)]
+            (0.65, 0.5), (0.2, 0.22), (0.8, 0.78), (0.8, 0.22), (0.2, 0.78)]
     out = MaskGridReplica(cam, tgt, [], [], [], [], [])
     xmin, xmax, ymin, ymax = tgt.extent_mm()
-    plate = 1e-3 * np.array([[xmin - 45, ymin - 45, 0], [xmax + 45, ymin - 45, 0], [xmax + 45, ymax + 45, 0],
-                             [xmin - 45, ymax + 45, 0]])
+    # the plate's outline, densely (its image is curved by the distortion), for the frame fill
+    e = np.linspace(0.0, 1.0, 64, endpoint=False)[:, None]
+    corners = np.array([[xmin - 45, ymin - 45], [xmax + 45, ymin - 45], [xmax + 45, ymax + 45], [xmin - 45, ymax + 45]])
+    outline = np.vstack([corners[i] + e * (corners[(i + 1) % 4] - corners[i]) for i in range(4)])
+    plate = 1e-3 * np.column_stack([outline, np.zeros(len(outline))])
     k = tries = 0
     while len(out.poses) < n_views and tries < 20000:
         tries += 1
         ax, ay = aims[k % len(aims)]
-        tilt = np.deg2rad(rng.uniform(0, 52))
+        tilt = np.deg2rad(rng.uniform(0, seed_tilt_deg))
         phi = rng.uniform(0, 2 * np.pi)
         az, el = tilt * np.cos(phi), tilt * np.sin(phi)
-        dist = rng.uniform(0.30, 0.80)
+        dist = rng.uniform(0.24, 0.62)
         Cw = centre + dist * np.array([np.sin(az) * np.cos(el), np.sin(el), -np.cos(az) * np.cos(el)])
-        R, t = look_at_pose(Cw, centre, rng.uniform(-20, 20), up=(0, -1, 0))
+        R, t = look_at_pose(Cw, centre, rng.uniform(-roll_deg, roll_deg), up=(0, -1, 0))
         R, t = _aim(cam, R, t, centre, ax * (w - 1), ay * (h - 1))
         # the rim of every circle, 4 px clear of the border
         a = np.linspace(0, 2 * np.pi, 48, endpoint=False)
@@ -223,11 +249,14 @@ def make_mask_grid_replica(n_views: int = 24, seed: int = 2026, *, supersample: 
         if not (np.all(np.isfinite(xy)) and xy[:, 0].min() >= 4 and xy[:, 1].min() >= 4 and xy[:, 0].max() <= w - 5
                 and xy[:, 1].max() <= h - 5):
             continue
-        # how much of the frame the plate fills (its projected quadrilateral's area, clipped roughly)
+        # how much of the frame the plate fills (its curved image, clipped by the frame)
         q = cam.project(plate @ R.T + t)
-        area = 0.5 * abs(np.dot(q[:, 0], np.roll(q[:, 1], 1)) - np.dot(q[:, 1], np.roll(q[:, 0], 1)))
-        fill = min(area / (w * h), 1.0)
-        if not 0.2 <= fill <= 0.95:
+        if not np.all(np.isfinite(q)):
+            continue
+        m = np.zeros((h, w), np.uint8)
+        cv2.fillPoly(m, [np.round(np.clip(q, -4 * w, 4 * w) * 4).astype(np.int32)], 1, shift=2)
+        fill = float(m.mean())
+        if not fill_range[0] <= fill <= fill_range[1]:
             continue
         ang = np.degrees(np.arccos(abs((R @ [0, 0, 1.0])[2])))  # plate normal vs optical axis
         if ang > 55.0:
@@ -237,11 +266,20 @@ def make_mask_grid_replica(n_views: int = 24, seed: int = 2026, *, supersample: 
         out.names.append(f"mg{idx:02d}")
         out.fill.append(float(fill))
         out.tilt_deg.append(float(ang))
-        out.points_px.append(cam.project(obj_m @ R.T + t))
-        out.centroid_bias_px.append(circle_centroid_bias(cam, R, t, obj_m, 0.03, n_outline=1024))
+        nominal = cam.project(obj_m @ R.T + t)
+        shift = noise_rng.normal(0.0, centre_noise_px, (tgt.n_points, 2)) if centre_noise_px > 0 else np.zeros((tgt.n_points, 2))
+        made = tgt.object_points()[:, :2]
+        if centre_noise_px > 0:
+            made = made + displace_centres_in_image(cam, R, t, tgt.object_points(), shift)
+        made_m = np.column_stack([made, np.zeros(len(made))]) * 1e-3
+        out.points_px.append(nominal)
+        out.centre_shifts_px.append(cam.project(made_m @ R.T + t) - nominal)
+        out.centroid_bias_px.append(cam.project(made_m @ R.T + t) - nominal
+                                    + circle_centroid_bias(cam, R, t, made_m, 0.03, n_outline=1024))
         if views is None or idx in views:
             out.images_k.append(render_mask_grid_view(cam, (R, t), tgt, supersample=supersample,
-                                                      psf_sigma_px=psf_sigma_px, netd_k=netd_k, seed=seed + idx))
+                                                      psf_sigma_px=psf_sigma_px, netd_k=netd_k, seed=seed + idx,
+                                                      centres_mm=made, **scene))
         else:
             out.images_k.append(None)
         k += 1
