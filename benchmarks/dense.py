@@ -125,7 +125,8 @@ def _run(cmd):
     return time.perf_counter() - t0, ru.ru_maxrss / 1024.0, p.returncode
 
 
-def chain(sizes, workers: int) -> int:
+def chain(sizes, workers: int, keep: str | None = None, steps_only=None) -> int:
+    import contextlib
     import tempfile
 
     from thermogrammetry.pipeline.project import FolderProject
@@ -140,11 +141,17 @@ def chain(sizes, workers: int) -> int:
         ter = TerrainConfig(width_m=130.0 * s, height_m=100.0 * s, n_buildings=max(1, round(5 * s * s)),
                             n_trees=max(1, round(10 * s * s)), n_roads=max(1, round(s)))
         scene = make_survey(uav_thermal_config(seed=0, terrain=ter))
-        with tempfile.TemporaryDirectory(prefix="tg_bench_chain_") as tmp:
+        if keep:
+            ctx = contextlib.nullcontext(str(Path(keep) / f"n{n}"))
+        else:
+            ctx = tempfile.TemporaryDirectory(prefix="tg_bench_chain_")
+        with ctx as tmp:
             root = Path(tmp)
             t0 = time.perf_counter()
-            write_survey(FolderProject(root), scene, prefix="input", threads=2)
-            write_user_files(FolderProject(root), scene, prefix="input")
+            if not (keep and (root / "input" / "user" / "checkpoints.csv").exists()):
+                root.mkdir(parents=True, exist_ok=True)
+                write_survey(FolderProject(root), scene, prefix="input", threads=2)
+                write_user_files(FolderProject(root), scene, prefix="input")
             t_render = time.perf_counter() - t0
             u = root / "input" / "user"
             steps = {
@@ -159,6 +166,8 @@ def chain(sizes, workers: int) -> int:
             }
             res = {}
             for name, cmd in steps.items():
+                if steps_only and name not in steps_only:
+                    continue
                 res[name] = _run(cmd)
                 if res[name][2] != 0:
                     break
@@ -176,9 +185,16 @@ def chain(sizes, workers: int) -> int:
         print(f"| {nf} | survey to ortho | {tot:.0f} | {max(r[1] for r in res.values()):.0f} | |")
     if len(rows) >= 2:
         a, b = rows[0][3], rows[-1][3]
+        print(f"\n| step | peak RSS MiB, {rows[0][1]} frames | peak RSS MiB, {rows[-1][1]} frames | ratio (goal <= 1.5) "
+              f"| wall s ratio |")
+        print("|---|---|---|---|---|")
         for name in a:
             if name in b:
-                print(f"peak memory ratio {name} ({rows[-1][1]} vs {rows[0][1]} frames): {b[name][1] / a[name][1]:.2f}")
+                print(f"| {name} | {a[name][1]:.0f} | {b[name][1]:.0f} | {b[name][1] / a[name][1]:.2f} "
+                      f"| {b[name][0] / a[name][0]:.2f} |")
+        if all(name in b for name in a):
+            pa, pb = max(r[1] for r in a.values()), max(r[1] for r in b.values())
+            print(f"| survey to ortho (max of the steps) | {pa:.0f} | {pb:.0f} | {pb / pa:.2f} | |")
     return 0
 
 
@@ -187,9 +203,12 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--chain", type=int, nargs="+", help="survey -> dense -> ortho on synthetic blocks of ~N frames")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--keep", metavar="DIR", help="--chain: keep the blocks in DIR/n<N> (inputs are reused when present)")
+    ap.add_argument("--steps", nargs="+", choices=["survey", "dense", "ortho"],
+                    help="--chain: run only these steps (the others' outputs must be in --keep)")
     args = ap.parse_args(argv)
     if args.chain:
-        return chain(args.chain, args.workers)
+        return chain(args.chain, args.workers, args.keep, args.steps)
     import os
 
     from thermogrammetry.dense import disparity

@@ -370,6 +370,10 @@ class _Data:
         self.m = 2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose) + len(self.d_a) + len(self.pl_k)
 
 
+#: image observations per chunk in :func:`_evaluate` (bounds its temporaries: ~1.5 KB per observation)
+_EVAL_CHUNK = 32768
+
+
 def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
     """Whitened residuals r (m,), and (if wanted) camera-side Jacobian triplets and point
     Jacobian rows. Residual = (computed - observed) / sigma."""
@@ -379,6 +383,7 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
     rows, cols, vals = [], [], []
     jp = np.zeros((m, 3))
     pslot = np.full(m, -1, dtype=np.int64)
+    idx = np.int32 if max(m, lay.nc) < 2**31 - 1 else np.int64
 
     def trip(row0, ncomp, J, start, valid):
         # J (n, ncomp, w) for rows row0 + ncomp*k + a, columns start[k] + j
@@ -386,68 +391,93 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
         if n == 0 or not np.any(valid):
             return
         k = np.nonzero(valid)[0]
-        rr = (row0[k, None, None] + np.arange(ncomp)[None, :, None]) + np.zeros((1, 1, w), dtype=np.int64)
-        cc = (start[k, None, None] + np.arange(w)[None, None, :]) + np.zeros((1, ncomp, 1), dtype=np.int64)
-        rows.append(rr.ravel())
-        cols.append(cc.ravel())
+        # index triplets in int32 when they fit (scipy's CSR uses int32 then anyway): half the memory
+        rr = (row0[k, None, None].astype(idx) + np.arange(ncomp, dtype=idx)[None, :, None])
+        cc = (start[k, None, None].astype(idx) + np.arange(w, dtype=idx)[None, None, :])
+        rows.append(np.broadcast_to(rr, (len(k), ncomp, w)).ravel())
+        cols.append(np.broadcast_to(cc, (len(k), ncomp, w)).ravel())
         vals.append(J[k].ravel())
 
-    if K:
-        Rm = st.R[data.vpose]
-        tm = st.t[data.vpose]
-        X = st.X[data.pt]
+    blocks = []
+
+    def flush(r0, r1):
+        # triplets of rows [r0, r1) -> one CSR block (rows relative to r0)
+        if rows:
+            ra, ca, va = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+            ra -= r0
+        else:
+            ra = ca = np.zeros(0, idx)
+            va = np.zeros(0)
+        rows.clear()
+        cols.clear()
+        vals.clear()
+        blocks.append(sp.csr_matrix((va, (ra, ca)), shape=(r1 - r0, lay.nc)))
+
+    # image observations in chunks of observations: the temporaries (projections, Jacobians, index
+    # triplets) are bounded by the chunk, not by the block; each chunk's rows become one CSR block
+    for a in range(0, K, _EVAL_CHUNK):
+        b = min(K, a + _EVAL_CHUNK)
+        nk = b - a
+        vpose, vrig = data.vpose[a:b], data.vrig[a:b]
+        Rm = st.R[vpose]
+        tm = st.t[vpose]
+        X = st.X[data.pt[a:b]]
         Xm = np.einsum("kij,kj->ki", Rm, X) + tm
-        isrig = data.vrig >= 0
-        Rr = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
-        tr = np.zeros((K, 3))
+        isrig = vrig >= 0
+        Rr = np.broadcast_to(np.eye(3), (nk, 3, 3)).copy()
+        tr = np.zeros((nk, 3))
         if np.any(isrig):
-            Rr[isrig] = st.rR[data.vrig[isrig]]
-            tr[isrig] = st.rt[data.vrig[isrig]]
+            Rr[isrig] = st.rR[vrig[isrig]]
+            tr[isrig] = st.rt[vrig[isrig]]
         Xc = np.einsum("kij,kj->ki", Rr, Xm) + tr
-        xy = np.empty((K, 2))
-        Jx = np.empty((K, 2, 3)) if want_jac else None
-        rowbase = 2 * np.arange(K)
+        xy = np.empty((nk, 2))
+        Jx = np.empty((nk, 2, 3)) if want_jac else None
+        rowbase = 2 * np.arange(a, b)
+        sig = data.sig[a:b]
         for c, cam in enumerate(pb.cameras):
-            sel = np.nonzero(data.cam == c)[0]
+            sel = np.nonzero(data.cam[a:b] == c)[0]
             if not len(sel):
                 continue
             camc = cam.with_params(st.cam_params[c]) if not np.array_equal(st.cam_params[c], cam.params) else cam
             if want_jac:
-                xyc, jpt, jint = camc.project_jacobian(Xc[sel])
-                xy[sel] = xyc
-                Jx[sel] = jpt
                 cc = lay.cam_cols[c]
                 free = np.nonzero(cc >= 0)[0]
+                # the parameter Jacobian only when some intrinsics are free (same projection either way)
+                xyc, jpt, jint = camc.project_jacobian(Xc[sel], params=bool(len(free)))
+                xy[sel] = xyc
+                Jx[sel] = jpt
                 if len(free):
-                    Jw = jint[:, :, free] / data.sig[sel][:, :, None]
+                    Jw = jint[:, :, free] / sig[sel][:, :, None]
                     n = len(sel)
-                    rr = (rowbase[sel][:, None, None] + np.arange(2)[None, :, None]) + np.zeros((1, 1, len(free)), np.int64)
-                    ccol = np.broadcast_to(cc[free][None, None, :], (n, 2, len(free)))
-                    rows.append(rr.ravel())
+                    rr = rowbase[sel][:, None, None].astype(idx) + np.arange(2, dtype=idx)[None, :, None]
+                    ccol = np.broadcast_to(cc[free].astype(idx)[None, None, :], (n, 2, len(free)))
+                    rows.append(np.broadcast_to(rr, (n, 2, len(free))).ravel())
                     cols.append(ccol.ravel())
                     vals.append(Jw.ravel())
             else:
                 xy[sel] = camc.project(Xc[sel])
-        res = (xy - data.xy) / data.sig
-        r[: 2 * K] = res.ravel()
+        res = (xy - data.xy[a:b]) / sig
+        r[2 * a : 2 * b] = res.ravel()
         if want_jac:
-            Jxw = Jx / data.sig[:, :, None]
+            Jxw = Jx / sig[:, :, None]
             JxR = Jxw @ Rr  # d/dXm
             # master pose: dXm/dw = -[Rm X]x, dXm/dt = I
             Jw_m = -JxR @ skew(np.einsum("kij,kj->ki", Rm, X))
-            pc = lay.pose_col[data.vpose]
+            pc = lay.pose_col[vpose]
             trip(rowbase, 2, np.concatenate([Jw_m, JxR], axis=2), pc, pc >= 0)
             # rig: dXc/dw_r = -[Rr Xm]x, dXc/dt_r = I
             if np.any(isrig):
-                rc = np.where(isrig, lay.rig_col[np.maximum(data.vrig, 0)], -1)
+                rc = np.where(isrig, lay.rig_col[np.maximum(vrig, 0)], -1)
                 Jw_r = -Jxw @ skew(np.einsum("kij,kj->ki", Rr, Xm))
                 trip(rowbase, 2, np.concatenate([Jw_r, Jxw], axis=2), rc, rc >= 0)
             Jpt = JxR @ Rm
-            slot = lay.point_slot[data.pt]
-            jp[: 2 * K] = Jpt.reshape(-1, 3)
-            pslot[: 2 * K] = np.repeat(slot, 2)
-            pcol = lay.point_col[data.pt]
+            slot = lay.point_slot[data.pt[a:b]]
+            jp[2 * a : 2 * b] = Jpt.reshape(-1, 3)
+            pslot[2 * a : 2 * b] = np.repeat(slot, 2)
+            pcol = lay.point_col[data.pt[a:b]]
             trip(rowbase, 2, Jpt, pcol, pcol >= 0)
+        if want_jac:
+            flush(2 * a, 2 * b)
     row = 2 * K
     nc_ = len(data.c_pt)
     if nc_:
@@ -504,12 +534,8 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
                 trip(rws, 1, sgn * u, pcol, pcol >= 0)
     if not want_jac:
         return r
-    if rows:
-        rows_a, cols_a, vals_a = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
-    else:
-        rows_a = cols_a = np.zeros(0, np.int64)
-        vals_a = np.zeros(0)
-    Jc = sp.csr_matrix((vals_a, (rows_a, cols_a)), shape=(m, lay.nc))
+    flush(2 * K, m)
+    Jc = blocks[0] if len(blocks) == 1 else sp.vstack(blocks, format="csr")
     return r, Jc, jp, pslot
 
 
@@ -552,11 +578,10 @@ class _Normal:
         # point side
         ps = pslot[prow]
         jpp = jpw[prow]
-        outer = (jpp[:, :, None] * jpp[:, None, :]).reshape(-1, 9)
         V = np.zeros((npf, 9))
         gp = np.zeros((npf, 3))
-        for k in range(9):
-            V[:, k] = np.bincount(ps, weights=outer[:, k], minlength=npf)
+        for k in range(9):  # one product column at a time (no (rows, 9) array of outer products)
+            V[:, k] = np.bincount(ps, weights=jpp[:, k // 3] * jpp[:, k % 3], minlength=npf)
         for k in range(3):
             gp[:, k] = np.bincount(ps, weights=jpp[:, k] * rw[prow], minlength=npf)
         self.V = V.reshape(npf, 3, 3)
@@ -592,7 +617,9 @@ class _Normal:
             Vinv, ok = np.zeros((0, 3, 3)), True
         if not ok:
             return None
-        S = self.U.copy()
+        # Fortran order: the Cholesky factorisation then works in place (no copy of the reduced matrix);
+        # the values are the same whatever the memory layout
+        S = self.U.copy(order="F")
         nc = self.lay.nc
         if lam and nc:
             S[np.diag_indices_from(S)] += lam * self.dU
@@ -602,7 +629,12 @@ class _Normal:
             if want_H or nc * nc * 3 * npf > 5e9 or nc * nc * 3 * npf > 10.0 * self.sparse_flops:
                 Vsp = sp.bsr_matrix((Vinv, np.arange(npf), np.arange(npf + 1)), shape=(3 * npf, 3 * npf)).tocsr()
                 H = (self.B @ Vsp).tocsr()
-                S -= (H @ self.B.T).toarray()
+                HB = (H @ self.B.T).tocsr()
+                # subtracted in row blocks: no second dense nc x nc matrix (same values as one subtraction)
+                step = max(1, int(4e6 // max(nc, 1)))
+                for a in range(0, nc, step):
+                    S[a : a + step] -= HB[a : a + step].toarray()
+                del HB
                 rhs += H @ self.gp.ravel()
             else:
                 # dense slabs of points: S -= (B_k V_k^-1) B_k^T with BLAS (small reduced systems)
@@ -636,6 +668,14 @@ class _Normal:
 
 
 
+def _symmetrised(A):
+    """``0.5 (A + A^T)`` with one temporary instead of two (same values)."""
+    B = A + A.T
+    del A
+    B *= 0.5
+    return B
+
+
 def _tangent_basis(n):
     """(3, 2) orthonormal basis of the plane orthogonal to the unit vector n (deterministic)."""
     a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
@@ -645,10 +685,12 @@ def _tangent_basis(n):
 
 
 def _cho_factor(S):
+    """Cholesky factor of the reduced matrix, computed in place when ``S`` is in Fortran order (``S`` is
+    then overwritten: the callers do not use it afterwards)."""
     if S.shape[0] == 0:
         return ("empty",)
     try:
-        cf = scipy.linalg.cho_factor(S, check_finite=False)
+        cf = scipy.linalg.cho_factor(S, check_finite=False, overwrite_a=S.flags.f_contiguous)
     except (np.linalg.LinAlgError, ValueError):
         return None
     if not np.all(np.isfinite(cf[0])):
@@ -669,9 +711,11 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
     need = True
     while True:
         if need:
+            ne = None  # the previous linearisation is released before the next is built
             r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
             w, cost = _robust(r, data.K, opt)
             ne = _Normal(r, Jc, jp, pslot, lay, w)
+            del Jc, jp  # kept by ne in the form it needs (weighted, sparse)
             need = False
             if ne.grad_max <= opt.gradient_tolerance:
                 return st, cost0, cost, it, Termination.CONVERGED, f"gradient tolerance reached (max|g| = {ne.grad_max:.3g})"
@@ -683,7 +727,9 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
         ok = sch is not None
         if ok:
             S, rhs, Vinv, _ = sch
-            cf = _cho_factor(S)
+            del sch
+            cf = _cho_factor(S)  # overwrites S
+            del S
             ok = cf is not None
         if ok:
             D = np.concatenate([ne.dU, ne.dV.ravel()])
@@ -922,7 +968,9 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
 def _precision(pb, lay, st, data, opt, active, warnings):
     r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
     w, cost = _robust(r, data.K, opt)
-    ne = _Normal(r, Jc, jp, pslot, lay, w)
+    if opt.compute_covariance:
+        ne = _Normal(r, Jc, jp, pslot, lay, w)
+    del Jc  # the normal equations are built only for the covariance (ne keeps the weighted Jacobian)
     n = lay.nc + 3 * lay.npf
     defect = (6 if _scale_observed(pb) else 7) if pb.gauge is Gauge.INNER else 0
     red = data.m - n + defect
@@ -953,6 +1001,8 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     if sch is None:
         return (Termination.RANK_DEFICIENT, "a free point's normal block is singular (too few or parallel rays)")
     S, _, Vinv, H = sch
+    del sch
+    ne.U = None  # not needed any more (dense nc x nc)
     nc = lay.nc
     if pb.gauge is Gauge.INNER:
         if n > opt.max_dense_inner:
@@ -975,8 +1025,15 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     else:
         if nc:
             d = np.sqrt(np.maximum(np.diag(S), 1e-300))
-            ev, evec = np.linalg.eigh(S / d[:, None] / d[None, :])
+            Sn = S / d[:, None]
+            Sn /= d[None, :]
+            # eigenvalues only (the eigenvectors and their LAPACK workspace are 3 more nc x nc matrices);
+            # the null direction is computed only when the test fails
+            ev = scipy.linalg.eigvalsh(Sn, overwrite_a=True, check_finite=False)
             if ev[0] <= opt.rank_tolerance * ev[-1]:
+                Sn = S / d[:, None]
+                Sn /= d[None, :]
+                ev, evec = np.linalg.eigh(Sn)
                 k = np.argsort(-np.abs(evec[:, 0]))[:4]
                 involved = ", ".join(lay.names[i] for i in k)
                 return (
@@ -984,8 +1041,10 @@ def _precision(pb, lay, st, data, opt, active, warnings):
                     f"datum or parameters undetermined (condition {ev[-1] / max(ev[0], 1e-300):.3g}); "
                     f"null direction involves {involved}",
                 )
+            del Sn
             Q = np.linalg.inv(S)
-            Q = 0.5 * (Q + Q.T)
+            del S
+            Q = _symmetrised(Q)
         else:
             Q = np.zeros((0, 0))
         Qfull = None
@@ -1004,11 +1063,16 @@ def _precision(pb, lay, st, data, opt, active, warnings):
         for k, a in enumerate(("X0", "Y0", "Z0")):
             names[c + 3 + k] = f"{pb.pose_names[p]}.{a}"
     T = T.tocsr()
-    cov = s2 * np.asarray(T @ (T @ Q).T)
-    cov = 0.5 * (cov + cov.T)
+    cov = np.asarray(T @ Q)
+    cov = np.asarray(T @ cov.T)
+    cov *= s2
+    cov = _symmetrised(cov)
+    if Qfull is None and not (lay.npf and opt.compute_point_covariance) and not opt.compute_redundancy:
+        del Q  # not needed below
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / std[:, None] / std[None, :]
+        corr = cov / std[:, None]
+        corr /= std[None, :]
     out.update(param_names=names, covariance=cov, std=std, correlation=corr)
     kind = np.zeros(nc, dtype=np.int8)  # 1 = intrinsics or rig (findings), 0 = pose or point
     for cc in lay.cam_cols:
@@ -1032,9 +1096,10 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     out["pose_std"] = pose_std
     # warnings: correlations and insignificant additional parameters
     if nc > 1:
-        iu = np.triu_indices(nc, 1)
-        big = np.abs(corr[iu]) > opt.correlation_warning
-        for a, b in zip(iu[0][big], iu[1][big]):
+        # strict upper triangle, row by row (as np.triu_indices), without nc^2 index arrays
+        big = np.abs(corr) > opt.correlation_warning
+        big = np.triu(big, 1)
+        for a, b in zip(*np.nonzero(big)):
             if kind[a] or kind[b]:  # pose-pose correlations are block geometry, not a finding
                 warnings.append(f"high correlation {corr[a, b]:+.3f} between {names[a]} and {names[b]}")
     if red > 0:

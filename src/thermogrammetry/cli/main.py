@@ -24,6 +24,9 @@ def _register() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status."""
+    from .._memory import bound_heap_growth
+
+    bound_heap_growth()  # long numeric runs: freed temporaries go back to the system (results unchanged)
     _register()
     try:
         app(args=argv, prog_name="thermogrammetry", standalone_mode=True)

@@ -4,7 +4,8 @@ Unit of work: one reference image (rank its partners, match its pairs, fuse its 
 run in this process (``workers=1``), on a local dask.distributed cluster (``workers > 1``) or on an
 existing scheduler (``scheduler="tcp://..."``); results are collected in image order, so the cloud and the
 DSM are identical whichever way they ran. Points are spilled to per-tile files; the DSM and the cloud
-files are then written tile by tile (memory bounded by the tile size).
+files are then written tile by tile, the spill files read in chunks (memory bounded by the tile size); worker
+results are released as soon as they are fetched (:func:`ordered_results`).
 
 Outputs in ``out``: ``cloud.las``, ``cloud.ply``, ``dsm.tif`` (COG; band 1 height in m, nodata NaN; with
 ``fill=True`` a band 2 flags filled cells), ``dense.json``.
@@ -21,7 +22,7 @@ import numpy as np
 from ..errors import ConfigError, DataFileError
 from .fusion import POINT_DTYPE, DenseConfig, rank_pairs, reference_points
 
-__all__ = ["SurveyFrames", "run_dense", "open_client"]
+__all__ = ["SurveyFrames", "run_dense", "open_client", "ordered_results"]
 
 
 class SurveyFrames:
@@ -101,6 +102,35 @@ def open_client(workers: int = 1, scheduler: str | None = None):
     return None
 
 
+def ordered_results(client, fn, *arg_lists, window: int | None = None):
+    """Results of ``fn(*args)`` over the argument lists, in order, with at most ``window`` tasks in flight.
+
+    Each future is released as soon as its result has been fetched, so finished results do not pile up in
+    the workers' memory (``client.map`` over all tasks kept every result alive until the list of futures
+    was dropped: worker memory grew with the block). ``window`` defaults to 2 × the workers + 2.
+    """
+    from collections import deque
+
+    n = len(arg_lists[0]) if arg_lists else 0
+    if window is None:
+        try:
+            nw = len(client.scheduler_info().get("workers", {}))
+        except Exception:  # noqa: BLE001 - any scheduler without the info: a fixed window
+            nw = 2
+        window = 2 * max(1, nw) + 2
+    q: deque = deque()
+    nxt = 0
+    for _ in range(n):
+        while nxt < n and len(q) < window:
+            q.append(client.submit(fn, *(a[nxt] for a in arg_lists), pure=False))
+            nxt += 1
+        f = q.popleft()
+        res = f.result()
+        f.release()
+        del f
+        yield res
+
+
 def _in_quad(px, py, quad) -> np.ndarray:
     """Points inside a convex quadrilateral (either orientation)."""
     q = np.asarray(quad, float)
@@ -141,8 +171,7 @@ def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseCon
     try:
         path = str(Path(survey_dir).resolve())
         if client is not None:
-            futs = client.map(_reference_task, [path] * n, list(range(n)), [cfg] * n, pure=False)
-            it = (f.result() for f in futs)
+            it = ordered_results(client, _reference_task, [path] * n, list(range(n)), [cfg] * n)
         else:
             it = (_reference_task(path, i, cfg) for i in range(n))
         # the DSM gsd needs the image GSD: collect the first results before spilling
@@ -183,8 +212,9 @@ def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseCon
     stats = {"valid": 0, "covered": 0, "valid_covered": 0, "filled": 0}
 
     def dsm_tile(r0, c0, rows, cols):
-        pts = spill.read_window(grid, r0, c0, rows, cols)
-        z = grid_median(pts["x"], pts["y"], pts["z"], grid, r0, c0, rows, cols)
+        x, y, zp = spill.window_xyz(grid, r0, c0, rows, cols)
+        z = grid_median(x, y, zp, grid, r0, c0, rows, cols)
+        del x, y, zp
         X, Y = grid.cell_centres(r0, c0, rows, cols)
         cover = np.zeros((rows, cols), np.int32)
         for q in feet:
@@ -204,7 +234,8 @@ def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseCon
 
     try:
         for key in sorted(spill.keys):
-            cw.write(spill.read(key))
+            for chunk in spill.iter_chunks(key):  # arrival order, as one read of the tile
+                cw.write(chunk)
         write_cog(out / "dsm.tif", grid, np.float32, dsm_tile, crs=sv.crs, nodata=float("nan"), unit="m",
                   bands=2 if fill else 1,
                   description=["height (m), median of the dense points per cell", "1 = filled (not measured)"]

@@ -15,12 +15,16 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
 from .raster import Grid
 
 __all__ = ["grid_median", "fill_holes", "TileSpill", "aligned_grid"]
+
+#: records read at a time from a spill tile (12 MB of dense-point records)
+CHUNK_RECORDS = 1 << 18
 
 
 def grid_median(x, y, z, grid: Grid, r0: int, c0: int, rows: int, cols: int) -> np.ndarray:
@@ -121,15 +125,50 @@ class TileSpill:
             return np.zeros(0, self.dtype)
         return np.fromfile(p, dtype=self.dtype)
 
-    def read_window(self, grid: Grid, r0: int, c0: int, rows: int, cols: int) -> np.ndarray:
-        """All records of the spill tiles that intersect a window of ``grid`` (any grid)."""
+    def iter_chunks(self, key, chunk: int = CHUNK_RECORDS) -> Iterator[np.ndarray]:
+        """The records of one tile in arrival order, ``chunk`` records at a time (memory bounded by the chunk,
+        not by the tile)."""
+        p = self._path(key)
+        if not p.exists():
+            return
+        size = self.dtype.itemsize
+        n = p.stat().st_size // size
+        for a in range(0, n, int(chunk)):
+            yield np.fromfile(p, dtype=self.dtype, count=min(int(chunk), n - a), offset=a * size)
+
+    def _window_keys(self, grid: Grid, r0: int, c0: int, rows: int, cols: int) -> list:
         xa, xb = grid.x0 + c0 * grid.gsd, grid.x0 + (c0 + cols) * grid.gsd
         ya, yb = grid.y0 - (r0 + rows) * grid.gsd, grid.y0 - r0 * grid.gsd
-        parts = [self.read((kx, ky))
-                 for kx in range(int(np.floor(xa / self.T)), int(np.floor(xb / self.T)) + 1)
-                 for ky in range(int(np.floor(ya / self.T)), int(np.floor(yb / self.T)) + 1)
-                 if (kx, ky) in self.keys]
+        return [(kx, ky)
+                for kx in range(int(np.floor(xa / self.T)), int(np.floor(xb / self.T)) + 1)
+                for ky in range(int(np.floor(ya / self.T)), int(np.floor(yb / self.T)) + 1)
+                if (kx, ky) in self.keys]
+
+    def read_window(self, grid: Grid, r0: int, c0: int, rows: int, cols: int) -> np.ndarray:
+        """All records of the spill tiles that intersect a window of ``grid`` (any grid)."""
+        parts = [self.read(k) for k in self._window_keys(grid, r0, c0, rows, cols)]
         return np.concatenate(parts) if parts else np.zeros(0, self.dtype)
+
+    def window_xyz(self, grid: Grid, r0: int, c0: int, rows: int, cols: int,
+                   chunk: int = CHUNK_RECORDS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """x, y, z (m) of the records whose cell of ``grid`` (:meth:`Grid.cell_of`) lies in the window.
+
+        The intersecting spill tiles are read in chunks and filtered, so memory holds the window's
+        coordinates only (not the spill tiles' whole records, which reach 4 tiles × the tile's records when
+        the window straddles tile corners). Same points in the same order as :meth:`read_window` filtered to
+        the window, hence the same :func:`grid_median`.
+        """
+        xs, ys, zs = [], [], []
+        for k in self._window_keys(grid, r0, c0, rows, cols):
+            for c in self.iter_chunks(k, chunk):
+                row, col = grid.cell_of(c["x"], c["y"])
+                m = (row >= r0) & (row < r0 + rows) & (col >= c0) & (col < c0 + cols)
+                xs.append(c["x"][m])
+                ys.append(c["y"][m])
+                zs.append(c["z"][m])
+        if not xs:
+            return np.zeros(0), np.zeros(0), np.zeros(0)
+        return np.concatenate(xs), np.concatenate(ys), np.concatenate(zs)
 
     def cleanup(self) -> None:
         for k in self.keys:

@@ -322,7 +322,7 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
     from pathlib import Path
 
     from .._atomic import write_atomic_text
-    from ..dense.workflow import SurveyFrames, open_client
+    from ..dense.workflow import SurveyFrames, open_client, ordered_results
     from ..errors import ConfigError
     from ..radiometry.encoding import choose_uint16_mapping, encode_uint16
     from .correction import as_correction_config
@@ -387,10 +387,10 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
 
     try:
         if client is not None:
-            futs = client.map(_ortho_task, [spath] * len(windows), [dpath] * len(windows), [grid] * len(windows),
-                              windows, [cfg] * len(windows), [margin_m] * len(windows), [corr] * len(windows),
-                              [unit_out] * len(windows), pure=False)
-            tiles = (collect(f.result()) for f in futs)
+            nt = len(windows)
+            tiles = (collect(r) for r in ordered_results(client, _ortho_task, [spath] * nt, [dpath] * nt, [grid] * nt,
+                                                         windows, [cfg] * nt, [margin_m] * nt, [corr] * nt,
+                                                         [unit_out] * nt))
         else:
             tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out)) for w in windows)
         crs = sv.crs
