@@ -1010,6 +1010,12 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     S, _, Vinv, H = sch
     del sch
     ne.U = None  # not needed any more (dense nc x nc)
+    if pb.gauge is not Gauge.INNER and not opt.compute_redundancy:
+        # the Jacobians and B (~0.6 KB per image observation) serve only the inner-constraint covariance and the
+        # redundancy numbers: released before the nc x nc work (eigenvalues, inverse, covariance, correlation)
+        ne = None
+        if not opt.compute_point_covariance:
+            H = None
     nc = lay.nc
     if pb.gauge is Gauge.INNER:
         if n > opt.max_dense_inner:
