@@ -562,12 +562,18 @@ def _robust(r, K, opt: SolverOptions):
 class _Normal:
     """Normal-equation pieces at one linearisation (whitened, robust-weighted)."""
 
-    def __init__(self, r, Jc, jp, pslot, lay: _Layout, w):
+    def __init__(self, r, jac: list, pslot, lay: _Layout, w):
+        """``jac = [Jc, jp]`` of :func:`_evaluate`; the list is emptied so that the unweighted Jacobian is freed
+        as soon as its weighted copy exists (when the caller holds no other reference)."""
         self.lay = lay
         m = len(r)
         rw = r * w
+        Jc, jp = jac
+        jac.clear()
         Jcw = sp.diags(w) @ Jc if (lay.nc and np.any(w != 1.0)) else Jc
+        del Jc
         jpw = jp * w[:, None]
+        del jp
         has = pslot >= 0
         self.has = has
         prow = np.nonzero(has)[0]
@@ -712,10 +718,9 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
     while True:
         if need:
             ne = None  # the previous linearisation is released before the next is built
-            r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
+            r, *jac, pslot = _evaluate(pb, lay, st, data, True)
             w, cost = _robust(r, data.K, opt)
-            ne = _Normal(r, Jc, jp, pslot, lay, w)
-            del Jc, jp  # kept by ne in the form it needs (weighted, sparse)
+            ne = _Normal(r, jac, pslot, lay, w)  # takes the Jacobian over (weighted, sparse)
             need = False
             if ne.grad_max <= opt.gradient_tolerance:
                 return st, cost0, cost, it, Termination.CONVERGED, f"gradient tolerance reached (max|g| = {ne.grad_max:.3g})"
@@ -968,9 +973,11 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
 def _precision(pb, lay, st, data, opt, active, warnings):
     r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
     w, cost = _robust(r, data.K, opt)
-    if opt.compute_covariance:
-        ne = _Normal(r, Jc, jp, pslot, lay, w)
+    jac = [Jc, jp]
     del Jc  # the normal equations are built only for the covariance (ne keeps the weighted Jacobian)
+    if opt.compute_covariance:
+        ne = _Normal(r, jac, pslot, lay, w)
+    jac.clear()
     n = lay.nc + 3 * lay.npf
     defect = (6 if _scale_observed(pb) else 7) if pb.gauge is Gauge.INNER else 0
     red = data.m - n + defect
