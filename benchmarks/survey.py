@@ -81,11 +81,11 @@ def run_colmap(img_dir: Path) -> dict:
         shutil.rmtree(out, ignore_errors=True)
 
 
-def run_ours(img_dir: Path, workers: int) -> dict:
+def run_ours(img_dir: Path, workers: int, extra=()) -> dict:
     out = Path(tempfile.mkdtemp(prefix="bench_ours_")) / "out"
     try:
         t0 = time.perf_counter()
-        p = subprocess.run([sys.executable, "-m", "thermogrammetry", "survey", str(img_dir), "-o", str(out), "--workers", str(workers)],
+        p = subprocess.run([sys.executable, "-m", "thermogrammetry", "survey", str(img_dir), "-o", str(out), "--workers", str(workers), *extra],
                            capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO / "src")})
         wall = time.perf_counter() - t0
         if p.returncode:
@@ -117,7 +117,7 @@ def part1(args) -> int:
         print(f"data absent: {img_dir} (set --data or THERMOGRAMMETRY_DATA)", file=sys.stderr)
         return 2
     n = len(list(img_dir.glob("*.JPG")))
-    ours = run_ours(img_dir, args.workers)
+    ours = run_ours(img_dir, args.workers, ("--refine-ties", args.refine_ties))
     col = None if args.no_colmap else run_colmap(img_dir)
     print(f"\nDJI M3T flight, {n} frames 640x512 (shared/data/uav_m3t_flight), machine: {os.cpu_count()} cores")
     print(f"{'pipeline':<34}{'oriented':>10}{'RMS px':>9}{'mean px':>9}{'points':>9}{'time s':>9}")
@@ -214,6 +214,7 @@ def main(argv=None) -> int:
     ap.add_argument("--data")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--no-colmap", action="store_true")
+    ap.add_argument("--refine-ties", default="off", help="passed to our survey (off | lsm)")
     ap.add_argument("--scale", type=int, default=0, help="final-adjustment benchmark of a synthetic block of N frames")
     ap.add_argument("--colmap-child", nargs=2, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
