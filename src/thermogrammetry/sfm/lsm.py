@@ -136,6 +136,25 @@ def _prepare(image, sigma: float) -> np.ndarray:
     return cv2.GaussianBlur(a, (0, 0), sigma) if sigma > 0 else a
 
 
+@dataclass
+class _Frame:
+    """A frame prepared once for matching: smoothed image, its cubic B-spline coefficients, gradients, noise."""
+
+    img: np.ndarray
+    coeffs: np.ndarray
+    gx: np.ndarray
+    gy: np.ndarray
+    noise: float
+
+
+def _frame(image, sigma: float) -> _Frame:
+    from scipy.ndimage import spline_filter
+
+    a = _prepare(image, sigma)
+    gy, gx = np.gradient(a)
+    return _Frame(a, spline_filter(np.asarray(a, np.float64), order=3), gx.astype(np.float32), gy.astype(np.float32), _noise(a))
+
+
 def _noise(img: np.ndarray) -> float:
     import cv2
 
@@ -179,7 +198,7 @@ def _sample_spline(coeffs: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarr
     return np.where(inside, v, np.nan)
 
 
-def lsm_affine(ref_img, ref_xy, img, xy0, A0=None, options: LsmOptions | None = None, *, _prepared: bool = False) -> LsmResult:
+def lsm_affine(ref_img, ref_xy, img, xy0, A0=None, options: LsmOptions | None = None) -> LsmResult:
     """Affine least-squares matching of patches around ``ref_xy`` in ``ref_img`` to ``img`` near ``xy0``.
 
     Parameters
@@ -194,8 +213,8 @@ def lsm_affine(ref_img, ref_xy, img, xy0, A0=None, options: LsmOptions | None = 
     LsmResult
     """
     opt = options or LsmOptions()
-    R = ref_img if _prepared else _prepare(ref_img, opt.smooth_sigma_px)
-    T = img if _prepared else _prepare(img, opt.smooth_sigma_px)
+    Rf = ref_img if isinstance(ref_img, _Frame) else _frame(ref_img, opt.smooth_sigma_px)
+    Tf = img if isinstance(img, _Frame) else _frame(img, opt.smooth_sigma_px)
     ref_xy = np.asarray(ref_xy, float).reshape(-1, 2)
     x = np.asarray(xy0, float).reshape(-1, 2).copy()
     K = len(x)
@@ -208,30 +227,23 @@ def lsm_affine(ref_img, ref_xy, img, xy0, A0=None, options: LsmOptions | None = 
     ncc = np.full(K, np.nan)
     if K == 0:
         return LsmResult(x, A, ncc, np.zeros(0, bool), reason.astype(str), np.zeros(0, bool))
-    from scipy.ndimage import spline_filter
-
-    Rc = spline_filter(np.asarray(R, np.float64), order=3)
-    Tc = spline_filter(np.asarray(T, np.float64), order=3)
-    ref = _sample_spline(Rc, ref_xy[:, :1] + ux, ref_xy[:, 1:] + uy)  # (K, P)
+    Tc, gx_img, gy_img = Tf.coeffs, Tf.gx, Tf.gy
+    ref = _sample_spline(Rf.coeffs, ref_xy[:, :1] + ux, ref_xy[:, 1:] + uy)  # (K, P)
     rm = ref.mean(axis=1, keepdims=True)
     rs = ref.std(axis=1, keepdims=True)
-    noise = _noise(R)
-    flat = ~(rs[:, 0] > opt.min_contrast * noise) | ~np.isfinite(ref).all(axis=1)
+    flat = ~(rs[:, 0] > opt.min_contrast * Rf.noise) | ~np.isfinite(ref).all(axis=1)
     reason[flat] = "patch without texture or outside the frame"
-    gy_img, gx_img = np.gradient(T)
-    gx_img, gy_img = gx_img.astype(np.float32), gy_img.astype(np.float32)
-    # aperture: a patch on a straight edge fixes the position across the edge only
-    gyr, gxr = np.gradient(R)
-    sx = _sample(gxr.astype(np.float32), ref_xy[:, :1] + ux, ref_xy[:, 1:] + uy).astype(float)
-    sy = _sample(gyr.astype(np.float32), ref_xy[:, :1] + ux, ref_xy[:, 1:] + uy).astype(float)
-    a11, a12, a22 = np.nansum(sx * sx, 1), np.nansum(sx * sy, 1), np.nansum(sy * sy, 1)
-    tr_ = a11 + a22
-    lam_min = 0.5 * (tr_ - np.sqrt((a11 - a22) ** 2 + 4 * a12**2))
-    lam_max = tr_ - lam_min
-    edge = ~flat & ~(lam_min > opt.min_isotropy * lam_max)
-    reason[edge] = f"edge-like patch (gradient isotropy below {opt.min_isotropy})"
     unrefinable = flat.copy()  # no texture: the keypoint is all there is
-    flat = flat | edge
+    if opt.min_isotropy > 0:
+        # aperture: a patch on a straight edge fixes the position across the edge only
+        sx = _sample(Rf.gx, ref_xy[:, :1] + ux, ref_xy[:, 1:] + uy)
+        sy = _sample(Rf.gy, ref_xy[:, :1] + ux, ref_xy[:, 1:] + uy)
+        a11, a12, a22 = np.nansum(sx * sx, 1), np.nansum(sx * sy, 1), np.nansum(sy * sy, 1)
+        tr_ = a11 + a22
+        lam_min = 0.5 * (tr_ - np.sqrt((a11 - a22) ** 2 + 4 * a12**2))
+        edge = ~flat & ~(lam_min > opt.min_isotropy * (tr_ - lam_min))
+        reason[edge] = f"edge-like patch (gradient isotropy below {opt.min_isotropy})"
+        flat = flat | edge
     active = ~flat
     g = np.ones(K)
     o = np.zeros(K)
@@ -315,7 +327,7 @@ def _start_affine(size_r, angle_r, size_t, angle_t) -> np.ndarray:
 
 
 def refine_tracks(tracks, xy_by_image, load_image: Callable[[int], np.ndarray], *, size_by_image=None, angle_by_image=None,
-                  options: LsmOptions | None = None, cache_images: int = 8) -> tuple[list, dict]:
+                  options: LsmOptions | None = None, cache_images: int = 16) -> tuple[list, "object", dict]:
     """Refine every non-reference observation of every track by :func:`lsm_affine` against the reference.
 
     Parameters
@@ -356,7 +368,7 @@ def refine_tracks(tracks, xy_by_image, load_image: Callable[[int], np.ndarray], 
         if i in cache:
             cache.move_to_end(i)
             return cache[i]
-        a = _prepare(load_image(int(i)), opt.smooth_sigma_px)
+        a = _frame(load_image(int(i)), opt.smooth_sigma_px)
         cache[i] = a
         if len(cache) > cache_images:
             cache.popitem(last=False)
@@ -366,7 +378,9 @@ def refine_tracks(tracks, xy_by_image, load_image: Callable[[int], np.ndarray], 
     failed = np.zeros(len(tr), bool)
     n_ok = 0
     shifts = []
-    for (ri, ti) in np.unique(pairs, axis=0):
+    up = np.unique(pairs, axis=0)
+    up = up[np.lexsort((up.max(axis=1), up.min(axis=1)))]  # neighbouring images together: the frame cache hits
+    for (ri, ti) in up:
         sel = tgt[(pairs[:, 0] == ri) & (pairs[:, 1] == ti)]
         rsel = ref_of_obs[sel]
         rxy = xy_by_image[ri][fe[rsel]]
@@ -375,7 +389,7 @@ def refine_tracks(tracks, xy_by_image, load_image: Callable[[int], np.ndarray], 
         if size_by_image is not None and angle_by_image is not None:
             A0 = _start_affine(size_by_image[ri][fe[rsel]], angle_by_image[ri][fe[rsel]],
                                size_by_image[ti][fe[sel]], angle_by_image[ti][fe[sel]])
-        res = lsm_affine(get(ri), rxy, get(ti), txy, A0, opt, _prepared=True)
+        res = lsm_affine(get(ri), rxy, get(ti), txy, A0, opt)
         xy_out[ti][fe[sel[res.ok]]] = res.xy[res.ok]
         if opt.drop_failed:
             failed[sel[~res.ok & ~res.unrefinable]] = True
