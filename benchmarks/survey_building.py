@@ -8,7 +8,7 @@ reprojection RMS of the survey's own tracks re-triangulated with the TRUE poses 
 
 Usage::
 
-    python benchmarks/survey_building.py --stations 40 64 96 [--detail | --no-detail] [--workers 1]
+    python benchmarks/survey_building.py --stations 40 64 96 [--detail | --no-detail] [--workers 1] [--refine-ties lsm]
 
 Measured 2026-11-25 (facade detail on, see the closing note): 40 stations 13/40 oriented (rotations 2.3° RMS off);
 64 → 59/64, RMS 0.70 px, rotations 1.0° RMS off; 96 → 96/96, RMS 0.76 px, rotations 0.71° RMS off; smooth walls
@@ -86,20 +86,21 @@ def main(argv=None) -> int:
     ap.add_argument("--stations", type=int, nargs="+", default=[40, 64, 96])
     ap.add_argument("--detail", action=argparse.BooleanOptionalAction, default=True, help="windows, door, spots")
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--refine-ties", default="off", help="passed to survey (off | lsm)")
     a = ap.parse_args(argv)
-    print(f"| stations | facade detail | oriented | survey s | RMS px | tracks vs TRUE poses RMS px | centre RMS x/y/z m "
+    print(f"| stations | facade detail | tie refinement | oriented | survey s | RMS px | tracks vs TRUE poses RMS px | centre RMS x/y/z m "
           "(vs truth) | rotation RMS / max deg (vs truth) |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for n in a.stations:
         with tempfile.TemporaryDirectory(prefix="tg_bench_building_") as tmp:
             d = Path(tmp)
             sc = _render(n, a.detail, d)
             t0 = time.perf_counter()
             rc = tg(["survey", str(d / "frames"), "-o", str(d / "out"), "--input-unit", "K", "--camera", str(d / "camera.json"),
-                     "--gnss", str(d / "gnss.csv"), "--workers", str(a.workers)])
+                     "--gnss", str(d / "gnss.csv"), "--workers", str(a.workers), "--refine-ties", a.refine_ties])
             secs = time.perf_counter() - t0
             if rc != 0 or not (d / "out" / "cameras.json").exists():
-                print(f"| {n} | {a.detail} | survey exit {rc} | {secs:.0f} | | | | |")
+                print(f"| {n} | {a.detail} | {a.refine_ties} | survey exit {rc} | {secs:.0f} | | | | |")
                 continue
             s = json.loads((d / "out" / "survey.json").read_text())
             cams = json.loads((d / "out" / "cameras.json").read_text())["images"]
@@ -115,7 +116,7 @@ def main(argv=None) -> int:
             rr = f"{np.sqrt(np.mean(ang**2)):.2f} / {ang.max():.2f}" if len(ang) else "-"
             rms = s["reprojection_rms_px"]
             tv = _tracks_rms_true_poses(sc, d / "out") if len(dc) else float("nan")
-            print(f"| {n} | {a.detail} | {s['images_oriented']}/{s['images_total']} {s['components']} | {secs:.0f} | "
+            print(f"| {n} | {a.detail} | {a.refine_ties} | {s['images_oriented']}/{s['images_total']} {s['components']} | {secs:.0f} | "
                   f"{rms if rms is None else round(rms, 3)} | {tv:.3f} | {cr} | {rr} |")
     return 0
 

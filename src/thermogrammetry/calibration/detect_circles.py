@@ -253,16 +253,20 @@ def circle_shape_matrices(H: np.ndarray, centres_mm: np.ndarray, radius_mm: floa
 
 
 def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.ndarray, bright: bool, *,
-                        n_rays: int = 180, blur_px: float = 2.0, iterations: int = 8, tol_px: float = 1e-3):
+                        n_rays: int = 180, blur_px: float = 2.0, iterations: int = 8, tol_px: float = 1e-3,
+                        level_slope: bool = True):
     """Sub-pixel disc centres from the disc's outline: the area centroid of the polygon of sub-pixel
     edge points (each the mid-level crossing of a ray's profile between its own local disc and
     background levels).
 
     Along ``n_rays`` rays from the current centre the image is sampled (bicubic, 0.2 px steps); on
     each ray the edge is the steepest step of the right sign near the expected outline, the disc level
-    the median of the profile inside it (``0.45 e .. e - blur_px``), the background the median just
-    outside (``e + blur_px`` onwards, ``max(3 px, 0.3 e)`` long: clear of the neighbouring discs of a
-    grid with gap ≥ the radius), and the edge point the crossing of their mean (linear interpolation).
+    a straight line through the profile inside it (``0.45 e .. e - blur_px``) and the background a line
+    through the profile just outside (``e + blur_px`` onwards, ``max(3 px, 0.3 e)`` long: clear of the
+    neighbouring discs of a grid with gap ≥ the radius), both evaluated at the edge (``level_slope``;
+    False: their medians), and the edge point the crossing of their mean (linear interpolation). The
+    lines follow a background slope along the ray: under an 8 K hot spot on a 1 K contrast they cut the
+    centre error from 0.14 to 0.028 px RMS (``tests/test_detect_circles_lowcontrast.py`` views).
     A blur by a symmetric PSF puts the mid-level crossing of a straight step on the step, and the
     per-ray levels follow a non-uniform mask or disc temperature (which bias a moment centroid:
     ~0.05 px for a 0.3 K / 100 mm gradient on a 14 K contrast). Edge points off a least-squares
@@ -280,6 +284,7 @@ def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.nd
     bright : bool -- discs brighter than their surround
     n_rays : rays per disc
     blur_px : half-width of the blurred edge kept out of the level estimates (px; ~2.5 PSF σ)
+    level_slope : disc and background levels by lines extrapolated to the edge (default) or by medians
 
     Returns
     -------
@@ -336,7 +341,14 @@ def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.nd
                 inner, outer = p[a_in:b_in + 1], p[a_out:b_out + 1]
                 if not (np.all(np.isfinite(inner)) and np.all(np.isfinite(outer))):
                     continue
-                li, lo_ = np.median(inner), np.median(outer)
+                if level_slope:
+                    # levels extrapolated to the edge along the ray: a background slope (a hot spot,
+                    # vignetting) otherwise moves the mid level by slope x the segment's offset
+                    si, so = s[a_in:b_in + 1] - e, s[a_out:b_out + 1] - e
+                    li = float(np.polyval(np.polyfit(si, inner, 1), 0.0))
+                    lo_ = float(np.polyval(np.polyfit(so, outer, 1), 0.0))
+                else:
+                    li, lo_ = np.median(inner), np.median(outer)
                 if sgn * (lo_ - li) <= 0:
                     continue
                 mid = 0.5 * (li + lo_)

@@ -99,6 +99,9 @@ def survey(
                                     "try the low-texture tie points (sensor fixed pattern estimated from the frames and "
                                     "removed, more SIFT features, homography-guided matching). Not safe on periodic "
                                     "facades (identical windows can be matched to their neighbours)."),
+    refine_ties: str = typer.Option("off", "--refine-ties", help="lsm: move every tie observation onto its track's "
+                                    "reference patch by affine least-squares matching before the orientation (sharper "
+                                    "tie points on smooth thermal blobs; measured mixed, see sfm/lsm.py). off: keypoints."),
 ) -> None:
     """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report."""
     from rich.console import Console
@@ -153,6 +156,12 @@ def survey(
                 if min(v) <= 0:
                     raise ThermogrammetryError(f"{flag} {val!r}: standard deviations must be > 0")
                 extra["gnss_sigma_m"] = tuple(v if len(v) == 3 else (v[0], v[0], v[1]))
+        if refine_ties.lower() not in ("off", "lsm"):
+            raise ThermogrammetryError(f"--refine-ties {refine_ties!r}: expected off or lsm")
+        if refine_ties.lower() == "lsm":
+            from ..sfm.lsm import LsmOptions
+
+            extra["tie_refinement"] = LsmOptions()
         opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, **extra, workers=workers if scheduler is None else 0,
                             scheduler=scheduler)
         inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,

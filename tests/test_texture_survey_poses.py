@@ -1,0 +1,99 @@
+"""Issue 12 must-show with poses from ``survey``: a ring of 64 terrestrial thermal views around the synthetic
+building with facade detail (windows, door, spots; an occluder in front of the south wall).
+
+``survey`` sees only what a user has: the 64 float32 kelvin frames (sensor noise, PSF, fixed pattern), the
+camera file from ``calibrate`` and an RTK GNSS CSV (true centres + seeded N(0, 3 cm) noise), with
+``--refine-ties lsm``. The scene's truth is used only to evaluate. The texture is then taken from noise-free
+renderings of the same stations placed at the ESTIMATED poses, so that the texel errors measure the pose errors.
+
+Measured (2026-11-25): 64/64 oriented, rotation error RMS 0.64° (max 3.0°), centres 7.6/3.0/4.9 cm RMS; 152,736
+clean wall texels (≥ 2 pixel footprints from a window/door edge): |error| median 0.017 K, 99th percentile
+0.13 K, max 0.40 K, 99.88 % within 0.2 K; 99.3 % of the faces seen by a view textured. The issue's "within 0.2 K"
+holds for 99.9 % of the texels, not for all: a 0.6° rotation moves a texel by ~3 px. On the same ring with a
+larger ground (``benchmarks/survey_building.py``) the refinement took the rotations from 1.0° to 0.43° RMS and
+the share of texels within 0.2 K from 82 % to 99.9 %.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from thermogrammetry.geometry import Pose
+from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
+from thermogrammetry.synthetic.building import (GROUPS, BuildingConfig, apparent_temperature, discontinuity_distance,
+                                                make_building, render_building_thermal)
+
+N_STATIONS = 64
+
+
+@pytest.fixture(scope="module")
+def ring(tmp_path_factory):
+    import tifffile
+
+    from thermogrammetry.cli.main import main
+
+    root = tmp_path_factory.mktemp("ring")
+    sc = make_building(BuildingConfig(n_stations=N_STATIONS, facade_detail=True, ground_margin_m=1.0))
+    (root / "frames").mkdir()
+    rng = np.random.default_rng(1)
+    rows = ["image,X,Y,Z,sX,sY,sZ"]
+    for k, (name, pose) in enumerate(sc.stations):
+        tifffile.imwrite(root / "frames" / f"{name}.tif", render_building_thermal(sc, k)["image_k"].astype(np.float32))
+        C = pose.center + rng.normal(0, 0.03, 3)
+        rows.append(f"{name},{C[0]:.4f},{C[1]:.4f},{C[2]:.4f},0.03,0.03,0.05")
+    (root / "gnss.csv").write_text("\n".join(rows) + "\n")
+    sc.thermal.save(root / "camera.json")
+    out = root / "out"
+    code = main(["survey", str(root / "frames"), "-o", str(out), "--input-unit", "K", "--camera", str(root / "camera.json"),
+                 "--gnss", str(root / "gnss.csv"), "--workers", "0", "--refine-ties", "lsm"])
+    return sc, out, code
+
+
+def test_survey_orients_the_ring(ring):
+    from scipy.spatial.transform import Rotation
+
+    sc, out, code = ring
+    assert code == 0
+    s = json.loads((out / "survey.json").read_text())
+    assert s["images_oriented"] == N_STATIONS and s["components"] == [N_STATIONS]
+    truth = dict(sc.stations)
+    cams = json.loads((out / "cameras.json").read_text())["images"]
+    dc = np.array([np.array(c["center"]) - truth[c["name"]].center for c in cams])
+    ang = np.array([np.degrees(Rotation.from_matrix(np.array(c["cam_from_world"]["R"]) @ truth[c["name"]].R.T).magnitude())
+                    for c in cams])
+    # GNSS σ 3/3/5 cm: measured 7.6/3.0/4.9 cm, i.e. worse than the GNSS along x (the ring's weak links at the
+    # occluder); the bound is the measurement with a margin, not the GNSS
+    assert np.all(np.sqrt(np.mean(dc**2, axis=0)) < [0.1, 0.05, 0.07])
+    assert np.sqrt(np.mean(ang**2)) < 1.0  # measured 0.64° RMS, max 3.0°
+
+
+def test_texture_from_survey_poses(ring):
+    sc, out, code = ring
+    cams = {c["name"]: c for c in json.loads((out / "cameras.json").read_text())["images"]}
+    views, true_c = [], []
+    for k, (name, pose) in enumerate(sc.stations):
+        c = cams[name]
+        img = render_building_thermal(sc, k, sensor=False)["image_k"]
+        views.append(TextureView(name, sc.thermal, Pose(np.array(c["cam_from_world"]["R"]), np.array(c["cam_from_world"]["t"])), img))
+        true_c.append(pose.center)
+    res = texture_mesh(sc.vertices, sc.faces, views, TextureConfig(texel_size_m=0.04, clean_radius_px=3))
+    sel, tx = res.texel_selection, res.texels
+    ok = sel.source >= 0
+    P, F = tx.points[ok], tx.face[ok]
+    C = np.array(true_c)[sel.source[ok]]
+    err = np.abs(sel.temperature_k[ok] - apparent_temperature(sc, P, F, C))
+    v = C - P
+    dist = np.linalg.norm(v, axis=1)
+    cos_t = np.abs(np.einsum("ij,ij->i", sc.face_normals[F], v / dist[:, None]))
+    foot = dist / sc.thermal.K[0, 0] / np.maximum(cos_t, 0.2)
+    clean = (discontinuity_distance(sc, P, sc.face_group[F]) > 2.0 * foot) & (sc.face_group[F] == GROUPS.index("wall"))
+    e = err[clean]
+    assert len(e) > 100_000
+    assert np.median(e) < 0.03  # measured 0.017 K
+    assert np.percentile(e, 99) < 0.2  # measured 0.13 K
+    assert np.mean(e <= 0.2) > 0.995  # measured 0.9988
+    seen = res.face_views > 0
+    assert np.mean(res.faces_textured[seen]) >= 0.98  # measured 0.993
