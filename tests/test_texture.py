@@ -260,6 +260,27 @@ def test_cli_texture_outputs(cli_out, scene, views):
     assert "map_Kd textured.png" in (out / "textured.mtl").read_text()
 
 
+def test_cli_clean_radius_follows_the_pose_uncertainty(cli_out, tmp_path):
+    """cameras.json with rotation σ (as survey writes it): the clean-pixel radius becomes 3 σ in pixels."""
+    import shutil
+
+    from thermogrammetry.cli.main import main
+
+    survey, _ = cli_out
+    s2 = tmp_path / "survey"
+    shutil.copytree(survey, s2)
+    d = json.loads((s2 / "cameras.json").read_text())
+    for im in d["images"]:
+        im["rotation_std_deg"] = [0.1, 0.2, 0.15]
+    (s2 / "cameras.json").write_text(json.dumps(d))
+    out = tmp_path / "out"
+    assert main(["texture", str(s2), "--mesh", str(s2 / "mesh.obj"), "-o", str(out), "--texel-size", "0.1"]) == 0
+    cr = json.loads((out / "texture.json").read_text())["clean_radius_px"]
+    assert cr["value"] == int(np.ceil(3 * 285.0 * np.deg2rad(0.2))) == 3 and "σ" in cr["reason"]  # median of per-view max σ
+    ref = json.loads((cli_out[1] / "texture.json").read_text())["clean_radius_px"]
+    assert ref == {"value": 1, "reason": "default"}  # true poses without σ: unchanged
+
+
 def test_cli_texture_levelling_offsets_reported(cli_out, tmp_path):
     from thermogrammetry.cli.main import main
 

@@ -204,6 +204,40 @@ def texture_report_html(result, views, skipped, unit: str) -> str:
 </body></html>"""
 
 
+def clean_radius_from_poses(cfg, cameras, views, *, n_sigma: float = 3.0, max_px: int = 8):
+    """Widen the texture's clean-pixel test by the pose uncertainty of the survey (``rotation_std_deg``).
+
+    A texel is taken from an image only when the pixels around its footprint (``clean_radius_px``) see the
+    texel's own surface; with estimated poses, a silhouette (the occluder, the building's edge against the sky)
+    lands a few pixels away from where the mesh puts it. The radius becomes ``ceil(n_sigma · f · σ_rot)`` with the
+    median over the views of each view's largest rotation σ (px, at least the configured radius, at most
+    ``max_px``). The largest σ of the block instead (1.37 px there) gave radius 5 and only 94.2 % of the seen faces
+    textured.
+
+    Measured on the 64-view synthetic building ring with survey poses (rotations 0.43° RMS off, reported σ
+    0.1–0.35°): radius 1 left texels up to 31 K wrong (through the occluder's edge) and 99.73 % within 0.2 K;
+    radius 3 gave a 1.8 K maximum and 99.89 % within 0.2 K, with 99.45 % of the seen faces still textured.
+
+    Returns ``(config, note or None)``.
+    """
+    from dataclasses import replace
+
+    names = {v.name for v in views}
+    px = []
+    for im in cameras:
+        if im.name in names and im.rotation_std_deg is not None and np.all(np.isfinite(im.rotation_std_deg)):
+            cam = cameras.camera_of(im)
+            px.append(float(np.mean(np.diag(cam.K)[:2])) * np.deg2rad(float(np.max(im.rotation_std_deg))))
+    if not px:
+        return cfg, None
+    med = float(np.median(px))
+    r = int(min(max_px, max(cfg.clean_radius_px, np.ceil(n_sigma * med))))
+    if r == cfg.clean_radius_px:
+        return cfg, None
+    return replace(cfg, clean_radius_px=r), (f"{n_sigma:g} × the median pose rotation σ ({med:.2f} px) from cameras.json: "
+                                             "texels within that distance of a silhouette are not taken")
+
+
 def run_texture(survey_dir, mesh_path, out_dir, *, unit: str = "K", correct: bool = False, levelling: str = "none",
                 rig_path=None, config=None, progress=None) -> dict:
     """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict."""
@@ -234,6 +268,7 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str = "K", correct: boo
         raise InvalidInputError(f"{survey_dir}: no usable thermal image in kelvin ({why or 'cameras.json lists none'})")
     cfg = config or TextureConfig()
     cfg = replace(cfg, correct=bool(correct), levelling=levelling)
+    cfg, clean_note = clean_radius_from_poses(cfg, cameras, views)  # only ever widens the configured radius
     result = texture_mesh(V, F, views, cfg)
     store = FolderProject(out_dir)
     t_unit = from_kelvin(result.temperature_k, u).astype(np.float32)
@@ -256,7 +291,8 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str = "K", correct: boo
     extra = {"skipped": [{"image": n, "reason": r} for n, r in skipped],
              "uint16_mapping": None if mapping is None else {"scale": mapping.scale, "offset": mapping.offset, "unit": u.value,
                                                              "nodata_code": 0},
-             "rig": None if rig_path is None else str(rig_path)}
+             "rig": None if rig_path is None else str(rig_path),
+             "clean_radius_px": {"value": int(cfg.clean_radius_px), "reason": clean_note or "default"}}
     text = tx.texture_json(result, u.value, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
     store.write_text("texture.json", text)
     store.write_text("report.html", texture_report_html(result, views, skipped, u.value))
