@@ -43,6 +43,7 @@ import numpy as np
 from .errors import ConfigError
 
 __all__ = [
+    "circle_centroid_bias",
     "SURROUND",
     "BOARD",
     "FEATURE",
@@ -564,3 +565,30 @@ def as_target(obj, name: str = "target"):
         return inner
     raise ConfigError(f"{name}={obj!r}: expected a ChessboardTarget, CircleGridTarget or CodedCheckerboardTarget "
                       "(thermogrammetry.targets)")
+
+
+def circle_centroid_bias(camera, R: np.ndarray, t: np.ndarray, centres_m: np.ndarray, radius_m: float,
+                         n_outline: int = 256) -> np.ndarray:
+    """Centroid of each imaged circle minus the image of its centre, (N, 2) px.
+
+    Parameters
+    ----------
+    camera : thermogrammetry.Camera (any model; its ``project`` includes the distortion)
+    R, t : cam_from_target rotation (3, 3) and translation (3,), metres.
+    centres_m : (N, 3) circle centres in the target plane (z = 0), metres.
+    radius_m : circle radius, metres.
+    n_outline : points on each outline (the polygon's area centroid converges as 1/n²).
+    """
+    a = np.linspace(0.0, 2 * np.pi, n_outline, endpoint=False)
+    ring = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)]) * radius_m
+    c = np.asarray(centres_m, float)
+    pts = (c[:, None, :] + ring[None]).reshape(-1, 3)
+    xy = camera.project(pts @ R.T + t).reshape(len(c), n_outline, 2)
+    x, y = xy[..., 0], xy[..., 1]
+    x1, y1 = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
+    cr = x * y1 - x1 * y
+    A = 0.5 * cr.sum(axis=1)
+    cx = ((x + x1) * cr).sum(axis=1) / (6 * A)
+    cy = ((y + y1) * cr).sum(axis=1) / (6 * A)
+    centre = camera.project(c @ R.T + t)
+    return np.column_stack([cx, cy]) - centre

@@ -15,7 +15,7 @@ what it sees; the pixel's signal is the mean band radiance of its samples (radia
 then blur, temperature conversion, noise and quantisation. The truth is the projection of every
 circle's centre through the full model (``points_px``); the area centroid of each imaged circle
 (what a centroid or edge-polygon measurement converges to) is ``points_px +``
-:func:`~thermogrammetry.calibration.circle_bias.circle_centroid_bias` of the true camera and pose.
+:func:`~thermogrammetry.targets.circle_centroid_bias` of the true camera and pose.
 The rendered discs' radiance-coverage centroids agree with that to < 0.012 px at S = 4, < 0.01 px at
 S = 6 (the default; ``tests/test_maskgrid_replica.py``) and < 0.002 px at S = 12.
 
@@ -207,7 +207,7 @@ def make_mask_grid_replica(n_views: int = 24, seed: int = 2026, *, supersample: 
     **scene : ``temperatures``, ``gradient``, ``plate_rim_mm`` of :func:`render_mask_grid_view`
     fill_range : (min, max) fraction of the frame covered by the plate (its distorted image, clipped by the frame)
     """
-    from ..calibration.circle_bias import circle_centroid_bias
+    from ..targets import circle_centroid_bias
     from ..camera import Camera
 
     cam = Camera("photogrammetric", (640, 512), dict(params or MASK_GRID_CAMERA), pixel_pitch_um=17.0)
