@@ -123,7 +123,7 @@ class SurveyOptions:
         rotation error RMS 64 stations 1.00° → 0.43° (59 → 64/64 oriented), 96 stations 0.71° → 0.47°,
         40 stations 2.3° → 1.9° (13/40 either way); real DJI M3T flight: RMS 0.452 → 0.325 px, but camera
         centres against RTK X/Y/Z 4.1/2.2/4.3 → 7.4/3.5/4.4 cm, self-calibrated fx 981 ± 5 → 964 ± 4 px, and
-        the orientation step 18 → 65 s (cubic B-spline sampling).
+        the orientation step 18.6 → 36.4 s (loaded machine).
     workers : int
         0 = in-process; N = local dask cluster of N worker processes.
     scheduler : str or None

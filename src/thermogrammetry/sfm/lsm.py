@@ -24,7 +24,7 @@ Measured (2026-11-25; off by default in ``survey``, ``--refine-ties lsm`` turns 
 tracks re-triangulated with the true poses drop from 0.94 to 0.66 px RMS and the rotation errors from 1.00° to
 0.43° RMS (64 stations; 96 stations 0.71° → 0.47°); on the real DJI M3T flight the reprojection RMS drops from
 0.452 to 0.325 px but the camera centres move away from the RTK positions (X 4.1 → 7.4 cm) and the self-calibrated
-focal length by 3σ, which is not understood yet; the orientation step takes 3.5× longer.
+focal length by 3σ, which is not understood yet; the orientation step takes about 2× longer (18.6 → 36.4 s).
 
 Frames: pixel positions in OpenCV's convention ((0, 0) = centre of the top-left pixel), like the keypoints.
 
