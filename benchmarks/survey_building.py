@@ -32,20 +32,14 @@ import numpy as np
 
 
 def _render(n: int, detail: bool, out: Path):
-    import tifffile
-
-    from thermogrammetry.synthetic.building import BuildingConfig, make_building, render_building_thermal
+    from thermogrammetry.pipeline.project import FolderProject
+    from thermogrammetry.synthetic.building import (BuildingConfig, make_building, write_building_survey,
+                                                    write_building_user_files)
 
     sc = make_building(BuildingConfig(n_stations=n, facade_detail=detail))
-    (out / "frames").mkdir(parents=True)
-    rng = np.random.default_rng(1)
-    rows = ["image,X,Y,Z,sX,sY,sZ"]
-    for k, (name, pose) in enumerate(sc.stations):
-        tifffile.imwrite(out / "frames" / f"{name}.tif", render_building_thermal(sc, k)["image_k"].astype(np.float32))
-        C = pose.center + rng.normal(0, 0.03, 3)
-        rows.append(f"{name},{C[0]:.4f},{C[1]:.4f},{C[2]:.4f},0.03,0.03,0.05")
-    (out / "gnss.csv").write_text("\n".join(rows) + "\n")
-    sc.thermal.save(out / "camera.json")
+    project = FolderProject(out)
+    write_building_survey(project, sc)  # frames/ (and the truth, which the survey is not given)
+    write_building_user_files(project, sc)  # gnss.csv, camera.json
     return sc
 
 

@@ -93,3 +93,24 @@ def test_texture_of_a_facade_with_windows_true_poses(scene):
     assert ok.sum() > 100_000 and 0.8 < clean[wall].mean() < 0.99  # windows take a real share of the walls
     assert np.max(np.abs(err[clean])) < 0.05
     assert np.max(np.abs(err[~clean])) > 1.0  # the excluded texels do mix both sides of an edge
+
+
+def test_user_files_hold_noisy_gnss_and_the_camera():
+    """gnss.csv: the true centres + N(0, 3 cm) per axis (seeded), σ columns as given; camera.json: the true camera."""
+    from thermogrammetry.camera import Camera
+    from thermogrammetry.pipeline.project import MemoryProject
+    from thermogrammetry.synthetic.building import write_building_user_files
+
+    sc = make_building(BuildingConfig(n_stations=40))
+    proj = MemoryProject()
+    write_building_user_files(proj, sc)
+    lines = proj.read_text("gnss.csv").splitlines()
+    assert lines[0] == "image,X,Y,Z,sX,sY,sZ" and len(lines) == 41
+    rows = [ln.split(",") for ln in lines[1:]]
+    assert [r[0] for r in rows] == [n for n, _ in sc.stations]
+    d = np.array([[float(v) for v in r[1:4]] for r in rows]) - np.array([p.center for _, p in sc.stations])
+    rms = np.sqrt(np.mean(d**2))
+    assert 0.02 < rms < 0.04  # 120 draws of N(0, 0.03²): the RMS lies within ±20 % with > 99 % probability
+    assert all(r[4:] == ["0.03", "0.03", "0.05"] for r in rows)
+    cam = Camera.from_dict(proj.read_json("camera.json"))
+    assert cam.image_size == sc.thermal.image_size and cam["fx"] == sc.thermal["fx"]

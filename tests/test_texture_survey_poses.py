@@ -24,28 +24,22 @@ import pytest
 from thermogrammetry.geometry import Pose
 from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
 from thermogrammetry.synthetic.building import (GROUPS, BuildingConfig, apparent_temperature, discontinuity_distance,
-                                                make_building, render_building_thermal)
+                                                make_building, render_building_thermal, write_building_survey,
+                                                write_building_user_files)
 
 N_STATIONS = 64
 
 
 @pytest.fixture(scope="module")
 def ring(tmp_path_factory):
-    import tifffile
-
     from thermogrammetry.cli.main import main
+    from thermogrammetry.pipeline.project import FolderProject
 
     root = tmp_path_factory.mktemp("ring")
     sc = make_building(BuildingConfig(n_stations=N_STATIONS, facade_detail=True, ground_margin_m=1.0))
-    (root / "frames").mkdir()
-    rng = np.random.default_rng(1)
-    rows = ["image,X,Y,Z,sX,sY,sZ"]
-    for k, (name, pose) in enumerate(sc.stations):
-        tifffile.imwrite(root / "frames" / f"{name}.tif", render_building_thermal(sc, k)["image_k"].astype(np.float32))
-        C = pose.center + rng.normal(0, 0.03, 3)
-        rows.append(f"{name},{C[0]:.4f},{C[1]:.4f},{C[2]:.4f},0.03,0.03,0.05")
-    (root / "gnss.csv").write_text("\n".join(rows) + "\n")
-    sc.thermal.save(root / "camera.json")
+    project = FolderProject(root)
+    write_building_survey(project, sc)  # frames/ (and the truth, which the survey is not given)
+    write_building_user_files(project, sc)  # gnss.csv (3 cm noise), camera.json
     out = root / "out"
     code = main(["survey", str(root / "frames"), "-o", str(out), "--input-unit", "K", "--camera", str(root / "camera.json"),
                  "--gnss", str(root / "gnss.csv"), "--workers", "0", "--refine-ties", "lsm"])

@@ -749,7 +749,14 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
     cams, cam_ids = _initial_cameras(inputs, camera, rgb_camera)
     cam_list = list(cams)
     image_camera = np.array([cam_list.index(c) for c in cam_ids])
-    xy = [_load_npz(project, f"features/{n}.npz")["xy"] for n in names]
+    refine = opt.tie_refinement is not None
+    xy, size, angle = [], [], []
+    for n in names:  # one read per file; size and angle only for the refinement (descriptors are dropped)
+        z = _load_npz(project, f"features/{n}.npz")
+        xy.append(z["xy"])
+        if refine:
+            size.append(z["size"])
+            angle.append(z["angle"])
     pairs = []
     pc = {}
     for i, j, npu, nv, reason in project.read_json("work/pairs.json")["pairs"]:
@@ -760,17 +767,12 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
         pc[(i, j)] = len(idx)
     tracks = build_tracks([int(counts[n]) for n in names], pairs)
     refinement = None
-    if opt.tie_refinement is not None and len(tracks.track):
+    if refine and len(tracks.track):
         from ..sfm.lsm import refine_tracks
 
-        size, angle = [], []
-        for n in names:
-            z = _load_npz(project, f"features/{n}.npz")
-            size.append(z["size"])
-            angle.append(z["angle"])
         xy, tracks, refinement = refine_tracks(tracks, xy, lambda i: _read_frame(project, names[i]), size_by_image=size,
-                                       angle_by_image=angle, options=opt.tie_refinement)
-        del size, angle
+                                               angle_by_image=angle, options=opt.tie_refinement)
+    del size, angle
     for n, a in zip(names, xy):  # what orient used, for georef and the exports (a rerun starts from the keypoints)
         _save_npz(project, f"work/tie_xy/{n}.npz", xy=a)
     ropt = opt.reconstruction

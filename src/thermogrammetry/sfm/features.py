@@ -133,6 +133,24 @@ class Features:
         return cls(np.asarray(d["xy"], float), np.asarray(d["size"]), np.asarray(d["angle"]), np.asarray(d["descriptors"]))
 
 
+def laplacian_noise(image: np.ndarray, valid: np.ndarray | None = None) -> float:
+    """Standard deviation of white noise in a frame (its unit), from the MAD of its Laplacian.
+
+    Parameters
+    ----------
+    image : (H, W) float32 array
+    valid : (H, W) bool or None, the pixels to use
+
+    The 3×3 Laplacian has a gain of sqrt(20) on white noise; scene structure is rare enough to leave the
+    median of its absolute deviation to the noise (Immerkær 1996 uses the same idea with another kernel).
+    """
+    import cv2
+
+    lap = cv2.Laplacian(image, cv2.CV_32F)
+    lap = lap[valid] if valid is not None else lap.ravel()
+    return 1.4826 * float(np.median(np.abs(lap - np.median(lap)))) / np.sqrt(20.0)
+
+
 def detector_input(image, options: FeatureOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Map a frame (any dtype, 2D or colour) to the detector's 8-bit input and a validity mask.
 
@@ -165,8 +183,7 @@ def detector_input(image, options: FeatureOptions | None = None) -> tuple[np.nda
         a = a - cv2.GaussianBlur(a, (0, 0), opt.highpass_sigma_px)
     if opt.enhancement is Enhancement.LOCAL:
         d = a - cv2.GaussianBlur(a, (0, 0), opt.local_sigma_px)
-        lap = cv2.Laplacian(a, cv2.CV_32F)[valid]
-        noise = 1.4826 * float(np.median(np.abs(lap - np.median(lap)))) / np.sqrt(20.0)  # Laplacian gain on white noise
+        noise = laplacian_noise(a, valid)
         sd2 = cv2.GaussianBlur(d * d, (0, 0), opt.local_sigma_px)
         n = d / np.sqrt(sd2 + (opt.local_noise_factor * noise) ** 2 + 1e-12)
         # where the local signal is noise alone (sky, fixed-pattern noise that moves with the camera and

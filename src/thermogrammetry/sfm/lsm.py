@@ -44,6 +44,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import ConfigError
+from .tracks import Tracks
 
 __all__ = ["LsmOptions", "LsmResult", "lsm_affine", "refine_tracks"]
 
@@ -138,9 +139,9 @@ def _prepare(image, sigma: float) -> np.ndarray:
 
 @dataclass
 class _Frame:
-    """A frame prepared once for matching: smoothed image, its cubic B-spline coefficients, gradients, noise."""
+    """A frame prepared once for matching: cubic B-spline coefficients of the smoothed image, its gradients and
+    noise."""
 
-    img: np.ndarray
     coeffs: np.ndarray
     gx: np.ndarray
     gy: np.ndarray
@@ -150,16 +151,12 @@ class _Frame:
 def _frame(image, sigma: float) -> _Frame:
     from scipy.ndimage import spline_filter
 
+    from .features import laplacian_noise
+
     a = _prepare(image, sigma)
     gy, gx = np.gradient(a)
-    return _Frame(a, spline_filter(np.asarray(a, np.float64), order=3), gx.astype(np.float32), gy.astype(np.float32), _noise(a))
-
-
-def _noise(img: np.ndarray) -> float:
-    import cv2
-
-    lap = cv2.Laplacian(img, cv2.CV_32F).ravel()
-    return float(1.4826 * np.median(np.abs(lap - np.median(lap))) / np.sqrt(20.0)) + 1e-12
+    return _Frame(spline_filter(np.asarray(a, np.float64), order=3), gx.astype(np.float32), gy.astype(np.float32),
+                  laplacian_noise(a) + 1e-12)
 
 
 def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -248,7 +245,7 @@ def lsm_affine(ref_img, ref_xy, img, xy0, A0=None, options: LsmOptions | None = 
     g = np.ones(K)
     o = np.zeros(K)
     converged = np.zeros(K, bool)
-    for _ in range(int(opt.max_iterations)):
+    for it in range(int(opt.max_iterations)):
         idx = np.nonzero(active & ~converged)[0]
         if len(idx) == 0:
             break
@@ -267,7 +264,7 @@ def lsm_affine(ref_img, ref_xy, img, xy0, A0=None, options: LsmOptions | None = 
             if len(idx) == 0:
                 break
         # radiometric start: gain and offset by linear least squares on the first pass
-        if _ == 0:
+        if it == 0:
             Im = I.mean(axis=1, keepdims=True)
             Is = I.std(axis=1, keepdims=True) + 1e-12
             g[idx] = rs[idx, 0] / Is[:, 0]
@@ -378,10 +375,14 @@ def refine_tracks(tracks, xy_by_image, load_image: Callable[[int], np.ndarray], 
     failed = np.zeros(len(tr), bool)
     n_ok = 0
     shifts = []
-    up = np.unique(pairs, axis=0)
-    up = up[np.lexsort((up.max(axis=1), up.min(axis=1)))]  # neighbouring images together: the frame cache hits
-    for (ri, ti) in up:
-        sel = tgt[(pairs[:, 0] == ri) & (pairs[:, 1] == ti)]
+    up, inv = np.unique(pairs, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    by_pair = np.argsort(inv, kind="stable")  # observations of each image pair, in track order
+    bounds = np.searchsorted(inv[by_pair], np.arange(len(up) + 1))
+    visit = np.lexsort((up.max(axis=1), up.min(axis=1)))  # neighbouring images together: the frame cache hits
+    for p in visit:
+        ri, ti = up[p]
+        sel = tgt[by_pair[bounds[p]:bounds[p + 1]]]
         rsel = ref_of_obs[sel]
         rxy = xy_by_image[ri][fe[rsel]]
         txy = xy_by_image[ti][fe[sel]]
@@ -396,10 +397,8 @@ def refine_tracks(tracks, xy_by_image, load_image: Callable[[int], np.ndarray], 
         n_ok += int(res.ok.sum())
         shifts.append(np.hypot(*(res.xy[res.ok] - txy[res.ok]).T))
         for why in res.reason[~res.ok]:
-            kept[why] = kept.get(why, 0) + 1
+            kept[str(why)] = kept.get(str(why), 0) + 1
     sh = np.concatenate(shifts) if shifts else np.zeros(0)
-    from .tracks import Tracks
-
     # with ``drop_failed``, observations refined to no good match leave their track (a track left with one
     # observation disappears)
     keep = ~failed

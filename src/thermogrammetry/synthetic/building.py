@@ -56,7 +56,7 @@ from .radiance import FlirCurve, fresnel_emissivity
 from .sensor import SensorEffects, apply_sensor_effects
 
 __all__ = ["BuildingConfig", "BuildingScene", "make_building", "render_building_thermal", "apparent_temperature",
-           "write_building_survey", "surface_temperature", "discontinuity_distance"]
+           "write_building_survey", "write_building_user_files", "surface_temperature", "discontinuity_distance"]
 
 GROUPS = ("wall", "roof", "ground", "occluder")
 
@@ -481,3 +481,22 @@ def write_building_survey(project, scene: BuildingScene, *, sensor: bool = True,
     project.write_text(f"{p}mesh.obj", "\n".join(lines) + "\n")
     project.write_json(f"{p}truth/face_group.json", [GROUPS[g] for g in scene.face_group])
     return {"stations": len(scene.stations), "faces": int(len(scene.faces))}
+
+
+def write_building_user_files(project, scene: BuildingScene, *, gnss_noise_m: float = 0.03,
+                              gnss_sigma_m: tuple = (0.03, 0.03, 0.05), seed: int = 1, prefix: str = "") -> None:
+    """What a user brings to ``survey`` besides the frames (:func:`write_building_survey` writes those), through
+    ``project``: ``gnss.csv`` (``image,X,Y,Z,sX,sY,sZ``: the true centres plus a seeded N(0, ``gnss_noise_m``²) on
+    every axis, σ columns ``gnss_sigma_m``, as an RTK rover on a pole gives them) and ``camera.json`` (the true
+    camera, as ``calibrate`` would give it)."""
+    import json
+
+    p = (prefix.rstrip("/") + "/") if prefix else ""
+    rng = np.random.default_rng(seed)
+    sx, sy, sz = gnss_sigma_m
+    rows = ["image,X,Y,Z,sX,sY,sZ"]
+    for name, pose in scene.stations:
+        C = pose.center + rng.normal(0, gnss_noise_m, 3)
+        rows.append(f"{name},{C[0]:.4f},{C[1]:.4f},{C[2]:.4f},{sx:g},{sy:g},{sz:g}")
+    project.write_text(f"{p}gnss.csv", "\n".join(rows) + "\n")
+    project.write_text(f"{p}camera.json", json.dumps(scene.thermal.to_dict(), indent=2) + "\n")
