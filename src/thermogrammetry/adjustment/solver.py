@@ -103,6 +103,13 @@ class SolverOptions:
     max_dense_inner : int
         Largest parameter count for which the free-network (inner constraint) covariance is
         computed (dense).
+    chunked_min_observations : int
+        Number of (active) image observations from which the normal equations are built chunk by
+        chunk of points without holding the block's Jacobian (memory independent of the number of
+        observations, instead of ~1 KB per observation; a second pass over the Jacobians per LM
+        step, and one per rejected step). Same solution up to rounding. 0: always; a huge number:
+        never. The covariance step falls back to the full Jacobian when it needs it (redundancy
+        numbers, point covariances, free-network covariance).
     """
 
     max_iterations: int = 100
@@ -123,11 +130,14 @@ class SolverOptions:
     significance_alpha: float = 0.05
     rank_tolerance: float = 1e-12
     max_dense_inner: int = 4000
+    chunked_min_observations: int = 100_000
 
     def __post_init__(self):
         object.__setattr__(self, "loss", Loss(self.loss))
         if self.max_iterations < 0:
             raise ConfigError(f"max_iterations={self.max_iterations!r}; expected an integer >= 0")
+        if self.chunked_min_observations < 0:
+            raise ConfigError(f"chunked_min_observations={self.chunked_min_observations!r}; expected an integer >= 0")
         for name in ("loss_scale", "sigma0_prior", "snooping_alpha", "significance_alpha"):
             v = getattr(self, name)
             if not (v > 0):
@@ -352,14 +362,17 @@ class _Data:
 
     def __init__(self, pb: BundleProblem, active: np.ndarray):
         img = pb.image_observations()
-        self.all_img = img
         a = np.nonzero(active)[0]
         self.img_idx = a
-        self.cam = img.camera[a]
-        self.view = img.view[a]
-        self.pt = img.point[a]
-        self.xy = img.xy[a]
-        self.sig = img.sigma[a]
+        if len(a) == len(active):  # all active: the concatenated arrays themselves (no second copy)
+            self.cam, self.view, self.pt, self.xy, self.sig = img.camera, img.view, img.point, img.xy, img.sigma
+        else:
+            self.cam = img.camera[a]
+            self.view = img.view[a]
+            self.pt = img.point[a]
+            self.xy = img.xy[a]
+            self.sig = img.sigma[a]
+        del img
         self.vpose = np.asarray(pb.view_pose, dtype=np.int64)[self.view] if len(a) else np.zeros(0, np.int64)
         self.vrig = np.asarray(pb.view_rig, dtype=np.int64)[self.view] if len(a) else np.zeros(0, np.int64)
         self.c_pt, self.c_xyz, self.c_sig = pb.control_observations()
@@ -374,11 +387,17 @@ class _Data:
 _EVAL_CHUNK = 32768
 
 
-def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
-    """Whitened residuals r (m,), and (if wanted) camera-side Jacobian triplets and point
-    Jacobian rows. Residual = (computed - observed) / sigma."""
-    K = data.K
-    m = data.m
+def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool, sel=None, extra: bool = True):
+    """Whitened residuals r (m,), and (if wanted) the camera-side Jacobian (CSR, whitened), the point
+    Jacobian rows (m, 3) and their free-point slots (m,). Residual = (computed - observed) / sigma.
+
+    By default all rows: the active image observations (two rows each, in order), then control,
+    GNSS, plane and distance rows. ``sel`` (int array) restricts the image rows to those observations
+    (in that order; rows ``2k, 2k+1`` for ``sel[k]``), ``extra=False`` leaves out the other rows
+    (the chunked normal equations evaluate the block in pieces)."""
+    obs = sel  # (the name ``sel`` is reused below for the observations of one camera)
+    K = data.K if obs is None else len(obs)
+    m = data.m - 2 * data.K + 2 * K if extra else 2 * K
     r = np.empty(m)
     rows, cols, vals = [], [], []
     jp = np.zeros((m, 3))
@@ -418,10 +437,11 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
     for a in range(0, K, _EVAL_CHUNK):
         b = min(K, a + _EVAL_CHUNK)
         nk = b - a
-        vpose, vrig = data.vpose[a:b], data.vrig[a:b]
+        ii = slice(a, b) if obs is None else obs[a:b]
+        vpose, vrig = data.vpose[ii], data.vrig[ii]
         Rm = st.R[vpose]
         tm = st.t[vpose]
-        X = st.X[data.pt[a:b]]
+        X = st.X[data.pt[ii]]
         Xm = np.einsum("kij,kj->ki", Rm, X) + tm
         isrig = vrig >= 0
         Rr = np.broadcast_to(np.eye(3), (nk, 3, 3)).copy()
@@ -433,9 +453,9 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
         xy = np.empty((nk, 2))
         Jx = np.empty((nk, 2, 3)) if want_jac else None
         rowbase = 2 * np.arange(a, b)
-        sig = data.sig[a:b]
+        sig = data.sig[ii]
         for c, cam in enumerate(pb.cameras):
-            sel = np.nonzero(data.cam[a:b] == c)[0]
+            sel = np.nonzero(data.cam[ii] == c)[0]
             if not len(sel):
                 continue
             camc = cam.with_params(st.cam_params[c]) if not np.array_equal(st.cam_params[c], cam.params) else cam
@@ -456,7 +476,7 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
                     vals.append(Jw.ravel())
             else:
                 xy[sel] = camc.project(Xc[sel])
-        res = (xy - data.xy[a:b]) / sig
+        res = (xy - data.xy[ii]) / sig
         r[2 * a : 2 * b] = res.ravel()
         if want_jac:
             Jxw = Jx / sig[:, :, None]
@@ -471,15 +491,15 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
                 Jw_r = -Jxw @ skew(np.einsum("kij,kj->ki", Rr, Xm))
                 trip(rowbase, 2, np.concatenate([Jw_r, Jxw], axis=2), rc, rc >= 0)
             Jpt = JxR @ Rm
-            slot = lay.point_slot[data.pt[a:b]]
+            slot = lay.point_slot[data.pt[ii]]
             jp[2 * a : 2 * b] = Jpt.reshape(-1, 3)
             pslot[2 * a : 2 * b] = np.repeat(slot, 2)
-            pcol = lay.point_col[data.pt[a:b]]
+            pcol = lay.point_col[data.pt[ii]]
             trip(rowbase, 2, Jpt, pcol, pcol >= 0)
         if want_jac:
             flush(2 * a, 2 * b)
     row = 2 * K
-    nc_ = len(data.c_pt)
+    nc_ = len(data.c_pt) if extra else 0
     if nc_:
         X = st.X[data.c_pt]
         r[row : row + 3 * nc_] = ((X - data.c_xyz) / data.c_sig).ravel()
@@ -491,7 +511,7 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
             pcol = lay.point_col[data.c_pt]
             trip(row + 3 * np.arange(nc_), 3, eye, pcol, pcol >= 0)
         row += 3 * nc_
-    ng = len(data.g_pose)
+    ng = len(data.g_pose) if extra else 0
     if ng:
         R = st.R[data.g_pose]
         t = st.t[data.g_pose]
@@ -504,7 +524,7 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
             pc = lay.pose_col[data.g_pose]
             trip(row + 3 * np.arange(ng), 3, J, pc, pc >= 0)
         row += 3 * ng
-    npl = len(data.pl_k)
+    npl = len(data.pl_k) if extra else 0
     if npl:
         rws = row + np.arange(npl)
         n = st.pn[data.pl_k]
@@ -521,7 +541,7 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool):
             plc = lay.plane_col[data.pl_k]
             trip(rws, 1, Jpl[:, None, :], plc, plc >= 0)
         row += npl
-    nd = len(data.d_a)
+    nd = len(data.d_a) if extra else 0
     if nd:
         diff = st.X[data.d_a] - st.X[data.d_b]
         L = np.linalg.norm(diff, axis=1)
@@ -674,6 +694,268 @@ class _Normal:
 
 
 
+#: relative size of the iterative-refinement correction of the camera-side step below which the
+#: chunked path keeps the unrefined step (a third pass over the Jacobians would change it by less
+#: than this fraction; the old path always refines)
+_REFINE_RTOL = 1e-6
+
+
+def _add_sparse(A, M, sign=1.0):
+    """``A += sign * M`` for a dense ``A`` and a sparse ``M`` without repeated entries (a sparse product or
+    sum, or after ``sum_duplicates``)."""
+    M = M.tocoo()
+    if M.nnz:
+        A[M.row, M.col] += M.data if sign == 1.0 else sign * M.data
+
+
+#: image observations per chunk of :class:`_ChunkedNormal` (bounds the temporaries of a chunk's Jacobian, sparse
+#: products and Schur contribution: ~3 KB per observation)
+_SCHUR_CHUNK = 8192
+
+
+def _point_chunks(lay: _Layout, data: _Data):
+    """Image observations grouped for :class:`_ChunkedNormal`: ``order`` (K,) sorts them by free point
+    (observations of fixed and camera-side points first) and ``chunks`` lists ``(o0, o1, p0, p1)``:
+    observations ``order[o0:o1]`` are all those of the free-point slots ``[p0, p1)`` (``p0 = p1 = -1`` for
+    the observations without a free point). A chunk holds about ``_SCHUR_CHUNK`` observations, whole points
+    only; every free point lies in exactly one chunk (points without image observations too)."""
+    cached = getattr(data, "_point_chunks", None)
+    if cached is not None:
+        return cached
+    slot = lay.point_slot[data.pt]
+    order = np.argsort(slot, kind="stable")
+    n0 = int(np.sum(slot < 0))
+    chunks = [(a, min(n0, a + _SCHUR_CHUNK), -1, -1) for a in range(0, n0, _SCHUR_CHUNK)]
+    npf = lay.npf
+    if npf:
+        counts = np.bincount(slot[slot >= 0], minlength=npf)
+        cum = np.concatenate([[0], np.cumsum(counts)])
+        cuts = np.searchsorted(cum, np.arange(_SCHUR_CHUNK, cum[-1], _SCHUR_CHUNK), side="left")
+        bounds = np.unique(np.concatenate([[0], cuts, [npf]]))
+        chunks += [(n0 + int(cum[p0]), n0 + int(cum[p1]), int(p0), int(p1)) for p0, p1 in zip(bounds[:-1], bounds[1:])]
+    data._point_chunks = (order, chunks)
+    return data._point_chunks
+
+
+class _ChunkedNormal:
+    """The reduced camera system built chunk by chunk, without the block's Jacobian.
+
+    Same normal equations as :class:`_Normal` (``U, W, V``, gradient, damping ``lam D``) but the image
+    observations are evaluated in chunks of whole points (:func:`_point_chunks`); each chunk's
+    Jacobian gives its share of ``U``, ``g_c``, the point blocks ``V_p``, ``g_p`` and of the Schur
+    complement ``W_p (V_p + lam D_p)^-1 W_p^T`` and is dropped. Kept: ``U`` and the reduced matrix
+    (dense ``nc x nc``), ``V``, ``V^-1`` (3x3 per free point) and the Jacobian of the few rows that are
+    not image observations (control, GNSS, planes, distances). Memory is independent of the number of
+    image observations beyond their residuals; the price is a second pass over the Jacobians for the
+    back-substitution of the point steps (and one more pass per rejected LM step, whose new damping
+    changes the Schur complement).
+
+    Parameters
+    ----------
+    r, w : (m,) arrays
+        Whitened residuals at ``st`` (:func:`_evaluate`) and the robust square-root weights (:func:`_robust`).
+    lam : float
+        Damping of the first reduced system (built in the same pass as ``U``, ``V`` and the gradient).
+    """
+
+    def __init__(self, pb, lay: _Layout, st: _State, data: _Data, r, w, lam: float):
+        self.pb, self.lay, self.st, self.data = pb, lay, st, data
+        self.r, self.w = r, w
+        self.order, self.chunks = _point_chunks(lay, data)
+        nc, npf = lay.nc, lay.npf
+        K = data.K
+        # rows other than image observations: small, evaluated and kept once per linearisation
+        _, Je, jpe, pse = _evaluate(pb, lay, st, data, True, sel=np.zeros(0, dtype=np.int64), extra=True)
+        we = w[2 * K :]
+        rwe = r[2 * K :] * we
+        if nc and np.any(we != 1.0):
+            Je = (sp.diags(we) @ Je).tocsr()
+        jpe = jpe * we[:, None]
+        has = pse >= 0
+        prow = np.nonzero(has)[0]
+        ps = pse[prow]
+        jpp = jpe[prow]
+        # U is block sparse (6x6 per pose, intrinsics and rig rows): kept sparse, only S is dense
+        self.U = (Je.T @ Je).tocsr() if nc else sp.csr_matrix((0, 0))
+        self.gc = np.zeros(nc)
+        if nc:
+            self.gc += Je.T @ rwe
+        V = np.zeros((npf, 9))
+        gp = np.zeros((npf, 3))
+        for k in range(9):
+            V[:, k] = np.bincount(ps, weights=jpp[:, k // 3] * jpp[:, k % 3], minlength=npf)
+        for k in range(3):
+            gp[:, k] = np.bincount(ps, weights=jpp[:, k] * rwe[prow], minlength=npf)
+        self.V = V.reshape(npf, 3, 3)
+        self.gp = gp
+        Jpe = sp.csr_matrix((jpp.ravel(), (np.repeat(prow, 3), (3 * ps[:, None] + np.arange(3)).ravel())),
+                            shape=(len(pse), 3 * npf))
+        self.Be = (Je.T @ Jpe).tocsc() if nc else sp.csc_matrix((0, 3 * npf))
+        self.Vinv = np.zeros((npf, 3, 3))
+        self.dV = np.zeros((npf, 3))
+        first = self._pass(lam, build=True)
+        self.dU = np.clip(self.U.diagonal(), 1e-6, 1e32) if nc else np.zeros(0)
+        if first is not None and lam and nc:
+            first[0][np.diag_indices_from(first[0])] += lam * self.dU
+        self._first = (lam, first)  # handed out (once) by schur(lam)
+        self.grad_max = max(float(np.max(np.abs(self.gc))) if nc else 0.0, float(np.max(np.abs(gp))) if npf else 0.0)
+
+    def _chunk(self, o0, o1, p0, p1):
+        """Robust-weighted camera-side Jacobian (CSR), point Jacobian as CSR over the chunk's point
+        columns ``3 (p - p0) + j`` (or None), and weighted residuals of one chunk."""
+        idx = self.order[o0:o1]
+        _, Jc, jp, pslot = _evaluate(self.pb, self.lay, self.st, self.data, True, sel=idx, extra=False)
+        rows = (2 * idx[:, None] + np.arange(2)).ravel()
+        wk = self.w[rows]
+        rw = self.r[rows] * wk
+        if self.lay.nc and np.any(wk != 1.0):
+            Jc = (sp.diags(wk) @ Jc).tocsr()
+        if p0 < 0:
+            return Jc, None, None, rw
+        jp = jp * wk[:, None]
+        ls = pslot - p0
+        Jp = sp.csr_matrix((jp.ravel(), (np.repeat(np.arange(len(ls)), 3), (3 * ls[:, None] + np.arange(3)).ravel())),
+                           shape=(len(ls), 3 * (p1 - p0)))
+        return Jc, Jp, (jp, ls), rw
+
+    def _pass(self, lam, build):
+        """One pass over the chunks: (when ``build``) ``U``, ``g_c``, ``V``, ``g_p``, and the damped
+        Schur complement ``S`` (without ``lam dU``, added by the caller), its right-hand side and ``V^-1``.
+        None when a damped point block is singular."""
+        nc = self.lay.nc
+        S = np.zeros((nc, nc), order="F")  # accumulates W V^-1 W^T, turned into U - W V^-1 W^T at the end
+        # (Fortran order: factored in place by _cho_factor)
+        rhs = np.zeros(nc)
+        ok = True
+        for o0, o1, p0, p1 in self.chunks:
+            if o1 > o0:
+                Jc, Jp, (jpl), rw = self._chunk(o0, o1, p0, p1)
+                if build and nc:
+                    self.U = (self.U + Jc.T @ Jc).tocsr()
+                    self.gc += Jc.T @ rw
+            else:
+                Jc = Jp = jpl = None
+            if p0 < 0:
+                continue
+            n = p1 - p0
+            if build and jpl is not None:
+                jp, ls = jpl
+                V = self.V[p0:p1].reshape(n, 9)
+                for k in range(9):
+                    V[:, k] += np.bincount(ls, weights=jp[:, k // 3] * jp[:, k % 3], minlength=n)
+                for k in range(3):
+                    self.gp[p0:p1, k] += np.bincount(ls, weights=jp[:, k] * rw, minlength=n)
+            if build:
+                self.dV[p0:p1] = np.clip(np.diagonal(self.V[p0:p1], axis1=1, axis2=2), 1e-6, 1e32)
+            Vd = self.V[p0:p1].copy()
+            if lam:
+                Vd[:, [0, 1, 2], [0, 1, 2]] += lam * self.dV[p0:p1]
+            try:
+                Vinv = np.linalg.inv(Vd)
+            except np.linalg.LinAlgError:
+                ok = False
+                if build:
+                    continue  # U, V and the gradient are still completed
+                return None
+            if not np.all(np.isfinite(Vinv)):
+                ok = False
+                if build:
+                    continue
+                return None
+            self.Vinv[p0:p1] = Vinv
+            if not nc:
+                continue
+            B = self.Be[:, 3 * p0 : 3 * p1]
+            if Jc is not None:
+                B = B + Jc.T @ Jp
+            B = B.tocsr()
+            Vsp = sp.bsr_matrix((Vinv, np.arange(n), np.arange(n + 1)), shape=(3 * n, 3 * n)).tocsr()
+            H = (B @ Vsp).tocsr()
+            _add_sparse(S, H @ B.T)
+            rhs += H @ self.gp[p0:p1].ravel()
+        if not ok:
+            return None
+        if build:
+            self.U.sum_duplicates()
+        S *= -1.0
+        _add_sparse(S, self.U)
+        rhs -= self.gc
+        return S, rhs, self.Vinv
+
+    def schur(self, lam, want_H=False):
+        """Reduced matrix (Fortran order, for in-place Cholesky), its right-hand side and ``V^-1`` for the
+        damping ``lam`` (a new pass over the Jacobians unless it is the first reduced system of this
+        linearisation); None when a damped point block is singular."""
+        if want_H:
+            raise ValueError("the chunked normal equations do not keep W V^-1 (memory per observation)")
+        if self._first is not None and lam == self._first[0]:
+            out = self._first[1]
+            self._first = None
+        else:
+            self._first = None
+            out = self._pass(lam, build=False)
+            if out is not None and lam and self.lay.nc:
+                out[0][np.diag_indices_from(out[0])] += lam * self.dU
+        if out is None:
+            return None
+        S, rhs, Vinv = out
+        return S, rhs, Vinv, None
+
+    def _back(self, dc, Vinv, refine_lam=None):
+        """Point steps ``dp = V^-1 (-g_p - W^T dc)`` (one pass over the Jacobians); with ``refine_lam``
+        also ``W dp`` for the camera-side residual of the full damped system."""
+        nc, npf = self.lay.nc, self.lay.npf
+        dp = np.zeros((npf, 3))
+        ye = (self.Be.T @ dc).reshape(npf, 3) if nc else np.zeros((npf, 3))
+        Wdp = np.zeros(nc)
+        for o0, o1, p0, p1 in self.chunks:
+            if p0 < 0:
+                continue
+            n = p1 - p0
+            y = ye[p0:p1].copy()
+            if o1 > o0 and nc:
+                Jc, Jp, (jp, ls), _ = self._chunk(o0, o1, p0, p1)
+                Jdc = Jc @ dc
+                for k in range(3):
+                    y[:, k] += np.bincount(ls, weights=jp[:, k] * Jdc, minlength=n)
+            else:
+                Jc = None
+            dpk = np.einsum("nij,nj->ni", Vinv[p0:p1], -self.gp[p0:p1] - y)
+            dp[p0:p1] = dpk
+            if refine_lam is not None and Jc is not None:
+                Wdp += Jc.T @ (Jp @ dpk.ravel())
+        if refine_lam is None:
+            return dp, None
+        if nc:
+            Wdp += self.Be @ dp.ravel()
+        return dp, Wdp
+
+    def step(self, cf, Vinv, rhs, lam):
+        """The full damped step (camera side, then points) from the factored reduced matrix, with one step
+        of iterative refinement of the camera side against ``U + lam dU`` and the exact ``W`` (as
+        :class:`_Normal`); the refinement's extra pass over the Jacobians is made only when its
+        correction exceeds ``_REFINE_RTOL`` of the step."""
+        nc, npf = self.lay.nc, self.lay.npf
+        dc = np.zeros(0) if isinstance(cf[0], str) else scipy.linalg.cho_solve(cf, rhs, check_finite=False)
+        if not npf:
+            if nc:
+                res = -self.gc - self.U @ dc - lam * self.dU * dc
+                if np.all(np.isfinite(res)) and np.linalg.norm(res) > 1e-14 * np.linalg.norm(self.gc):
+                    dc = dc + scipy.linalg.cho_solve(cf, res, check_finite=False)
+            return dc
+        if not nc:
+            dp, _ = self._back(dc, Vinv)
+            return dp.ravel()
+        dp, Wdp = self._back(dc, Vinv, refine_lam=lam)
+        res = -self.gc - self.U @ dc - lam * self.dU * dc - Wdp
+        if np.all(np.isfinite(res)):
+            corr = scipy.linalg.cho_solve(cf, res, check_finite=False)
+            if np.linalg.norm(corr) > _REFINE_RTOL * np.linalg.norm(dc):
+                dc = dc + corr
+                dp, _ = self._back(dc, Vinv)
+        return np.concatenate([dc, dp.ravel()])
+
+
 def _symmetrised(A):
     """``0.5 (A + A^T)`` with one temporary instead of two (same values)."""
     B = A + A.T
@@ -715,12 +997,18 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
     decrease = 2.0
     it = 0
     need = True
+    chunked = data.K >= opt.chunked_min_observations
     while True:
         if need:
-            ne = None  # the previous linearisation is released before the next is built
-            r, *jac, pslot = _evaluate(pb, lay, st, data, True)
-            w, cost = _robust(r, data.K, opt)
-            ne = _Normal(r, jac, pslot, lay, w)  # takes the Jacobian over (weighted, sparse)
+            # the previous linearisation (and the factor of its reduced matrix) is released before the next is built
+            ne = cf = Vinv = rhs = None
+            if chunked:
+                # r, w, cost: of the current state (from the start or the accepted trial step)
+                ne = _ChunkedNormal(pb, lay, st, data, r, w, 1.0 / radius)
+            else:
+                r, *jac, pslot = _evaluate(pb, lay, st, data, True)
+                w, cost = _robust(r, data.K, opt)
+                ne = _Normal(r, jac, pslot, lay, w)  # takes the Jacobian over (weighted, sparse)
             need = False
             if ne.grad_max <= opt.gradient_tolerance:
                 return st, cost0, cost, it, Termination.CONVERGED, f"gradient tolerance reached (max|g| = {ne.grad_max:.3g})"
@@ -728,6 +1016,7 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
             return st, cost0, cost, it, Termination.MAX_ITERATIONS, f"stopped after {it} iterations"
         it += 1
         lam = 1.0 / radius
+        cf = Vinv = rhs = None  # (a rejected step's factor: released before the next reduced matrix is built)
         sch = ne.schur(lam)
         ok = sch is not None
         if ok:
@@ -739,14 +1028,17 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
         if ok:
             D = np.concatenate([ne.dU, ne.dV.ravel()])
             g = np.concatenate([ne.gc, ne.gp.ravel()])
-            d = ne.solve_with(cf, Vinv, ne.gc, ne.gp, rhs)
-            # one step of iterative refinement against the exact operator J^T J + lam D: forming
-            # S = U - W V^-1 W^T cancels digits when parameters are nearly dependent
-            Jd = ne.Jc @ d[: lay.nc] + ne.Jp @ d[lay.nc :] if lay.nc else ne.Jp @ d
-            Ad = np.concatenate([ne.Jc.T @ Jd, ne.Jp.T @ Jd]) + lam * D * d
-            res = -g - Ad
-            if np.all(np.isfinite(res)) and np.linalg.norm(res) > 1e-14 * np.linalg.norm(g):
-                d = d + ne.solve_with(cf, Vinv, -res[: lay.nc], -res[lay.nc :].reshape(-1, 3))
+            if chunked:
+                d = ne.step(cf, Vinv, rhs, lam)
+            else:
+                d = ne.solve_with(cf, Vinv, ne.gc, ne.gp, rhs)
+                # one step of iterative refinement against the exact operator J^T J + lam D: forming
+                # S = U - W V^-1 W^T cancels digits when parameters are nearly dependent
+                Jd = ne.Jc @ d[: lay.nc] + ne.Jp @ d[lay.nc :] if lay.nc else ne.Jp @ d
+                Ad = np.concatenate([ne.Jc.T @ Jd, ne.Jp.T @ Jd]) + lam * D * d
+                res = -g - Ad
+                if np.all(np.isfinite(res)) and np.linalg.norm(res) > 1e-14 * np.linalg.norm(g):
+                    d = d + ne.solve_with(cf, Vinv, -res[: lay.nc], -res[lay.nc :].reshape(-1, 3))
             ok = bool(np.all(np.isfinite(d)))
         if ok:
             dc, dp = d[: lay.nc], d[lay.nc :]
@@ -767,12 +1059,13 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
             if r_new is None:
                 cost_new, rho, ok = float("inf"), -1.0, False
             else:
-                _, cost_new = _robust(r_new, data.K, opt)
+                w_new, cost_new = _robust(r_new, data.K, opt)
                 rho = (cost - cost_new) / model if model > 0 else -1.0
                 ok = bool(np.isfinite(cost_new)) and rho > 1e-3
         if ok:
             change = cost - cost_new
             st, cost = st_new, cost_new
+            r, w = r_new, w_new
             radius = min(1e16, radius / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
             decrease = 2.0
             need = True
@@ -880,7 +1173,7 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
     origin = _world_offset(pb)
     _shift_world(pb, -origin)
     lay = _Layout(pb)
-    K_all = len(pb.image_observations().point)
+    K_all = sum(len(o.point) for o in pb._img)  # (without concatenating the observations)
     active = np.ones(K_all, dtype=bool)
     st = _State(pb)
     n = lay.nc + 3 * lay.npf
@@ -921,7 +1214,9 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
     rounds = 0
     cost0 = None
     while True:
-        data = _Data(pb, active)
+        if rounds:  # after a data-snooping round; the first round uses the data built above
+            data = None  # released before the next is built
+            data = _Data(pb, active)
         st, c0, cost, it, term, reason = _lm(pb, lay, st, data, opt)
         total_it += it
         if cost0 is None:
@@ -971,13 +1266,23 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
 
 
 def _precision(pb, lay, st, data, opt, active, warnings):
-    r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
-    w, cost = _robust(r, data.K, opt)
-    jac = [Jc, jp]
-    del Jc  # the normal equations are built only for the covariance (ne keeps the weighted Jacobian)
-    if opt.compute_covariance:
-        ne = _Normal(r, jac, pslot, lay, w)
-    jac.clear()
+    # the chunked normal equations give the reduced matrix (enough for the covariance of the camera side);
+    # redundancy numbers, point covariances and the free-network covariance need the whole Jacobian
+    chunked = data.K >= opt.chunked_min_observations and not (
+        opt.compute_covariance and (pb.gauge is Gauge.INNER or opt.compute_redundancy or opt.compute_point_covariance))
+    if chunked:
+        r = _evaluate(pb, lay, st, data, False)
+        w, cost = _robust(r, data.K, opt)
+        if opt.compute_covariance:
+            ne = _ChunkedNormal(pb, lay, st, data, r, w, 0.0)
+    else:
+        r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
+        w, cost = _robust(r, data.K, opt)
+        jac = [Jc, jp]
+        del Jc  # the normal equations are built only for the covariance (ne keeps the weighted Jacobian)
+        if opt.compute_covariance:
+            ne = _Normal(r, jac, pslot, lay, w)
+        jac.clear()
     n = lay.nc + 3 * lay.npf
     defect = (6 if _scale_observed(pb) else 7) if pb.gauge is Gauge.INNER else 0
     red = data.m - n + defect
@@ -997,14 +1302,15 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     nc_ = len(data.c_pt)
     out["control_residuals"] = -r[2 * data.K : 2 * data.K + 3 * nc_].reshape(-1, 3) * data.c_sig
     ng = len(data.g_pose)
-    out["gnss_residuals"] = -r[2 * data.K + 3 * nc_ :].reshape(-1, 3) * data.g_sig if ng else np.zeros((0, 3))
+    g0 = 2 * data.K + 3 * nc_  # GNSS rows (plane and distance rows follow them)
+    out["gnss_residuals"] = -r[g0 : g0 + 3 * ng].reshape(-1, 3) * data.g_sig if ng else np.zeros((0, 3))
     if red > 0:
         stat = red * sigma0**2 / opt.sigma0_prior**2
         lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], red)
         out["chi2"] = dict(statistic=stat, dof=int(red), lower=float(lo), upper=float(hi), passed=bool(lo <= stat <= hi))
     if not opt.compute_covariance:
         return out
-    sch = ne.schur(0.0, want_H=True)
+    sch = ne.schur(0.0, want_H=not chunked)
     if sch is None:
         return (Termination.RANK_DEFICIENT, "a free point's normal block is singular (too few or parallel rays)")
     S, _, Vinv, H = sch
