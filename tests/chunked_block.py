@@ -14,7 +14,7 @@ from thermogrammetry.adjustment import BundleProblem
 from thermogrammetry.geometry.rotations import matrix_from_axis_angle
 
 
-def build_block(n_lines=4, per_line=6, n_points=500, seed=3, gauge="control", outliers=8, rig=False):
+def build_block(n_lines=4, per_line=6, n_points=500, seed=3, gauge="control", outliers=8, rig=False, plane=True):
     """Returns (problem, truth) with truth = dict(C=(F, 3) centres, P=(N, 3) points, camera=Camera)."""
     rng = np.random.default_rng(seed)
     cam = Camera("opencv", (640, 512), dict(fx=758.0, fy=758.0, cx=319.5, cy=255.5, k1=-0.1, k2=0.05))
@@ -70,8 +70,9 @@ def build_block(n_lines=4, per_line=6, n_points=500, seed=3, gauge="control", ou
     pb.add_gnss(np.arange(len(C)), C + rng.normal(0, 0.03, C.shape), 0.03)
     ctrl = np.nonzero(seen >= 3)[0][n_plane: n_plane + 6]
     pb.add_control(ctrl, P[ctrl] + rng.normal(0, 0.01, (len(ctrl), 3)), 0.01)
-    on_plane = np.nonzero(seen[:n_plane] >= 2)[0]
-    pb.add_plane(on_plane, 0.02)
-    a, b = ctrl[0], ctrl[1]
-    pb.add_distance([a], [b], np.linalg.norm(P[a] - P[b]) + rng.normal(0, 0.005), 0.005)
+    if plane:  # a plane of points and a scale bar
+        on_plane = np.nonzero(seen[:n_plane] >= 2)[0]
+        pb.add_plane(on_plane, 0.02)
+        a, b = ctrl[0], ctrl[1]
+        pb.add_distance([a], [b], np.linalg.norm(P[a] - P[b]) + rng.normal(0, 0.005), 0.005)
     return pb, dict(C=C, P=P, camera=cam)

@@ -964,6 +964,50 @@ def _symmetrised(A):
     return B
 
 
+def _symmetrise_inplace(A, step=512):
+    """``A <- 0.5 (A + A^T)`` in place, by blocks of rows and columns (no nc x nc temporary)."""
+    n = A.shape[0]
+    for a in range(0, n, step):
+        b = min(n, a + step)
+        blk = A[a:b, a:b]
+        A[a:b, a:b] = 0.5 * (blk + blk.T)
+        if b < n:
+            m = 0.5 * (A[a:b, b:] + A[b:, a:b].T)
+            A[a:b, b:] = m
+            A[b:, a:b] = m.T
+
+
+def _spd_inverse_inplace(S):
+    """Inverse of a symmetric positive definite matrix by Cholesky (LAPACK potrf + potri), in the memory of
+    ``S`` when it is in Fortran order (``S`` is then overwritten); the full symmetric inverse is returned.
+
+    Falls back to ``numpy.linalg.inv`` (symmetrised) when the Cholesky factorisation fails (not positive
+    definite in floating point); ``S`` is restored first (potrf and potri only write the upper triangle)."""
+    n = S.shape[0]
+    diag = np.diag(S).copy()
+    lapack = scipy.linalg.lapack
+    c, info = lapack.dpotrf(S, lower=0, clean=0, overwrite_a=1)
+    if info == 0:
+        c, info = lapack.dpotri(c, lower=0, overwrite_c=1)
+    if info != 0:
+        A = c if np.shares_memory(c, S) else S
+        for a in range(0, n, 512):  # upper triangle back from the untouched lower one
+            b = min(n, a + 512)
+            blk = A[a:b, a:b]
+            A[a:b, a:b] = np.tril(blk) + np.tril(blk, -1).T
+            if b < n:
+                A[a:b, b:] = A[b:, a:b].T
+        A[np.diag_indices(n)] = diag
+        return _symmetrised(np.linalg.inv(A))
+    for a in range(0, n, 512):  # lower triangle from the upper one
+        b = min(n, a + 512)
+        blk = c[a:b, a:b]
+        c[a:b, a:b] = np.triu(blk) + np.triu(blk, 1).T
+        if b < n:
+            c[b:, a:b] = c[a:b, b:].T
+    return c
+
+
 def _tangent_basis(n):
     """(3, 2) orthonormal basis of the plane orthogonal to the unit vector n (deterministic)."""
     a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
@@ -1343,15 +1387,16 @@ def _precision(pb, lay, st, data, opt, active, warnings):
         Qpp_full = Qfull[nc:, nc:]
     else:
         if nc:
+            # Jacobi scaling in place: Sn = D^-1 S D^-1 (unit diagonal), S^-1 = D^-1 Sn^-1 D^-1
             d = np.sqrt(np.maximum(np.diag(S), 1e-300))
-            Sn = S / d[:, None]
+            Sn = S
+            del S
+            Sn /= d[:, None]
             Sn /= d[None, :]
-            # eigenvalues only (the eigenvectors and their LAPACK workspace are 3 more nc x nc matrices);
-            # the null direction is computed only when the test fails
-            ev = scipy.linalg.eigvalsh(Sn, overwrite_a=True, check_finite=False)
+            # eigenvalues only, of a copy (the eigenvectors and their LAPACK workspace are 3 more nc x nc
+            # matrices); the null direction is computed only when the test fails
+            ev = scipy.linalg.eigvalsh(Sn.copy(order="F"), overwrite_a=True, check_finite=False)
             if ev[0] <= opt.rank_tolerance * ev[-1]:
-                Sn = S / d[:, None]
-                Sn /= d[None, :]
                 ev, evec = np.linalg.eigh(Sn)
                 k = np.argsort(-np.abs(evec[:, 0]))[:4]
                 involved = ", ".join(lay.names[i] for i in k)
@@ -1360,34 +1405,44 @@ def _precision(pb, lay, st, data, opt, active, warnings):
                     f"datum or parameters undetermined (condition {ev[-1] / max(ev[0], 1e-300):.3g}); "
                     f"null direction involves {involved}",
                 )
+            Q = _spd_inverse_inplace(Sn)  # in the memory of Sn (Fortran order from schur)
             del Sn
-            Q = np.linalg.inv(S)
-            del S
-            Q = _symmetrised(Q)
+            Q /= d[:, None]
+            Q /= d[None, :]
         else:
             Q = np.zeros((0, 0))
         Qfull = None
     s2 = sigma0**2 if np.isfinite(sigma0) else float("nan")
     # report poses as (rotation increment, projection centre): dC = -R^T [t]x dw - R^T dt
     names = list(lay.names)
-    T = sp.lil_matrix((nc, nc))
-    T.setdiag(1.0)
     for p in range(len(st.R)):
         c = int(lay.pose_col[p])
         if c < 0:
             continue
-        R, t = st.R[p], st.t[p]
-        T[c + 3 : c + 6, c : c + 3] = -R.T @ skew(t)
-        T[c + 3 : c + 6, c + 3 : c + 6] = -R.T
         for k, a in enumerate(("X0", "Y0", "Z0")):
             names[c + 3 + k] = f"{pb.pose_names[p]}.{a}"
-    T = T.tocsr()
-    cov = np.asarray(T @ Q)
-    cov = np.asarray(T @ cov.T)
-    cov *= s2
-    cov = _symmetrised(cov)
     if Qfull is None and not (lay.npf and opt.compute_point_covariance) and not opt.compute_redundancy:
-        del Q  # not needed below
+        cov = Q  # Q is not needed below: the covariance takes its memory
+        del Q
+    else:
+        cov = Q.copy(order="F")
+    # cov = s2 T Q T^T; T is the identity but for the centre rows c+3:c+6 of each pose: [-R^T [t]x, -R^T]
+    for p in range(len(st.R)):
+        c = int(lay.pose_col[p])
+        if c < 0:
+            continue
+        A = -st.R[p].T @ skew(st.t[p])
+        B = -st.R[p].T
+        cov[c + 3 : c + 6, :] = A @ cov[c : c + 3, :] + B @ cov[c + 3 : c + 6, :]
+    for p in range(len(st.R)):
+        c = int(lay.pose_col[p])
+        if c < 0:
+            continue
+        A = -st.R[p].T @ skew(st.t[p])
+        B = -st.R[p].T
+        cov[:, c + 3 : c + 6] = cov[:, c : c + 3] @ A.T + cov[:, c + 3 : c + 6] @ B.T
+    cov *= s2
+    _symmetrise_inplace(cov)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / std[:, None]
@@ -1415,12 +1470,14 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     out["pose_std"] = pose_std
     # warnings: correlations and insignificant additional parameters
     if nc > 1:
-        # strict upper triangle, row by row (as np.triu_indices), without nc^2 index arrays
-        big = np.abs(corr) > opt.correlation_warning
-        big = np.triu(big, 1)
-        for a, b in zip(*np.nonzero(big)):
-            if kind[a] or kind[b]:  # pose-pose correlations are block geometry, not a finding
-                warnings.append(f"high correlation {corr[a, b]:+.3f} between {names[a]} and {names[b]}")
+        # strict upper triangle, row by row (as np.triu_indices), in row blocks (no nc^2 temporaries)
+        step = max(1, int(4e6 // nc))
+        for a0 in range(0, nc, step):
+            big = np.triu(np.abs(corr[a0 : a0 + step]) > opt.correlation_warning, a0 + 1)
+            for a, b in zip(*np.nonzero(big)):
+                a += a0
+                if kind[a] or kind[b]:  # pose-pose correlations are block geometry, not a finding
+                    warnings.append(f"high correlation {corr[a, b]:+.3f} between {names[a]} and {names[b]}")
     if red > 0:
         tcrit = scipy.stats.t.ppf(1 - opt.significance_alpha / 2, red)
         for c, cc in enumerate(lay.cam_cols):
