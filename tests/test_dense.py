@@ -324,6 +324,32 @@ def test_dense_cloud_las_ply_carry_exact_frame_values(dense_run):
     assert np.median(ang) < 25.0  # normals from a ±3 px depth base: noisy (depth σ ~ cm over 0.3 m), not wrong
 
 
+def test_cloud_las_extra_bytes_ranges_cover_every_chunk(tmp_path):
+    """The LAS extra-bytes descriptors state min/max of each extra dimension; written in chunks they must span
+    the whole cloud (laspy alone described 280-304 K written in three chunks as 280-300 K)."""
+    import laspy
+
+    from thermogrammetry.dense.fusion import POINT_DTYPE
+    from thermogrammetry.products.cloud import CloudWriter
+
+    w = CloudWriter(tmp_path / "c.las", tmp_path / "c.ply", unit="K", crs=None, offset_xyz=(0, 0, 0))
+    for k in range(3):
+        p = np.zeros(5, POINT_DTYPE)
+        p["x"], p["value"], p["views"], p["source"] = k, 280.0 + 10 * k + np.arange(5), 3 + k, 7 - k
+        p["nx"] = np.linspace(-1, 1, 5) * (k + 1) / 3
+        w.write(p)
+    w.close()
+    las = laspy.read(tmp_path / "c.las")
+    st = {s.name.rstrip(b"\0").decode(): s for v in las.header.vlrs if hasattr(v, "extra_bytes_structs")
+          for s in v.extra_bytes_structs}
+    assert st["temperature_k"].min[0] == 280.0 and st["temperature_k"].max[0] == 304.0
+    assert np.asarray(las["temperature_k"]).max() == 304.0
+    assert st["views"].min[0] == 3 and st["views"].max[0] == 5
+    assert st["source_image"].min[0] == 5 and st["source_image"].max[0] == 7
+    assert st["normal_x"].min[0] == -1.0 and st["normal_x"].max[0] == 1.0
+    assert all(s.options & 0b110 == 0b110 for s in st.values())
+
+
 def test_dense_refuses_a_folder_without_cameras(tmp_path):
     from thermogrammetry.cli.main import main
 

@@ -71,6 +71,7 @@ class CloudWriter:
                                        + "".join(f"property {t} {p}\n" for t, p in props) + "end_header\n")
         self._ply.write(self._header_text(0).encode("ascii"))
         self.count = 0
+        self._ranges: dict = {}  # extra dimension -> [min, max] over every chunk written
         self._ply_dtype = np.dtype([(p, {"double": "<f8", "float": "<f4", "uchar": "u1", "int": "<i4"}[t]) for t, p in props])
 
     def write(self, pts) -> None:
@@ -86,6 +87,12 @@ class CloudWriter:
         rec["normal_x"], rec["normal_y"], rec["normal_z"] = pts["nx"], pts["ny"], pts["nz"]
         rec["views"] = pts["views"]
         rec["source_image"] = pts["source"]
+        for name, v in ((self.dim, pts["value"] if self.dim else None), ("normal_x", pts["nx"]), ("normal_y", pts["ny"]),
+                        ("normal_z", pts["nz"]), ("views", pts["views"]), ("source_image", pts["source"])):
+            if name and len(v):
+                lo, hi = np.nanmin(v), np.nanmax(v)
+                r = self._ranges.setdefault(name, [lo, hi])
+                r[0], r[1] = min(r[0], lo), max(r[1], hi)
         self._las.write_points(rec)
         out = np.zeros(n, self._ply_dtype)
         for name in ("x", "y", "z"):
@@ -100,6 +107,7 @@ class CloudWriter:
 
     def close(self) -> None:
         self._las.close()
+        _patch_extra_bytes_ranges(self._las_tmp, self._ranges)
         self._ply.seek(0)
         self._ply.write(self._header_text(self.count).encode("ascii"))
         self._ply.flush()
@@ -119,3 +127,47 @@ class CloudWriter:
                 os.unlink(t)
             except OSError:
                 pass
+
+
+# LAS 1.4 extra-bytes descriptor (R14 §2.6.2, 192 bytes): reserved u2, data_type u1, options u1, name 32s,
+# unused 4, no_data 24, min 24, max 24, scale 24, offset 24, description 32. Options bit 1 = min, bit 2 = max.
+_EB_FLOAT, _EB_SIGNED = {9, 10}, {2, 4, 6, 8}
+
+
+def _patch_extra_bytes_ranges(path, ranges: dict) -> None:
+    """Write the min/max of every extra dimension over the whole cloud into the LAS file's extra-bytes VLR.
+
+    laspy fills these fields from the points it holds when the header is written, which for a file written
+    in chunks is not the whole cloud (measured: ``temperature_k`` 280-304 K written in three chunks was
+    described as 280-300 K). The VLR is patched in place; its size does not change.
+    """
+    import struct
+
+    with open(path, "r+b") as f:
+        head = f.read(375)
+        header_size = struct.unpack_from("<H", head, 94)[0]
+        n_vlr = struct.unpack_from("<I", head, 100)[0]
+        pos = header_size
+        for _ in range(n_vlr):
+            f.seek(pos)
+            vh = f.read(54)
+            user_id = vh[2:18].rstrip(b"\0")
+            record_id, length = struct.unpack_from("<HH", vh, 18)
+            if user_id == b"LASF_Spec" and record_id == 4:
+                for k in range(length // 192):
+                    at = pos + 54 + 192 * k
+                    f.seek(at)
+                    d = bytearray(f.read(192))
+                    name = bytes(d[4:36]).rstrip(b"\0").decode("ascii", "replace")
+                    if name not in ranges:
+                        continue
+                    dtype = d[2]
+                    fmt = "<d" if dtype in _EB_FLOAT else ("<q" if dtype in _EB_SIGNED else "<Q")
+                    lo, hi = ranges[name]
+                    cast = float if fmt == "<d" else int
+                    d[3] |= 0b110
+                    d[64:88] = struct.pack(fmt, cast(lo)) + bytes(16)
+                    d[88:112] = struct.pack(fmt, cast(hi)) + bytes(16)
+                    f.seek(at)
+                    f.write(bytes(d))
+            pos += 54 + length
