@@ -5,6 +5,14 @@ whitened residuals ``r_i / sigma_i``; the normal equations are reduced to the no
 by the Schur complement on the 3x3 point blocks, built with sparse products and solved by dense
 Cholesky (the reduced system of calibration and close-range networks is small).
 
+Large blocks (``SolverOptions.chunked_min_observations`` image observations and more, e.g. survey
+blocks) never hold the block's Jacobian (~1 KB per observation): the observations are grouped by
+point and evaluated chunk by chunk; each chunk adds its share of ``U``, the gradient, the point blocks
+``V`` and the Schur complement ``W V^-1 W^T`` to the reduced camera system and is dropped; after the
+Cholesky solve a second pass over the chunks back-substitutes the point steps (and gives the
+iterative-refinement residual). Memory then grows with the number of cameras (the dense reduced
+matrix) and points, not with the observations; the solution is that of the full path up to rounding.
+
 Precision and reliability (Foerstner & Wrobel 2016, ch. 4; Baarda 1968):
 
 - ``sigma0^2 = v^T P v / r`` with redundancy ``r = m - n (+ d for a free network)`` and the
