@@ -238,3 +238,32 @@ def test_rig_file_errors_and_pairing(tmp_path, block):
     for args, msg in (([], "needs the RGB images"), (["--rgb", str(root / "rgb")], "bad_rig.json")):
         code = main(["survey", str(root / "thermal"), "--rig", str(bad), "-o", str(tmp_path / "o"), *args])
         assert code == 2 and not (tmp_path / "o").exists()
+
+
+def test_low_texture_fallback_leaves_the_rgb_images_alone(block, fixed_blank):
+    """``--low-texture auto`` with 3 of 12 thermal frames featureless (9/12 thermal frames connected, below the
+    80 % trigger): the fallback re-extracts and re-matches the THERMAL frames only. The RGB-RGB pairs keep the
+    verified matches of the run without the fallback, pair for pair (on the real frescoes, RGB + thermal, the old
+    fallback replaced every image's features and, without GNSS, cut the pair list to sequence neighbours: the
+    RGB block fell from 40 to 27 images)."""
+    import thermogrammetry.pipeline.survey as sv
+
+    _, base = fixed_blank
+    rig = write_rig_json(block["root"] / "rig_fixed.json", rig=block["rig"], extra=_cams(block))
+    code, out = _run(block, "out_fixed_blank_lt", rig, "--low-texture", "auto", thermal="thermal_blank348")
+    assert code == 0
+    pj = json.loads((out / "work" / "pairs.json").read_text())
+    lt = pj["features"]["low_texture"]
+    assert lt["thermal_images"] == 12 and lt["thermal_connected_before"] == 9
+    names = [im["name"] for im in json.loads((out / "work" / "inputs.json").read_text())["images"]]
+    rgb = {k for k, n in enumerate(names) if not n.endswith("_ir")}
+    assert len(rgb) == 12
+
+    def rgb_pairs(p):
+        return {(i, j): (nv, reason) for i, j, _, nv, reason in json.loads(p.read_text())["pairs"] if i in rgb and j in rgb}
+
+    before = rgb_pairs(base / "work" / "pairs.json")
+    assert len(before) == 66 and rgb_pairs(out / "work" / "pairs.json") == before  # all 66 RGB pairs, unchanged
+    s = json.loads((out / "survey.json").read_text())
+    assert s["images_oriented"] == 24 and s["components"] == [24]
+    assert 9 / 12 < sv.LOW_TEXTURE_SHARE  # the premise: the fallback was triggered

@@ -103,7 +103,10 @@ def survey(
                                     "reference patch by affine least-squares matching before the orientation (sharper "
                                     "tie points on smooth thermal blobs; measured mixed, see sfm/lsm.py). off: keypoints."),
 ) -> None:
-    """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report."""
+    """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report.
+
+    Exit status: 0 when a block was oriented (some frames may be left out, each with its reason in survey.json and the report), 1 when nothing could be oriented (OUT still holds the report and the reasons), 2 on unusable input or arguments (nothing written).
+    """  # noqa: E501 (one line: typer keeps the docstring's line breaks in --help)
     from rich.console import Console
 
     from ..camera import Camera

@@ -59,6 +59,18 @@ IMAGE_SUFFIXES = {".jpg", ".jpeg", ".tif", ".tiff", ".png", ".seq", ".csq", ".ff
 #: a block whose final tie-point reprojection RMS exceeds this is rejected (reported, not exported)
 BLOCK_RMS_GATE_PX = 3.0
 
+#: self-calibration steps down this ladder (each rung intersected with the parameters asked for) while the
+#: block cannot carry it: the adjustment stops rank deficient, a free parameter's σ is not finite, or the
+#: estimate is implausible (below)
+SELF_CALIBRATION_LADDER = (("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"), ("fx", "fy", "k1", "k2"), ("fx", "fy", "k1"),
+                           ("fx", "fy"), ())
+#: plausibility of self-calibrated intrinsics against their start (EXIF focal length and pixel pitch, or the
+#: image centre): focal length within ±30 %, fy/fx within ±5 % (thermal and RGB sensors have square pixels to
+#: well under 1 %), principal point within 15 % of the frame, radial distortion at the frame corner below 20 %
+#: of the radius. Measured on the Thermitage fresco walls (thermal only, 6 frames tied by wrong matches): fy/fx
+#: 1.26 and a rank-deficient solve, reported as an oriented block before this check.
+INTRINSICS_PLAUSIBLE = {"focal": 0.30, "aspect": 0.05, "principal_point": 0.15, "corner_distortion": 0.20}
+
 #: below this share of images with a verified pair, the low-texture features are tried as well
 LOW_TEXTURE_SHARE = 0.8
 LOW_TEXTURE_GUIDED_RADIUS_PX = 10.0  # search radius of guided matching in the low-texture fallback
@@ -702,37 +714,53 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
     res = match("")
     n = len(names)
     info = {"features": f"{opt.features.detector.value}/{opt.features.enhancement.value}", "connected": connected(res)}
-    if opt.low_texture == "auto" and n >= 2 and connected(res) < LOW_TEXTURE_SHARE * n:
+    # the low-texture fallback concerns the thermal frames only: RGB images of a combined block keep their own
+    # features and matches (their texture is fine; a sequence-window pair list and thermal preprocessing would
+    # only lose their links -- measured on the frescoes, RGB + thermal: the RGB block fell from 40 to 27 images)
+    thermal = [k for k, im in enumerate(inputs["images"]) if im.get("sensor", "thermal") == "thermal"]
+    is_th = np.zeros(n, bool)
+    is_th[thermal] = True
+    nt = len(thermal)
+
+    def connected_thermal(res):
+        return len({k for i, j, npu, nv, reason in res if not reason for k in (i, j) if is_th[k]})
+
+    if opt.low_texture == "auto" and nt >= 2 and connected_thermal(res) < LOW_TEXTURE_SHARE * nt:
         # low-texture frames (facades, walls, water, fields): the sensor's fixed pattern estimated from the
         # sequence and removed, more SIFT features (lower contrast threshold), and matches guided by a
         # homography from the few that pass the global ratio test
-        pattern_key = _fixed_pattern(project, inputs, names)
+        th_names = [names[k] for k in thermal]
+        pattern_key = _fixed_pattern(project, inputs, th_names)
         lt = replace(opt.features, detector="sift", enhancement="clahe", contrast_threshold=0.005,
                      max_features=max(opt.features.max_features, 4000))
-        counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key) for nm in names],
+        counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key) for nm in th_names],
                                     opt, None, "features"))
         mopt_lt = replace(opt.matching, guided_radius_px=LOW_TEXTURE_GUIDED_RADIUS_PX)
-        pairs_lt = pairs
-        have_pos = xyz is not None and int(np.all(np.isfinite(xyz), axis=1).sum()) >= 2
+        pairs_lt = [(i, j) for i, j in pairs if is_th[i] and is_th[j]]
+        have_pos = xyz is not None and int(np.all(np.isfinite(xyz[thermal]), axis=1).sum()) >= 2
         if not have_pos:
             # no positions: sequence neighbours only (frames in acquisition order). Weak, repetitive texture
             # matched across the whole set links frames that cannot overlap (a window to its neighbour)
-            pairs_lt = sorted(set(select_pairs(n, None, options=replace(opt.matching, exhaustive_up_to=0,
-                                                                          window=LOW_TEXTURE_SEQUENCE_WINDOW)))
-                              | rig_pairs)
+            seq = select_pairs(nt, None, options=replace(opt.matching, exhaustive_up_to=0, window=LOW_TEXTURE_SEQUENCE_WINDOW))
+            pairs_lt = sorted((thermal[a], thermal[b]) for a, b in seq)
         res_lt = match("lowtexture/", mopt_lt, pairs_lt)
-        info["low_texture"] = {"features": "sift/clahe on pattern-corrected frames, guided matching",
-                               "fixed_pattern": bool(pattern_key), "connected": connected(res_lt)}
-        if connected(res_lt) > connected(res):
-            for nm in names:
+        info["low_texture"] = {"features": "sift/clahe on pattern-corrected thermal frames, guided matching",
+                               "fixed_pattern": bool(pattern_key), "thermal_connected": connected_thermal(res_lt),
+                               "thermal_connected_before": connected_thermal(res), "thermal_images": nt}
+        if connected_thermal(res_lt) > connected_thermal(res):
+            for nm in th_names:
                 project.write_bytes(f"features/{nm}.npz", project.read_bytes(f"lowtexture/features/{nm}.npz"))
             for i, j, npu, nv, reason in res_lt:
                 if not reason:
                     project.write_bytes(f"matches/{i}_{j}.npz", project.read_bytes(f"lowtexture/matches/{i}_{j}.npz"))
             project.write_json("work/features.json", {**project.read_json("work/features.json"), **counts_lt})
-            res = res_lt
-            info["used"] = ("low-texture fallback (fixed pattern removed, SIFT with a low contrast threshold, "
-                            "homography-guided matching)")
+            # pairs of a thermal frame with an RGB image are matched again: the thermal features changed
+            cross = [(i, j) for i, j in pairs if is_th[i] != is_th[j]]
+            res_cross = match("", None, cross) if cross else []
+            res = sorted([r for r in res if not (is_th[r[0]] or is_th[r[1]])] + list(res_lt) + list(res_cross),
+                         key=lambda r: (r[0], r[1]))
+            info["used"] = ("low-texture fallback for the thermal frames (fixed pattern removed, SIFT with a low "
+                            "contrast threshold, homography-guided matching)")
     kept = [(i, j, nv) for i, j, npu, nv, reason in res if not reason]
     project.write_json("work/pairs.json", {"pairs": [[i, j, npu, nv, reason] for i, j, npu, nv, reason in res], "features": info})
     return {"pairs_tried": len(pairs), "pairs_verified": len(kept), "images_connected": connected(res), "features": info,
@@ -874,7 +902,7 @@ def _read_markers(path_pts, path_meas, names, default_sigma_m, default_sigma_px,
 
 def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, camera=None, progress=None) -> dict:
     """Georeference the largest block(s), adjust, intersect check points, write every output."""
-    from ..sfm.georef import (ControlInputs, apply_similarity, axis_statistics, final_adjustment, intersect_check_points,
+    from ..sfm.georef import (ControlInputs, apply_similarity, axis_statistics, intersect_check_points,
                               similarity_start)
 
     t0 = time.perf_counter()
@@ -925,8 +953,13 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         if ci in rig_enabled:
             rigv, nts = start_rig(rec, inp.rig, rig_master, images, S.scale if geo else 1.0)
             notes += [f"block {ci + 1}: {x}" for x in nts]
+        gnss_off = None
         if geo:
             apply_similarity(rec, images, S)
+            if how.startswith("GNSS") and ctrl.gcp_obs and inp.rig is None:
+                gnss_off, nts = _gnss_offset(rec, xy, images, ctrl, self_cal, tie_sigma_px=opt.tie_sigma_px,
+                                             max_error_px=opt.reconstruction.max_error_px, georeferenced=True)
+                notes += [f"block {ci + 1}: {x}" for x in nts]
         elif rigv is not None:
             notes += [f"block {ci + 1}: {x}" for x in _rig_scale_local(rec, images, inp.rig, rig_master, rigv)]
         block_images, snap, refused = images, None, ""
@@ -942,9 +975,9 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                 refused = "" if ok else why
         fa = None
         if rigv is not None and not refused:
-            fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=self_cal, tie_sigma_px=opt.tie_sigma_px,
-                                  max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
-                                  compute_covariance=len(images) <= 2500, rig=rigv, manual_ties=t_obs or None)
+            fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, tie_sigma_px=opt.tie_sigma_px,
+                                                    max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
+                                                    compute_covariance=len(images) <= 2500, manual_ties=t_obs or None)
             if not rigv.fixed:
                 ok, why = rig_estimate_accepted(rigv, fa)
                 refused = "" if ok else why
@@ -961,10 +994,20 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             rigv = None
             fa = None
         if fa is None:
-            fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=self_cal, tie_sigma_px=opt.tie_sigma_px,
-                                  max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
-                                  compute_covariance=len(images) <= 2500, rig=rigv, manual_ties=t_obs or None)
+            fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, tie_sigma_px=opt.tie_sigma_px,
+                                                    max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
+                                                    compute_covariance=len(images) <= 2500, manual_ties=t_obs or None)
         notes += [f"block {ci + 1}: {x}" for x in fa.notes]
+        notes += [f"block {ci + 1}: {x}" for x in cal_steps]
+        if cal_steps and cal_steps[-1].startswith("with the camera held fixed"):
+            # not even the orientation alone is determined: not an orientation
+            why = (f"in block {ci + 1} ({len(images)} images) rejected: its geometry does not determine the "
+                   f"orientation ({cal_steps[-1]})")
+            for i in images:
+                rec.status[i].reason = why
+            results.append({"block": ci + 1, "images": len(images), "datum": how, "rejected": why,
+                            "self_calibration_steps": cal_steps})
+            continue
         if rigv is not None:
             own = own_observations(rigv, images, fa.tie_obs_image,
                                    [(mt_i,) for mt in fa.manual_ties for mt_i in mt["images"]])
@@ -996,7 +1039,9 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         oriented[images] = True
         fa_all.append((ci, images, fa, how, geo))
         results.append({"block": ci + 1, "images": len(images), "datum": how, "sigma0": float(fa.result.sigma0),
-                        "termination": fa.result.termination.value, "reason": fa.result.reason})
+                        "termination": fa.result.termination.value, "reason": fa.result.reason,
+                        "self_calibration": sorted({n for v in cal_used.values() for n in v}),
+                        "self_calibration_steps": cal_steps, **({"gnss_offset": gnss_off} if gnss_off else {})})
     if not fa_all:
         crs = None
     georeferenced = any(g for *_, g in fa_all)
@@ -1082,6 +1127,148 @@ def _rig_own_before(rec, rigv, images, manual_obs) -> dict:
     tr = rec.tracks
     ok = rec.obs_valid & np.isfinite(rec.points[tr.track]).all(1)
     return own_observations(rigv, images, tr.image[ok], manual_obs or ())
+
+
+def _gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | None, list[str]]:
+    """Look for a constant GNSS-vs-GCP datum offset in a GNSS-placed block with >= 3 GCPs
+    (:func:`~thermogrammetry.sfm.georef.gnss_offset`): one adjustment on the GCPs alone (GNSS σ × 1000), the
+    block restored afterwards; the GNSS positions (and the block's start) are shifted by the significant axes.
+    Returns the report entry and notes."""
+    from dataclasses import replace as dc_replace
+
+    from ..sfm.georef import GNSS_OFFSET_MIN_GCPS, apply_similarity, final_adjustment, gnss_offset, similarity_start
+
+    images = np.asarray(images)
+    in_block = set(images.tolist())
+    gcps = {gi for (i, gi, xy_, s_) in ctrl.gcp_obs if i in in_block}
+    if len(gcps) < GNSS_OFFSET_MIN_GCPS:
+        return None, []
+    snap = _rig_snapshot(rec)
+    weak = dc_replace(ctrl, gnss_sigma=ctrl.gnss_sigma * 1e3)
+    try:
+        fa = final_adjustment(rec, xy, images, weak, self_calibrate=self_cal, compute_covariance=True, **kw)
+        off = gnss_offset(rec.centers()[images], fa.center_std[images], ctrl.gnss_xyz[images], ctrl.gnss_sigma[images]) \
+            if fa.result.success else None
+    finally:
+        _restore(rec, snap)
+    if off is None:
+        return None, ["GNSS against the GCPs: not checked for a datum offset (the adjustment on the GCPs alone "
+                      "did not give centres with σ)"]
+    shift = np.where(off.significant, off.offset_m, 0.0)  # added to the GNSS: GCP datum = GNSS + shift
+    fmt = lambda v: "(" + ", ".join(f"{x:+.3f}" for x in v) + ")"  # noqa: E731
+    entry = {"offset_m": off.offset_m.tolist(), "std_m": off.std_m.tolist(), "n_gcps": len(gcps),
+             "applied_m": shift.tolist(),
+             "meaning": "GCP datum minus GNSS datum, from the camera centres of an adjustment on the GCPs alone"}
+    if not off.significant.any():
+        return entry, [f"GNSS against {len(gcps)} GCPs: no datum offset (GCP − GNSS {fmt(off.offset_m)} m "
+                       f"± {fmt(off.std_m)} m)"]
+    have = np.all(np.isfinite(ctrl.gnss_xyz[images]), axis=1)
+    ctrl.gnss_xyz[images[have]] += shift
+    S, _, _ = similarity_start(rec, images, ctrl)
+    if S is not None:
+        apply_similarity(rec, images, S)
+    axes = ", ".join(a for a, f in zip("XYZ", off.significant) if f)
+    return entry, [f"GNSS positions differ from the {len(gcps)} GCPs by a constant {fmt(off.offset_m)} m ± "
+                   f"{fmt(off.std_m)} m (GCP − GNSS): a datum or height-reference difference (ellipsoidal vs geoid or "
+                   f"national heights, take-off altitude) or an antenna offset; the GNSS positions are shifted in "
+                   f"{axes} by {fmt(shift)} m before the adjustment"]
+
+
+def _intrinsics_problem(fa, start_cams: dict, free_sets: dict) -> str:
+    """Why a final adjustment's self-calibration cannot be accepted ("" when it can).
+
+    ``start_cams``: camera index -> Camera before the adjustment; ``free_sets``: camera index -> free names.
+    """
+    res = fa.result
+    if not res.success or res.termination.value == "rank_deficient":
+        return f"the adjustment stopped: {res.reason or res.termination.value}"
+    lim = INTRINSICS_PLAUSIBLE
+    order = sorted(start_cams)
+    for c in order:
+        free = {n.lower() for n in free_sets.get(c, ())}
+        if not free:
+            continue
+        cam0, cam = start_cams[c], fa.cameras_after[c]
+        p0, p = cam0.param_dict, cam.param_dict
+        w, h = cam.image_size
+        if res.camera_std and order.index(c) < len(res.camera_std):
+            std = dict(zip(cam.param_names, np.asarray(res.camera_std[order.index(c)], float)))
+            bad = sorted(n for n in free if n in std and not np.isfinite(std[n]))
+            if bad and fa.covariance_asked:
+                return f"camera {cam.name or c}: σ of {', '.join(bad)} not finite (the block does not determine them)"
+        if "fx" in p and "fy" in p:
+            if abs(p["fx"] / p0["fx"] - 1) > lim["focal"] or abs(p["fy"] / p0["fy"] - 1) > lim["focal"]:
+                return (f"camera {cam.name or c}: focal length {p['fx']:.1f}/{p['fy']:.1f} px from a start of {p0['fx']:.1f} px "
+                        f"(more than {lim['focal']:.0%} apart)")
+            if abs(p["fy"] / p["fx"] - 1) > lim["aspect"]:
+                return f"camera {cam.name or c}: fy/fx = {p['fy'] / p['fx']:.3f} (pixels are square to within {lim['aspect']:.0%})"
+        if "cx" in p and (abs(p["cx"] - p0["cx"]) > lim["principal_point"] * w or abs(p["cy"] - p0["cy"]) > lim["principal_point"] * h):
+            return (f"camera {cam.name or c}: principal point ({p['cx']:.1f}, {p['cy']:.1f}) px, more than "
+                    f"{lim['principal_point']:.0%} of the frame from its start ({p0['cx']:.1f}, {p0['cy']:.1f})")
+        if "k1" in p and "fx" in p:
+            r2 = ((w / 2) ** 2 + (h / 2) ** 2) / p["fx"] ** 2
+            d = abs(p.get("k1", 0.0) * r2 + p.get("k2", 0.0) * r2**2 + p.get("k3", 0.0) * r2**3)
+            if d > lim["corner_distortion"]:
+                return f"camera {cam.name or c}: radial distortion {d:.0%} of the radius at the frame corner"
+    return ""
+
+
+def _ladder_sets(self_cal, cam_indices) -> list[dict]:
+    """Rungs of :data:`SELF_CALIBRATION_LADDER` for the requested self-calibration: camera index -> free names."""
+    want = {int(c): tuple(self_cal.get(int(c), ()) if isinstance(self_cal, dict) else self_cal) for c in cam_indices}
+    rungs, seen = [], set()
+    for rung in (None,) + SELF_CALIBRATION_LADDER:
+        sets = {c: (w if rung is None else tuple(n for n in w if n.lower() in rung)) for c, w in want.items()}
+        key = tuple(sorted(sets.items()))
+        if key not in seen:
+            seen.add(key)
+            rungs.append(sets)
+    return rungs
+
+
+def _adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, **kw):
+    """:func:`~thermogrammetry.sfm.georef.final_adjustment` with a self-calibration the block can carry.
+
+    The requested parameters first; when the solve stops rank deficient, a free parameter's σ is not finite or
+    the intrinsics are implausible (:data:`INTRINSICS_PLAUSIBLE`), ``rec`` is restored and the block adjusted
+    again one rung down :data:`SELF_CALIBRATION_LADDER` (fewer parameters), down to none. Returns the final
+    adjustment, the free parameters used per camera index and the reasons of every step down.
+    """
+    from ..sfm.georef import final_adjustment
+
+    cams_in = sorted({int(c) for c in rec.image_camera[np.asarray(images)]})
+    start = {c: rec.cameras[c] for c in cams_in}
+    rungs = _ladder_sets(self_cal, cams_in)
+    snap = _rig_snapshot(rec)
+    rig0 = (rigv.R.copy(), rigv.t.copy()) if rigv is not None else None
+    steps: list[str] = []
+    fa = None
+    for k, sets in enumerate(rungs):
+        if k:
+            _restore(rec, snap)
+            if rig0 is not None:
+                rigv.R, rigv.t = rig0[0].copy(), rig0[1].copy()
+        fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=sets, rig=rigv, **kw)
+        fa.cameras_after = {c: rec.cameras[c] for c in cams_in}
+        fa.covariance_asked = bool(kw.get("compute_covariance", True))
+        why = _intrinsics_problem(fa, start, sets)
+        if not why:
+            return fa, sets, steps
+        if k + 1 < len(rungs):
+            nxt = rungs[k + 1]
+            steps.append(f"self-calibration of {', '.join(sorted({n for v in sets.values() for n in v})) or 'nothing'} refused: "
+                         f"{why}; adjusted again with {', '.join(sorted({n for v in nxt.values() for n in v})) or 'the camera held fixed'}")
+        else:
+            steps.append(f"with the camera held fixed: {why}")
+    return fa, rungs[-1], steps
+
+
+def _restore(rec, snap) -> None:
+    rec.R[:], rec.t[:], rec.registered[:], rec.component[:] = snap["R"], snap["t"], snap["registered"], snap["component"]
+    rec.points[:], rec.obs_valid[:] = snap["points"], snap["obs_valid"]
+    rec.cameras[:] = snap["cameras"]
+    for st, (r_, c_, w_) in zip(rec.status, snap["status"]):
+        st.registered, st.component, st.reason = r_, c_, w_
 
 
 def _rig_snapshot(rec) -> dict:

@@ -58,10 +58,26 @@ def write_survey_report(project) -> None:
         parts.append(f"<p class='bad'>Frame values are {html.escape(', '.join(s.get('frame_units', [])))}: "
                      "not temperatures (K) — the cloud carries counts or nothing.</p>")
     if s.get("blocks"):
-        parts.append("<table><tr><th>block</th><th>images</th><th>datum</th><th>σ0</th><th>termination</th></tr>" + "".join(
+        def _selfcal(b):
+            if "self_calibration" not in b:
+                return ""
+            txt = ", ".join(b["self_calibration"]) or "none (camera held fixed)"
+            return txt + (f" (stepped down {len(b['self_calibration_steps'])}×, see notes)" if b.get("self_calibration_steps") else "")
+
+        def _offset(b):
+            o = b.get("gnss_offset")
+            if not o:
+                return ""
+            f3 = lambda v: ", ".join(f"{x:+.3f}" for x in v)  # noqa: E731
+            return (f"{f3(o['offset_m'])} ± {', '.join(f'{x:.3f}' for x in o['std_m'])}" + (f"; applied {f3(o['applied_m'])}" if any(o["applied_m"]) else "; not applied"))
+
+        parts.append("<table><tr><th>block</th><th>images</th><th>datum</th><th>σ0</th><th>termination</th>"
+                     "<th>self-calibrated</th><th>GCP − GNSS offset (m)</th></tr>" + "".join(
             f"<tr><td>{b['block']}</td><td>{b['images']}</td><td class=l>{html.escape(str(b['datum']))}</td>"
             f"<td>{_f(b.get('sigma0'), '{:.3f}')}</td>"
-            f"<td class=l>{html.escape(b.get('termination') or b.get('rejected', ''))}</td></tr>" for b in s["blocks"]) + "</table>")
+            f"<td class=l>{html.escape(b.get('termination') or b.get('rejected', ''))}</td>"
+            f"<td class=l>{html.escape(_selfcal(b))}</td><td class=l>{html.escape(_offset(b))}</td></tr>"
+            for b in s["blocks"]) + "</table>")
     bad = [im for im in s["images"] if not im["oriented"]]
     if bad:
         parts.append("<h2>Images not oriented</h2><table><tr><th>image</th><th>reason</th></tr>" + "".join(

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..geometry.rotations import matrix_from_axis_angle
 
-__all__ = ["ControlInputs", "FinalAdjustment", "similarity_start", "apply_similarity", "final_adjustment",
+__all__ = ["GnssOffset", "gnss_offset", "ControlInputs", "FinalAdjustment", "similarity_start", "apply_similarity", "final_adjustment",
            "intersect_check_points", "axis_statistics"]
 
 
@@ -116,6 +116,62 @@ def similarity_start(rec, images, ctrl: ControlInputs):
         if len(Xm) >= 3 and not _collinear(np.array(Xw)):
             return umeyama(np.array(Xm), np.array(Xw)), f"{len(Xm)} GCPs", notes
     return None, "none", notes + ["no GNSS and fewer than 3 usable GCPs: the block stays in a local frame of arbitrary scale"]
+
+
+@dataclass
+class GnssOffset:
+    """A constant difference between the GNSS positions and the GCPs' datum (:func:`gnss_offset`).
+
+    Attributes
+    ----------
+    offset_m : (3,) GCP datum minus GNSS datum (median of centre − GNSS), metres (X, Y, Z of the CRS)
+    std_m : (3,) σ of the offset
+    n_images : int, images with GNSS that entered the estimate
+    significant : (3,) bool, axes where the offset is both > 5 σ and > 3 × the GNSS σ
+    """
+
+    offset_m: np.ndarray
+    std_m: np.ndarray
+    n_images: int
+    significant: np.ndarray
+
+
+#: GNSS offsets are only looked for with at least this many GCPs in the block
+GNSS_OFFSET_MIN_GCPS = 3
+
+
+def gnss_offset(centers_m, center_std_m, gnss_xyz, gnss_sigma) -> GnssOffset | None:
+    """Constant offset of the GNSS positions against camera centres adjusted on the GCPs alone.
+
+    GNSS heights of drones are ellipsoidal, above the EGM96 geoid or above the take-off point, depending on
+    the model and its RTK setting; GCPs are surveyed in a national frame with its own heights (e.g. LV95 /
+    LN02, EPSG:2056, where geoid and ellipsoid are ~50 m apart). A block adjusted on both with centimetre σ
+    is torn between them. The survey therefore adjusts the block once on its GCPs (GNSS σ × 1000: the
+    GNSS only holds what the GCPs leave free) and passes the adjusted centres here: the offset is the
+    median of (centre − GNSS) over the images, and its σ the median σ of the centres (their errors from a
+    few GCPs are common to the block, so no 1/sqrt(n)). The offset can only be separated from the camera
+    constant (nadir blocks: a focal error moves every centre's height alike) because the GCPs fix the
+    height of the ground; that is why it is not estimated from the GNSS-placed block before the adjustment.
+    An axis is *significant* when its offset exceeds 5 σ and 3 × the median GNSS σ.
+
+    Parameters
+    ----------
+    centers_m, center_std_m, gnss_xyz, gnss_sigma : (n, 3) arrays, metres; NaN rows are skipped
+
+    Returns
+    -------
+    GnssOffset or None (fewer than 3 images with GNSS, centre and σ)
+    """
+    C, S, G, GS = (np.asarray(a, float) for a in (centers_m, center_std_m, gnss_xyz, gnss_sigma))
+    ok = np.all(np.isfinite(C), 1) & np.all(np.isfinite(S), 1) & np.all(np.isfinite(G), 1)
+    if ok.sum() < 3:
+        return None
+    d = C[ok] - G[ok]
+    med = np.median(d, axis=0)
+    std = np.median(S[ok], axis=0)
+    g_sig = np.median(GS[ok], axis=0) if np.isfinite(GS[ok]).all() else np.full(3, np.inf)
+    significant = (np.abs(med) > 5 * std) & (np.abs(med) > 3 * g_sig)
+    return GnssOffset(med, std, int(ok.sum()), significant)
 
 
 def apply_similarity(rec, images, S) -> None:

@@ -1,0 +1,208 @@
+"""Benchmark: low-texture thermal frames of a real wall, judged against the synchronised RGB frames.
+
+Data: ``shared/data/rgb_thermal_frescoes`` (Thermitage, Arco Castle): 40 captures of frescoed walls by a
+hand-held Workswell WIRIS Pro, 16-bit radiometric TIFF thermal frames (640x512, EXIF focal 13 mm / 17 um)
+and 1920x1080 RGB frames from the same housing at the same instant. There is no reference geometry in the
+data, so the RGB frames (rich texture) are oriented first by ``thermogrammetry survey`` and serve as the
+reference: the thermal camera sits in the same housing, so the relative motion between two captures is the
+same rigid motion for both sensors up to the unknown rig rotation R* (a degree or two) and the rig's few-cm
+base.
+
+Checks, per thermal run:
+
+- images oriented, components, and the verified thermal pairs;
+- each verified pair against the RGB relative pose: median epipolar distance (px) of its matches under the
+  essential matrix of the RGB motion with the thermal camera's EXIF focal (no distortion modelled). A right
+  pair lands within a few px (R* and the rig base leave ~2-5 px); a pair matched on the wrong structure sits
+  at 20-150 px (shuffled matches: ~140 px);
+- oriented thermal frames: angle between the thermal and RGB relative rotations of every pair of frames in
+  one block (R* cancels to first order).
+
+pycolmap (SIFT, exhaustive matching, incremental mapping on the CPU) gets the same thermal frames as 8-bit
+PNGs stretched per frame between the 0.5 and 99.5 percentiles (what a user would feed it; COLMAP reduces
+16-bit TIFFs to their high byte, a flat image).
+
+Usage::
+
+    python benchmarks/survey_lowtexture.py [--data ../shared/data] [--no-colmap] [--keep DIR]
+
+Exit status 2 when the data is absent.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _survey(images: Path, out: Path, *extra) -> dict:
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "thermogrammetry", "survey", str(images), "-o", str(out), "--workers", "0",
+                        "--gnss", "none", *extra], capture_output=True, text=True,
+                       env={**os.environ, "PYTHONPATH": str(REPO / "src")})
+    wall = time.perf_counter() - t0
+    if not (out / "survey.json").is_file():
+        return {"error": (p.stderr or p.stdout)[-600:], "wall": wall, "code": p.returncode}
+    return {"wall": wall, "code": p.returncode, "survey": json.loads((out / "survey.json").read_text()), "out": out}
+
+
+def _poses(out: Path, suffix: str) -> dict:
+    """stem (without the sensor suffix) -> (R, t) cam_from_world of the oriented images."""
+    cams = json.loads((out / "cameras.json").read_text())
+    return {im["name"].replace(suffix, ""): (np.array(im["cam_from_world"]["R"]), np.array(im["cam_from_world"]["t"]))
+            for im in cams["images"]}
+
+
+def _angle_deg(R) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+
+
+def _epipolar_px(K, Ri, ti, Rj, tj, xi, xj) -> np.ndarray:
+    R = Rj @ Ri.T
+    t = tj - R @ ti
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    Ki = np.linalg.inv(K)
+    F = Ki.T @ tx @ R @ Ki
+    a = np.c_[xi, np.ones(len(xi))]
+    b = np.c_[xj, np.ones(len(xj))]
+    line = a @ F.T
+    return np.abs(np.sum(line * b, axis=1)) / np.hypot(line[:, 0], line[:, 1])
+
+
+def evaluate(run: dict, ref: dict, suffix: str = "-radiometric") -> dict:
+    out = run["out"]
+    inputs = json.loads((out / "work" / "inputs.json").read_text())["images"]
+    names = [im["name"] for im in inputs]
+    guess = inputs[0].get("camera_guess") or {}
+    f = float(guess.get("f_px", 765.0))
+    K = np.array([[f, 0, inputs[0]["width"] / 2 - 0.5], [0, f, inputs[0]["height"] / 2 - 0.5], [0, 0, 1.0]])
+    pairs = json.loads((out / "work" / "pairs.json").read_text())["pairs"]
+    checked = []
+    for i, j, _, nv, reason in pairs:
+        if reason:
+            continue
+        si, sj = names[i].replace(suffix, ""), names[j].replace(suffix, "")
+        if si not in ref or sj not in ref:
+            continue
+        fi = np.load(out / "features" / f"{names[i]}.npz")
+        fj = np.load(out / "features" / f"{names[j]}.npz")
+        idx = np.load(out / "matches" / f"{i}_{j}.npz")["idx"]
+        e = _epipolar_px(K, *ref[si], *ref[sj], fi["xy"][idx[:, 0]], fj["xy"][idx[:, 1]])
+        checked.append((names[i], names[j], int(nv), float(np.median(e))))
+    rot = []
+    if (out / "cameras.json").is_file():
+        th = _poses(out, suffix)
+        comp = {im["name"].replace(suffix, ""): im.get("block") for im in run["survey"].get("images", [])}
+        keys = sorted(k for k in th if k in ref)
+        for a in range(len(keys)):
+            for b in range(a + 1, len(keys)):
+                ka, kb = keys[a], keys[b]
+                if comp.get(ka) != comp.get(kb):
+                    continue
+                Rt = th[kb][0] @ th[ka][0].T
+                Rr = ref[kb][0] @ ref[ka][0].T
+                rot.append(_angle_deg(Rt @ Rr.T))
+    return {"verified_pairs": len(checked), "consistent_pairs": sum(1 for c in checked if c[3] < 5.0),
+            "pairs": checked, "rotation_error_deg": rot}
+
+
+def _colmap(frames_dir: Path) -> dict:
+    spec = importlib.util.spec_from_file_location("bench_survey", REPO / "benchmarks" / "survey.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    import cv2
+    import tifffile
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_lt_png_"))
+    try:
+        for fpath in sorted(frames_dir.glob("*.tif*")):
+            a = tifffile.imread(fpath).astype(np.float32)
+            lo, hi = np.percentile(a, [0.5, 99.5])
+            cv2.imwrite(str(tmp / (fpath.stem + ".png")), np.clip((a - lo) * 255.0 / max(hi - lo, 1e-6), 0, 255).astype(np.uint8))
+        return mod.run_colmap(tmp)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", default=None)
+    ap.add_argument("--no-colmap", action="store_true")
+    ap.add_argument("--keep", default=None, help="keep the survey outputs in this folder")
+    args = ap.parse_args(argv)
+    data = Path(args.data or os.environ.get("THERMOGRAMMETRY_DATA") or REPO.parent / "shared" / "data")
+    base = data / "rgb_thermal_frescoes"
+    if not (base / "RadTIFF").is_dir():
+        print(f"data absent: {base} (set --data or THERMOGRAMMETRY_DATA)", file=sys.stderr)
+        return 2
+    work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench_lowtexture_"))
+    work.mkdir(parents=True, exist_ok=True)
+    try:
+        rgb = _survey(base / "VisJPG", work / "rgb")
+        if "error" in rgb:
+            print(f"RGB reference failed: {rgb['error']}")
+            return 1
+        ref = _poses(work / "rgb", "-visible")
+        rows = []
+        for mode in ("off", "auto"):
+            run = _survey(base / "RadTIFF", work / f"thermal_{mode}", "--low-texture", mode)
+            if "error" in run:
+                rows.append((f"thermogrammetry, --low-texture {mode}", None, run))
+                continue
+            rows.append((f"thermogrammetry, --low-texture {mode}", evaluate(run, ref), run))
+        col = None if args.no_colmap else _colmap(base / "RadTIFF")
+        s = rgb["survey"]
+        n = 40
+        print(f"\nThermitage fresco walls, {n} hand-held Workswell frames (16-bit thermal 640x512 + RGB 1920x1080), "
+              f"{os.cpu_count()} cores")
+        print(f"RGB reference (thermogrammetry survey on the RGB frames): {s['images_oriented']}/{s['images_total']} "
+              f"oriented, components {s['components']}, RMS {s['reprojection_rms_px']:.3f} px, {rgb['wall']:.0f} s\n")
+        print(f"{'thermal run':<38}{'oriented':>9}{'blocks':>14}{'verified':>10}{'consistent':>11}{'rot err med/max':>17}"
+              f"{'exit':>6}{'time s':>8}")
+        for label, ev, run in rows:
+            if ev is None:
+                print(f"{label:<38} FAILED: {run['error'][:200]}")
+                continue
+            sv = run["survey"]
+            rot = ev["rotation_error_deg"]
+            rs = f"{np.median(rot):.1f}/{np.max(rot):.1f}" if rot else "-"
+            print(f"{label:<38}{sv['images_oriented']:>6}/{sv['images_total']:<2}{str(sv['components']):>14}"
+                  f"{ev['verified_pairs']:>10}{ev['consistent_pairs']:>11}{rs:>17}{run['code']:>6}{run['wall']:>8.0f}")
+            for b in sv.get("blocks", []):
+                if b.get("rejected"):
+                    print(f"    rejected: {b['rejected'][:160]}")
+        if col is not None:
+            if "error" in col:
+                print(f"{'pycolmap CPU (8-bit PNG)':<38} FAILED: {col['error'][-200:]}")
+            else:
+                print(f"{'pycolmap CPU (8-bit PNG)':<38}{col['registered']:>6}/{n:<2}{str(col['models']) + ' model(s)':>14}"
+                      f"{'':>10}{'':>11}{'':>17}{'':>6}{col['wall']:>8.0f}")
+        print("\nverified = thermal pairs that passed our geometric verification; consistent = their median epipolar "
+              "distance under the RGB motion < 5 px;\nrot err = angle between thermal and RGB relative rotations of "
+              "the oriented thermal frames (same block).")
+        for label, ev, run in rows:
+            if ev and ev["pairs"]:
+                print(f"\n{label}: verified pairs, median epipolar distance under the RGB motion (px)")
+                print("  " + ", ".join(f"{a[:8]}-{b[:8]} {e:.1f}" for a, b, _, e in ev["pairs"]))
+        return 0
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "--colmap-child":
+        raise SystemExit("run benchmarks/survey.py --colmap-child instead")
+    raise SystemExit(main())

@@ -1,0 +1,119 @@
+"""Self-calibration that the block can carry (``pipeline.survey._adjust_block``).
+
+A weak block (few frames, little baseline, wrong matches) can "self-calibrate" into nonsense: on the real
+Thermitage fresco walls, thermal only, 6 frames tied by wrong matches came out with fy/fx = 1.26 and a
+rank-deficient solve and were reported as an oriented block. The survey now steps down a ladder of fewer
+parameters while the solve is rank deficient, a free σ is not finite or the intrinsics are implausible, and
+rejects the block when even the fixed camera leaves the orientation undetermined.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import thermogrammetry.pipeline.survey as sv
+from thermogrammetry.camera import Camera
+from thermogrammetry.results import Termination
+
+W, H = 640, 512
+
+
+def _cam(**kw):
+    p = {"fx": 765.0, "fy": 765.0, "cx": 320.0, "cy": 256.0}
+    p.update(kw)
+    return Camera("opencv", (W, H), p, name="thermal")
+
+
+def _fa(cam, termination=Termination.CONVERGED, std=None, reason=""):
+    res = SimpleNamespace(termination=termination, success=termination.success, reason=reason,
+                          camera_std=[np.asarray(std, float)] if std is not None else [])
+    return SimpleNamespace(result=res, cameras_after={0: cam}, covariance_asked=True)
+
+
+def test_ladder_rungs_follow_the_request():
+    rungs = sv._ladder_sets(sv.SELF_CALIBRATION, [0])
+    assert [set(r[0]) for r in rungs] == [set(sv.SELF_CALIBRATION), {"fx", "fy", "k1", "k2"}, {"fx", "fy", "k1"},
+                                          {"fx", "fy"}, set()]
+    # a camera held fixed stays fixed; a smaller request starts lower and never repeats a rung
+    rungs = sv._ladder_sets({0: (), 1: ("fx", "fy", "k1")}, [0, 1])
+    assert [r[1] for r in rungs] == [("fx", "fy", "k1"), ("fx", "fy"), ()]
+    assert all(r[0] == () for r in rungs)
+
+
+@pytest.mark.parametrize("est, words", [
+    (dict(fy=963.0), "fy/fx = 1.259"),
+    (dict(fx=1100.0, fy=1100.0), "focal length"),
+    (dict(cy=454.0), "principal point"),
+    (dict(k1=-0.9), "radial distortion"),
+])
+def test_implausible_intrinsics_are_named(est, words):
+    free = {0: sv.SELF_CALIBRATION}
+    why = sv._intrinsics_problem(_fa(_cam(**est)), {0: _cam()}, free)
+    assert words in why and why.startswith("camera thermal:")
+
+
+def test_plausible_intrinsics_pass_at_the_edges_of_the_bands():
+    # 4 % aspect, fx +23 % and fy +28 %, 14 % of the frame for the principal point, 9.5 % corner distortion
+    ok = _cam(fx=940.0, fy=940.0 * 1.04, cx=320 + 0.14 * W, cy=256 - 0.14 * H, k1=-0.5)
+    start = _cam(fx=765.0, fy=765.0)
+    assert sv._intrinsics_problem(_fa(ok), {0: start}, {0: sv.SELF_CALIBRATION}) == ""
+    # the same camera held fixed is not judged
+    assert sv._intrinsics_problem(_fa(_cam(fy=963.0)), {0: _cam()}, {0: ()}) == ""
+
+
+def test_rank_deficient_solve_and_undetermined_sigma_are_refused():
+    cam = _cam()
+    why = sv._intrinsics_problem(_fa(cam, Termination.RANK_DEFICIENT, reason="free network: rank defect"),
+                                 {0: cam}, {0: sv.SELF_CALIBRATION})
+    assert "rank defect" in why
+    std = np.full(len(cam.param_names), 0.5)
+    std[cam.param_names.index("cy")] = np.nan
+    why = sv._intrinsics_problem(_fa(cam, std=std), {0: cam}, {0: sv.SELF_CALIBRATION})
+    assert "σ of cy not finite" in why
+    # NaN σ of a parameter held fixed is expected, not a problem
+    assert sv._intrinsics_problem(_fa(cam, std=std), {0: cam}, {0: ("fx", "fy")}) == ""
+
+
+def test_adjust_block_steps_down_and_restores_the_block(monkeypatch):
+    """Each rung starts from the same block: the state the refused solve left is undone."""
+    import thermogrammetry.sfm.georef as georef
+
+    n = 3
+    rec = SimpleNamespace(R=np.repeat(np.eye(3)[None], n, 0), t=np.zeros((n, 3)), registered=np.ones(n, bool),
+                          component=np.zeros(n, int), points=np.zeros((4, 3)), obs_valid=np.ones(8, bool),
+                          cameras=[_cam()], image_camera=np.zeros(n, int),
+                          status=[SimpleNamespace(registered=True, component=0, reason="") for _ in range(n)])
+    calls = []
+
+    def fake_final(rec_, xy, images, ctrl, *, self_calibrate, rig=None, **kw):
+        calls.append((dict(self_calibrate), rec_.t.copy(), rec_.cameras[0]))
+        rec_.t += 1.0  # what a solve does to the block
+        free = set(self_calibrate[0])
+        rec_.cameras[0] = _cam(fy=963.0) if "cy" in free else _cam(fx=770.0, fy=771.0)
+        return SimpleNamespace(result=SimpleNamespace(termination=Termination.CONVERGED, success=True, reason="",
+                                                      camera_std=[]), notes=[])
+
+    monkeypatch.setattr(georef, "final_adjustment", fake_final)
+    fa, used, steps = sv._adjust_block(rec, None, np.arange(n), None, sv.SELF_CALIBRATION, compute_covariance=True)
+    assert len(calls) == 2 and set(used[0]) == {"fx", "fy", "k1", "k2"}
+    assert np.all(calls[1][1] == 0.0)  # the second solve started from the block as it was
+    assert calls[1][2].param_dict["fy"] == 765.0  # ... and from the starting camera
+    assert len(steps) == 1 and "fy/fx = 1.259" in steps[0] and "adjusted again with fx, fy, k1, k2" in steps[0]
+    assert rec.cameras[0].param_dict["fx"] == 770.0 and np.all(rec.t == 1.0)
+
+    # nothing determines the block, not even with the camera fixed: every rung tried, the last step says so
+    calls.clear()
+
+    def never(rec_, xy, images, ctrl, *, self_calibrate, rig=None, **kw):
+        calls.append(dict(self_calibrate))
+        return SimpleNamespace(result=SimpleNamespace(termination=Termination.RANK_DEFICIENT, success=False,
+                                                      reason="free network: rank defect larger than the 7 datum "
+                                                             "parameters", camera_std=[]), notes=[])
+
+    monkeypatch.setattr(georef, "final_adjustment", never)
+    fa, used, steps = sv._adjust_block(rec, None, np.arange(n), None, sv.SELF_CALIBRATION)
+    assert [set(c[0]) for c in calls][-1] == set() and len(calls) == 5
+    assert steps[-1].startswith("with the camera held fixed") and "rank defect" in steps[-1]
