@@ -7,6 +7,10 @@ Contract::
            OUT/source_texture.tif (int32, -1 = none), OUT/vertices.ply (per-vertex temperature_k),
            OUT/texture.json (faces_total, faces_textured, index -> image name, unit, offsets)
 
+Frames in kelvin are used when the survey has any, else frames in raw sensor counts (DJI R-JPEGs without
+the closed SDK, Workswell TIFFs): then every product holds counts labelled as counts (``unit: "counts"``,
+``raw_counts`` in vertices.ply), and ``--unit`` and ``--correct`` are refused (exit 2).
+
 Extra: ``--rig rig.json`` (thermal poses from RGB poses, Barazzetti et al. 2013, eq. 4-5), ``--texel-size`` (m).
 Exit 0 on success, 2 on unusable input (one paragraph, no traceback).
 """
@@ -26,8 +30,11 @@ def texture(
     survey_dir: Path = typer.Argument(..., help="Survey folder (cameras.json + frames/) from `thermogrammetry survey`, or a cameras.json."),
     mesh: Path = typer.Option(..., "--mesh", help="Mesh in the survey's frame: OBJ, PLY, glTF/GLB, STL, OFF."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder."),
-    unit: str = typer.Option("K", "--unit", help="K or C: unit of temperature_texture.tif (vertices.ply is always kelvin)."),
-    correct: bool = typer.Option(False, "--correct", help="Per-texel angle/emissivity/transmission correction (alters values)."),
+    unit: Optional[str] = typer.Option(None, "--unit", help="K or C: unit of temperature_texture.tif for kelvin frames (default K; "
+                                       "vertices.ply is always kelvin). Not allowed for frames in raw counts: the products "
+                                       "then hold counts, labelled as such."),
+    correct: bool = typer.Option(False, "--correct", help="Per-texel angle/emissivity/transmission correction (alters values; "
+                                 "needs frames in kelvin)."),
     levelling: str = typer.Option("none", "--levelling", help="none, or offsets: per-image offsets from overlaps (alters values)."),
     rig: Optional[Path] = typer.Option(None, "--rig", help="rig.json: thermal frames + cam_thermal_from_cam_rgb for oriented RGB images."),
     texel_size: Optional[float] = typer.Option(None, "--texel-size", help="Texel size in metres (default: half the surface pixel size)."),
@@ -42,12 +49,12 @@ def texture(
 
     console = Console(stderr=True)
     try:
-        u = TemperatureUnit(unit.upper() if unit.lower() in ("k", "c") else unit)
+        u = None if unit is None else TemperatureUnit(unit.upper() if unit.lower() in ("k", "c") else unit)
         lev = Levelling(levelling)
         cfg = TextureConfig(texel_size_m=texel_size)
         if out.exists() and not out.is_dir():
             raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
-        d = run_texture(survey_dir, mesh, out, unit=u.value, correct=correct, levelling=lev.value, rig_path=rig, config=cfg)
+        d = run_texture(survey_dir, mesh, out, unit=None if u is None else u.value, correct=correct, levelling=lev.value, rig_path=rig, config=cfg)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2)

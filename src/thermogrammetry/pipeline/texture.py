@@ -13,9 +13,18 @@ Reads through :class:`~thermogrammetry.io.oriented.OrientedCameras`, calls
     report.html                  coverage, views per face, offsets, a rendered view in °C
     viewer.html                  the GLB in a self-contained WebGL page (offline, no libraries)
 
-Only thermal images whose frames are in kelvin (``unit: K``) are used; RGB images and frames in raw
-counts or display numbers are listed as skipped. Rig mode (``rig``): thermal poses derived from the
-oriented RGB images through the rig's relative orientation (seed 002 eq. 4–5).
+Frames: thermal images in kelvin (``unit: K``) are used when the survey has any; otherwise thermal
+images in raw sensor counts (``unit: counts``, e.g. DJI R-JPEGs without the closed SDK, Workswell TIFFs).
+One texture never mixes the two: with both present the count frames are listed as skipped. With counts,
+every product holds the counts as sampled and says so (``raw_counts``, never a temperature):
+``temperature_texture.tif`` (file name kept: it is a public contract) is float32 counts with GDAL unit
+``counts``; ``temperature_texture_u16.tif`` holds the counts rounded to the nearest integer (scale 1,
+offset 0, code 0 = no texel); ``vertices.ply`` has ``raw_counts`` instead of ``temperature_k``;
+``texture.json`` says ``unit: "counts"``; the report's colour scale says "raw counts". A temperature
+unit (``unit="K"``/``"C"``) and ``correct`` are refused for counts (no documented conversion);
+``levelling="offsets"`` works and its offsets are in counts. RGB images and display numbers (``dn``)
+are listed as skipped. Rig mode (``rig``): thermal poses derived from the oriented RGB images through
+the rig's relative orientation (seed 002 eq. 4–5); its frames are taken as kelvin.
 """
 
 from __future__ import annotations
@@ -27,7 +36,10 @@ import numpy as np
 
 from ..errors import DataFileError, InvalidInputError, UnsupportedFormatError
 
-__all__ = ["read_mesh", "load_views", "load_rig_views", "run_texture", "texture_report_html"]
+__all__ = ["read_mesh", "frames_unit", "load_views", "load_rig_views", "run_texture", "texture_report_html"]
+
+#: frame units that a texture can be made of: temperatures, or raw sensor counts labelled as such
+TEXTURE_UNITS = ("K", "counts")
 
 
 def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
@@ -51,19 +63,39 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     return V, F
 
 
-def load_views(cameras, *, names=None):
-    """:class:`TextureView` of every thermal image in kelvin; returns ``(views, skipped[(name, reason)])``."""
+def frames_unit(cameras, *, names=None) -> str | None:
+    """The unit a texture of this survey is made of: ``"K"`` when any thermal frame is in kelvin, else
+    ``"counts"`` when any is in raw counts, else ``None`` (K and counts are never mixed in one texture)."""
+    units = {im.unit.value for im in cameras
+             if (names is None or im.name in names) and im.sensor.value == "thermal"}
+    for u in TEXTURE_UNITS:
+        if u in units:
+            return u
+    return None
+
+
+def load_views(cameras, *, names=None, unit: str | None = None):
+    """:class:`TextureView` of every thermal image whose frame unit is ``unit`` (``"K"`` or ``"counts"``;
+    default :func:`frames_unit`: kelvin when the survey has any, else counts); returns
+    ``(views, skipped[(name, reason)])``. Count frames are kept as their numbers (float32, exact for uint16)."""
     from ..products.texture import TextureView
 
+    unit = frames_unit(cameras, names=names) if unit is None else unit
     views, skipped = [], []
     for im in cameras:
         if names is not None and im.name not in names:
             continue
         if im.sensor.value != "thermal":
-            skipped.append((im.name, f"sensor {im.sensor.value}: only thermal images carry temperatures"))
+            skipped.append((im.name, f"sensor {im.sensor.value}: only thermal images carry temperatures or counts"))
             continue
-        if im.unit.value != "K":
-            skipped.append((im.name, f"frame unit {im.unit.value!r}; expected kelvin (re-run survey with temperature frames)"))
+        if im.unit.value != unit:
+            if im.unit.value == "counts" and unit == "K":
+                why = ("frame unit 'counts' (raw sensor counts) while the survey has kelvin frames: one texture never mixes "
+                       "temperatures and counts; the kelvin frames are used")
+            else:
+                why = (f"frame unit {im.unit.value!r}; expected kelvin or raw counts (re-run survey with temperature or "
+                       "count frames)")
+            skipped.append((im.name, why))
             continue
         try:
             img = cameras.read_frame(im)
@@ -71,7 +103,8 @@ def load_views(cameras, *, names=None):
             skipped.append((im.name, str(exc)))
             continue
         if img.ndim != 2:
-            skipped.append((im.name, f"frame shape {img.shape}; expected a single-band temperature image"))
+            skipped.append((im.name, f"frame shape {img.shape}; expected a single-band "
+                                     + ("temperature" if unit == "K" else "raw count") + " image"))
             continue
         views.append(TextureView(im.name, cameras.camera_of(im), im.pose, img))
     return views, skipped
@@ -142,6 +175,8 @@ def _default_viewpoint(result, views):
 
 
 def texture_report_html(result, views, skipped, unit: str) -> str:
+    """The report page. ``unit``: unit of the written texture (``K``, ``C`` or ``counts``); the result holds kelvin
+    for temperature frames (shown in °C) and the frames' raw counts for count frames (shown as "raw counts")."""
     import html
 
     import matplotlib
@@ -149,6 +184,8 @@ def texture_report_html(result, views, skipped, unit: str) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    counts = unit == "counts"
+    vu = "counts" if counts else "K"  # unit of offsets and levelling RMS
     s = result.summary()
     C, target = _default_viewpoint(result, views)
     up = (0, 0, 1)
@@ -162,11 +199,12 @@ def texture_report_html(result, views, skipped, unit: str) -> str:
     figs = []
     if rv is not None:
         fig, ax = plt.subplots(figsize=(7, 5))
-        t_c = rv - 273.15  # the result's texture is in kelvin; the report shows °C
-        im = ax.imshow(t_c, cmap="inferno")
+        # the result's texture is in kelvin (the report shows °C) or in raw counts (shown as they are)
+        shown = rv if counts else rv - 273.15
+        im = ax.imshow(shown, cmap="inferno")
         ax.set_axis_off()
         ax.set_title("textured mesh (untextured and background: white)")
-        fig.colorbar(im, ax=ax, label="temperature (°C)")
+        fig.colorbar(im, ax=ax, label="raw counts (not a temperature)" if counts else "temperature (°C)")
         figs.append(_fig_png(fig))
     fig, ax = plt.subplots(figsize=(6, 3))
     h = s["views_per_face_histogram"]
@@ -182,8 +220,10 @@ def texture_report_html(result, views, skipped, unit: str) -> str:
     lev_note = ("<p><b>Levelling: per-image offsets were estimated from the overlaps (least squares, image "
                 f"{html.escape(views[result.levelling_fixed].name)} held at 0) and ADDED to every texel of their image: "
                 "the values are altered.</b> RMS of overlap differences before/after: "
-                f"{result.levelling_rms_k[0]:.3f} / {result.levelling_rms_k[1]:.3f} K.</p>") if lev == "offsets" else \
-        "<p>No seam levelling: every texel holds the temperature of one image as sampled.</p>"
+                f"{result.levelling_rms_k[0]:.3f} / {result.levelling_rms_k[1]:.3f} {vu}.</p>") if lev == "offsets" else \
+        f"<p>No seam levelling: every texel holds the {'raw counts' if counts else 'temperature'} of one image as sampled.</p>"
+    counts_note = ("<p><b>The frames are raw sensor counts (no documented conversion to temperature): every texture "
+                   "value is a count as sampled, not a temperature.</b></p>") if counts else ""
     corr = "<p><b>Per-texel angle/emissivity/transmission correction applied.</b></p>" if result.config.correct else ""
     share = s["faces_textured"] / max(s["faces_seen"], 1)
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>thermogrammetry texture</title>
@@ -196,10 +236,10 @@ def texture_report_html(result, views, skipped, unit: str) -> str:
 <tr><th>texels textured / inside faces</th><td>{s['texels_textured']} / {s['texels_total']}</td></tr>
 <tr><th>texel size</th><td>{s['texel_size_m'] * 100:.2f} cm ({s['texture_size'][0]} × {s['texture_size'][1]})</td></tr></table>
 <p>Untextured texels are NaN (source −1) in the TIFFs: nothing is filled.</p>
-{lev_note}{corr}
-<h2>Rendered view (colour scale in °C)</h2>{figs[0] if rv is not None else '<p>(no view)</p>'}
+{counts_note}{lev_note}{corr}
+<h2>Rendered view (colour scale in {'raw counts' if counts else '°C'})</h2>{figs[0] if rv is not None else '<p>(no view)</p>'}
 <h2>Views per face</h2>{figs[-1]}
-<h2>Images</h2><table><tr><th>index</th><th>image</th><th>texels</th><th>texels occluded</th><th>offset (K)</th></tr>{rows}</table>
+<h2>Images</h2><table><tr><th>index</th><th>image</th><th>texels</th><th>texels occluded</th><th>offset ({vu})</th></tr>{rows}</table>
 {('<h2>Skipped</h2><ul>' + sk + '</ul>') if sk else ''}
 </body></html>"""
 
@@ -238,9 +278,13 @@ def clean_radius_from_poses(cfg, cameras, views, *, n_sigma: float = 3.0, max_px
                                              "texels within that distance of a silhouette are not taken")
 
 
-def run_texture(survey_dir, mesh_path, out_dir, *, unit: str = "K", correct: bool = False, levelling: str = "none",
+def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, correct: bool = False, levelling: str = "none",
                 rig_path=None, config=None, progress=None) -> dict:
-    """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict."""
+    """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict.
+
+    ``unit``: ``"K"`` or ``"C"`` for kelvin frames (default ``"K"``); must stay ``None`` for frames in raw counts
+    (the texture then holds counts, labelled as such; :class:`InvalidInputError` otherwise, as for ``correct``).
+    """
     from dataclasses import replace
 
     from ..io.oriented import OrientedCameras
@@ -250,7 +294,6 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str = "K", correct: boo
     from ..radiometry.encoding import TemperatureUnit, from_kelvin
     from .project import FolderProject
 
-    u = TemperatureUnit(unit)
     cameras = OrientedCameras.load(survey_dir)
     V, F = read_mesh(mesh_path)
     if rig_path is not None:
@@ -261,39 +304,71 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str = "K", correct: boo
         except json.JSONDecodeError as exc:
             raise UnsupportedFormatError(f"{rig_path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
         views, skipped = load_rig_views(cameras, rig, source=str(rig_path))
+        frame_unit = "K"
     else:
-        views, skipped = load_views(cameras)
+        frame_unit = frames_unit(cameras)
+        views, skipped = load_views(cameras, unit=frame_unit or "K")
     if not views:
         why = "; ".join(f"{n}: {r}" for n, r in skipped[:5])
-        raise InvalidInputError(f"{survey_dir}: no usable thermal image in kelvin ({why or 'cameras.json lists none'})")
+        raise InvalidInputError(f"{survey_dir}: no usable thermal image in kelvin or raw counts ({why or 'cameras.json lists none'})")
+    counts = frame_unit == "counts"
+    if counts:
+        if unit is not None:
+            raise InvalidInputError(f"--unit {unit}: the thermal frames of {survey_dir} are raw counts (no documented "
+                                    "conversion); a temperature unit cannot be applied. Omit --unit: the texture then "
+                                    "holds the counts, labelled as counts")
+        if correct:
+            raise InvalidInputError(f"--correct: the thermal frames of {survey_dir} are raw counts (no documented conversion "
+                                    "to temperature); the angle/emissivity/transmission correction needs temperatures "
+                                    "(frames in kelvin)")
+    u = None if counts else TemperatureUnit(unit or "K")
+    unit_out = "counts" if counts else u.value
     cfg = config or TextureConfig()
     cfg = replace(cfg, correct=bool(correct), levelling=levelling)
     cfg, clean_note = clean_radius_from_poses(cfg, cameras, views)  # only ever widens the configured radius
     result = texture_mesh(V, F, views, cfg)
     store = FolderProject(out_dir)
-    t_unit = from_kelvin(result.temperature_k, u).astype(np.float32)
+    # result.temperature_k holds kelvin for temperature frames and the frames' raw counts for count frames
+    t_unit = result.temperature_k.astype(np.float32) if counts else from_kelvin(result.temperature_k, u).astype(np.float32)
     preview = tx.preview_rgb(t_unit)
-    store.write_bytes("textured.png", tx.png_bytes(preview))
-    glb = tx.glb_bytes(result, preview)
+    palette = None
+    if counts:
+        lo, hi = tx.palette_range(t_unit)
+        palette = {"colormap": "inferno", "quantity": "raw_counts", "unit": "counts", "label": "raw counts",
+                   "min": lo, "max": hi, "note": "colours span the 1st-99th percentile of the raw counts (not temperatures)"}
+    store.write_bytes("textured.png", tx.png_bytes(preview, text=None if palette is None else tx.palette_png_text(palette)))
+    glb = tx.glb_bytes(result, preview, extras=palette)
     store.write_bytes("textured.glb", glb)
     store.write_text("viewer.html", tx.viewer_html(glb))
-    store.write_text("textured.obj", tx.obj_text(result))
+    store.write_text("textured.obj", tx.obj_text(result, quantity="raw counts" if counts else "temperatures"))
     store.write_text("textured.mtl", tx.mtl_text("textured.png"))
-    data, _ = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="float32")
-    store.write_bytes("temperature_texture.tif", data)
     mapping = None
-    if np.any(np.isfinite(result.temperature_k)):
-        data16, mapping = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="uint16")
-        store.write_bytes("temperature_texture_u16.tif", data16)
+    u16_info = None
+    if counts:
+        store.write_bytes("temperature_texture.tif", tx.counts_float_tiff_bytes(t_unit))
+        if np.any(np.isfinite(t_unit)):
+            store.write_bytes("temperature_texture_u16.tif", tx.counts_u16_tiff_bytes(t_unit))
+            u16_info = {"scale": 1.0, "offset": 0.0, "unit": "counts", "nodata_code": 0,
+                        "max_quantisation_error": 0.5,
+                        "note": "counts rounded to the nearest integer (bilinear samples are fractional), clipped to 1..65535"}
+    else:
+        data, _ = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="float32")
+        store.write_bytes("temperature_texture.tif", data)
+        if np.any(np.isfinite(result.temperature_k)):
+            data16, mapping = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="uint16")
+            store.write_bytes("temperature_texture_u16.tif", data16)
+            u16_info = {"scale": mapping.scale, "offset": mapping.offset, "unit": u.value, "nodata_code": 0}
     store.write_bytes("source_texture.tif", tx.int32_tiff_bytes(result.source))
     store.write_bytes("angle_texture.tif", tx.float32_tiff_bytes(result.angle_deg))
-    store.write_bytes("vertices.ply", tx.ply_bytes(V, F, result.vertex_temperature_k))
+    store.write_bytes("vertices.ply", tx.ply_bytes(V, F, result.vertex_temperature_k,
+                                                   name="raw_counts" if counts else "temperature_k"))
     extra = {"skipped": [{"image": n, "reason": r} for n, r in skipped],
-             "uint16_mapping": None if mapping is None else {"scale": mapping.scale, "offset": mapping.offset, "unit": u.value,
-                                                             "nodata_code": 0},
+             "uint16_mapping": u16_info,
              "rig": None if rig_path is None else str(rig_path),
              "clean_radius_px": {"value": int(cfg.clean_radius_px), "reason": clean_note or "default"}}
-    text = tx.texture_json(result, u.value, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
+    if counts:
+        extra["preview_palette"] = palette
+    text = tx.texture_json(result, unit_out, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
     store.write_text("texture.json", text)
-    store.write_text("report.html", texture_report_html(result, views, skipped, u.value))
+    store.write_text("report.html", texture_report_html(result, views, skipped, unit_out))
     return json.loads(text)

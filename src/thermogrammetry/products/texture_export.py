@@ -5,8 +5,9 @@
   the temperature TIFFs are never filled);
 * the float32 temperature texture (K or °C) and its 16-bit encoding (``value = code · scale + offset``,
   code 0 = no data; GDAL metadata), the int32 source-image texture (−1 = none) and the viewing-angle
-  texture (degrees), TIFF;
-* PLY with per-vertex ``temperature_k`` (NaN where no image sees the vertex);
+  texture (degrees), TIFF; for frames in raw sensor counts the same two files hold counts, labelled
+  ``counts`` / ``raw_counts`` (:func:`counts_float_tiff_bytes`, :func:`counts_u16_tiff_bytes`);
+* PLY with per-vertex ``temperature_k`` (or ``raw_counts``; NaN where no image sees the vertex);
 * a rendered view of the textured mesh (ray cast from a virtual camera) for reports.
 
 UV convention: the atlas stores ``v`` from the top row; OBJ writes ``vt u (1 − v)`` (OBJ's origin is the
@@ -22,8 +23,14 @@ import numpy as np
 
 from ..radiometry.encoding import from_kelvin
 
-__all__ = ["preview_rgb", "png_bytes", "glb_bytes", "obj_text", "mtl_text", "ply_bytes", "int32_tiff_bytes",
-           "float32_tiff_bytes", "render_view", "texture_json", "viewer_html"]
+__all__ = ["preview_rgb", "palette_range", "palette_png_text", "png_bytes", "glb_bytes", "obj_text", "mtl_text", "ply_bytes",
+           "int32_tiff_bytes", "float32_tiff_bytes", "counts_float_tiff_bytes", "counts_u16_tiff_bytes", "render_view",
+           "texture_json", "viewer_html"]
+
+
+def palette_range(t) -> tuple[float, float]:
+    """The preview palette's range: 1st and 99th percentile of the finite values (any unit)."""
+    return _palette_range(t)
 
 
 def _palette_range(t):
@@ -58,15 +65,38 @@ def preview_rgb(temperature, *, vmin=None, vmax=None, cmap="inferno", fill_gutte
     return rgb
 
 
-def png_bytes(rgb) -> bytes:
+def palette_png_text(palette: dict) -> dict:
+    """PNG text chunks that label a preview's colour scale (``palette``: colormap, label, unit, min, max)."""
+    return {"Description": f"thermogrammetry texture preview: {palette['colormap']} colours over {palette['label']} "
+                           f"{palette['min']:.6g} .. {palette['max']:.6g} ({palette['unit']})",
+            "thermogrammetry:quantity": str(palette.get("quantity", "")),
+            "thermogrammetry:unit": str(palette["unit"]),
+            "thermogrammetry:palette": json.dumps(palette)}
+
+
+def png_bytes(rgb, text: dict | None = None) -> bytes:
+    """PNG of an (H, W, 3) uint8 image; ``text``: tEXt chunks (key -> str), e.g. :func:`palette_png_text`."""
     import cv2
+
+    if text:
+        from PIL import Image
+        from PIL.PngImagePlugin import PngInfo
+
+        info = PngInfo()
+        for k, v in text.items():
+            info.add_text(k, v)
+        buf = io.BytesIO()
+        Image.fromarray(np.ascontiguousarray(rgb, np.uint8)).save(buf, format="PNG", pnginfo=info)
+        return buf.getvalue()
 
     ok, buf = cv2.imencode(".png", cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR))
     return buf.tobytes()
 
 
-def glb_bytes(result, preview) -> bytes:
-    """Binary glTF of the atlas mesh with the preview as its base-colour texture (unlit look)."""
+def glb_bytes(result, preview, extras: dict | None = None) -> bytes:
+    """Binary glTF of the atlas mesh with the preview as its base-colour texture (unlit look).
+
+    ``extras``: stored as the mesh's glTF ``extras`` under ``thermogrammetry_palette`` (what the colours mean)."""
     import trimesh
     from PIL import Image
 
@@ -77,13 +107,15 @@ def glb_bytes(result, preview) -> bytes:
     mat = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(preview), metallicFactor=0.0,
                                               roughnessFactor=1.0, doubleSided=True)
     mesh = trimesh.Trimesh(V, at.faces, visual=trimesh.visual.TextureVisuals(uv=uv, material=mat), process=False)
+    if extras:
+        mesh.metadata["thermogrammetry_palette"] = dict(extras)
     return mesh.export(file_type="glb")
 
 
-def obj_text(result, mtl_name: str = "textured.mtl") -> str:
+def obj_text(result, mtl_name: str = "textured.mtl", *, quantity: str = "temperatures") -> str:
     at = result.atlas
     V = result.vertices[at.vmapping]
-    lines = [f"# thermogrammetry texture: temperatures in temperature_texture.tif (preview colours in the PNG)",
+    lines = [f"# thermogrammetry texture: {quantity} in temperature_texture.tif (preview colours in the PNG)",
              f"mtllib {mtl_name}", "usemtl thermal"]
     lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in V]
     lines += [f"vt {u:.7f} {1.0 - v:.7f}" for u, v in at.uv]
@@ -95,14 +127,18 @@ def mtl_text(png_name: str = "textured.png") -> str:
     return f"newmtl thermal\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {png_name}\n"
 
 
-def ply_bytes(vertices, faces, vertex_temperature_k) -> bytes:
-    """Binary PLY: vertices with ``temperature_k`` (float32, NaN = none) and the faces."""
+def ply_bytes(vertices, faces, vertex_temperature_k, *, name: str = "temperature_k") -> bytes:
+    """Binary PLY: vertices with ``temperature_k`` (float32, NaN = none) and the faces.
+
+    ``name``: the per-vertex property, ``temperature_k`` or ``raw_counts`` (values of count frames, as the cloud)."""
     from plyfile import PlyData, PlyElement
 
+    if name not in ("temperature_k", "raw_counts"):
+        raise ValueError(f"ply_bytes: name={name!r}; expected 'temperature_k' or 'raw_counts'")
     V = np.asarray(vertices, float)
-    vt = np.zeros(len(V), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), ("temperature_k", "f4")])
+    vt = np.zeros(len(V), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), (name, "f4")])
     vt["x"], vt["y"], vt["z"] = V.T
-    vt["temperature_k"] = np.asarray(vertex_temperature_k, np.float32)
+    vt[name] = np.asarray(vertex_temperature_k, np.float32)
     ft = np.zeros(len(faces), dtype=[("vertex_indices", "i4", (3,))])
     ft["vertex_indices"] = np.asarray(faces, np.int32)
     buf = io.BytesIO()
@@ -126,9 +162,34 @@ def float32_tiff_bytes(a) -> bytes:
     return buf.getvalue()
 
 
+def counts_float_tiff_bytes(values) -> bytes:
+    """float32 TIFF of a texture of raw sensor counts (NaN = no texel), GDAL unit ``counts``, quantity
+    ``raw_counts``, described as "raw sensor counts (not temperature)"."""
+    from ..io.tiff import encode_raster_tiff
+
+    return encode_raster_tiff(np.asarray(values, np.float32), unit="counts", quantity="raw_counts",
+                              description="raw sensor counts (not temperature), as sampled; NaN = no texel")
+
+
+def counts_u16_tiff_bytes(values) -> bytes:
+    """uint16 TIFF of a texture of raw counts: ``code = round(value)`` clipped to 1..65535 (scale 1, offset 0,
+    GDAL metadata), code 0 = no texel; the error is at most 0.5 count (bilinear samples are fractional)."""
+    from ..io.tiff import _encode_single_band
+
+    v = np.asarray(values, np.float64)
+    fin = np.isfinite(v)
+    code = np.zeros(v.shape, np.uint16)
+    code[fin] = np.clip(np.rint(v[fin]), 1, 65535).astype(np.uint16)
+    band = {"scale": "1.0", "offset": "0.0", "unittype": "counts",
+            "description": "raw sensor counts (not temperature) = code * 1 + 0; 0 = no texel"}
+    items = {"THERMOGRAMMETRY_QUANTITY": "raw_counts", "THERMOGRAMMETRY_UNIT": "counts", "THERMOGRAMMETRY_ENCODING": "uint16",
+             "THERMOGRAMMETRY_MAX_QUANTISATION_ERROR": "0.5"}
+    return _encode_single_band(code, 16, 1, "0", band, items, None, "raw sensor counts (not temperature)")
+
+
 def render_view(result, center, target, *, size=(480, 360), focal_px=None, up=(0, 0, 1)):
-    """Ray-cast the textured mesh from a virtual pinhole camera: (H, W) temperature (K) via the texture,
-    NaN for background and untextured texels (nearest texel)."""
+    """Ray-cast the textured mesh from a virtual pinhole camera: (H, W) values of the texture (K, or raw counts
+    for count frames), NaN for background and untextured texels (nearest texel)."""
     import trimesh
 
     from ..geometry import Pose
@@ -167,7 +228,10 @@ def render_view(result, center, target, *, size=(480, 360), focal_px=None, up=(0
 
 
 def texture_json(result, unit: str, *, mesh_source: str = "", survey_source: str = "", extra: dict | None = None) -> str:
-    """``texture.json``: counts, index → image name, unit, offsets and what was done to the values."""
+    """``texture.json``: counts, index → image name, unit, offsets and what was done to the values.
+
+    ``unit``: ``K``, ``C`` or ``counts`` (raw sensor counts: the values, offsets and levelling RMS are counts)."""
+    counts = unit == "counts"
     s = result.summary()
     cfg = result.config
     offsets = {name: float(o) for name, o in zip(result.view_names, result.offsets_k)}
@@ -187,12 +251,15 @@ def texture_json(result, unit: str, *, mesh_source: str = "", survey_source: str
             result.source[result.source >= 0], minlength=len(result.view_names)))},
         "occluded_texels_per_image": {n: int(c) for n, c in zip(result.view_names, result.occluded_texels)},
         "unit": unit,
+        "quantity": "raw_counts" if counts else "temperature",
         "levelling": cfg.levelling.value,
         "offsets": offsets if cfg.levelling.value == "offsets" else None,
         "offsets_fixed_image": None if result.levelling_fixed is None else result.view_names[result.levelling_fixed],
-        "offsets_rms_before_after_k": None if result.levelling_rms_k is None else list(result.levelling_rms_k),
+        ("offsets_rms_before_after_counts" if counts else "offsets_rms_before_after_k"):
+            None if result.levelling_rms_k is None else list(result.levelling_rms_k),
         "values_altered": bool(cfg.levelling.value == "offsets" or cfg.correct),
-        "values_note": ("temperatures as sampled (bilinear) from one image per texel; nothing blended or filled"
+        "values_note": (("raw sensor counts (not temperatures: no documented conversion)" if counts else "temperatures")
+                        + " as sampled (bilinear) from one image per texel; nothing blended or filled"
                         + ("; per-image offsets ADDED (levelling=offsets)" if cfg.levelling.value == "offsets" else "")
                         + ("; per-texel angle/emissivity/transmission correction applied" if cfg.correct else "")),
         "correction": None if not cfg.correct else {k: (v.value if hasattr(v, "value") else v)
