@@ -274,3 +274,22 @@ def test_display_numbers_only_are_refused(tmp_path, capsys):
     assert main(["texture", str(s), "--mesh", str(s / "mesh.obj"), "-o", str(tmp_path / "o")]) == 2
     err = " ".join(capsys.readouterr().err.split())
     assert "no usable thermal image in kelvin or raw counts" in err and "'dn'" in err
+
+
+def test_mesh_facing_away_is_reversed_and_said(tmp_path):
+    """A plane whose triangles' normals point away from every camera (a plane fitted to a cloud has an arbitrary
+    normal sign): the winding is reversed, recorded, and the texture is the same as with the right winding."""
+    from thermogrammetry.cli.main import main
+
+    s = _write(tmp_path / "s")
+    V, F = _wall_mesh()
+    lines = [f"v {x} {y} {z}" for x, y, z in V] + [f"f {a + 1} {c + 1} {b + 1}" for a, b, c in F]
+    (s / "flipped.obj").write_text("\n".join(lines) + "\n")
+    d = {}
+    for m in ("mesh", "flipped"):
+        assert main(["texture", str(s), "--mesh", str(s / f"{m}.obj"), "-o", str(tmp_path / m), "--texel-size", "0.05"]) == 0
+        d[m] = json.loads((tmp_path / m / "texture.json").read_text())
+    assert "mesh_winding" not in d["mesh"]
+    assert d["flipped"]["mesh_winding"]["reversed"] is True and "reversed" in d["flipped"]["mesh_winding"]["reason"]
+    assert d["flipped"]["faces_textured"] == d["mesh"]["faces_textured"] == 96
+    assert d["flipped"]["texels_textured"] == d["mesh"]["texels_textured"]

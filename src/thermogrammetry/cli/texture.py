@@ -61,6 +61,10 @@ def texture(
     seen = max(d["faces_seen"], 1)
     console.print(f"textured {d['faces_textured']}/{d['faces_total']} faces ({100 * d['faces_textured'] / seen:.1f} % of the "
                   f"{d['faces_seen']} seen), {d['texels_textured']}/{d['texels_total']} texels; wrote {out}", highlight=False)
+    if d.get("unit") == "counts":
+        console.print("values: raw sensor counts (frames have no documented conversion), labelled as counts", highlight=False)
+    if d.get("mesh_winding"):
+        console.print(f"mesh: {d['mesh_winding']['reason']}", highlight=False)
     if d["skipped"]:
         console.print(f"skipped {len(d['skipped'])} image(s): " + "; ".join(f"{s['image']}: {s['reason']}" for s in d["skipped"][:5]),
                       highlight=False)

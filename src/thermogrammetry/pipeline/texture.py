@@ -278,6 +278,28 @@ def clean_radius_from_poses(cfg, cameras, views, *, n_sigma: float = 3.0, max_px
                                              "texels within that distance of a silhouette are not taken")
 
 
+def orient_mesh_to_views(V, F, views, cfg):
+    """Reverse the triangles' winding when no face faces any image but the reversed mesh does.
+
+    The texture takes a face's normal by the right-hand rule and needs it towards the cameras; a mesh exported
+    with the opposite convention (or a plane fitted to a cloud, whose normal sign is arbitrary) would otherwise
+    give an empty texture. Only an all-or-nothing case is changed: with at least one face seen, the mesh is used
+    as given. Returns ``(faces, note or None)``.
+    """
+    from ..products.texture import face_view_scores
+
+    kw = dict(max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
+    if np.any(face_view_scores(V, F, views, **kw) > 0):
+        return F, None
+    Fr = np.ascontiguousarray(F[:, ::-1])
+    seen = int(np.sum(np.any(face_view_scores(V, Fr, views, **kw) > 0, axis=1)))
+    if not seen:
+        return F, None
+    return Fr, (f"no face's normal (right-hand rule) pointed towards any of the {len(views)} images; with the winding "
+                f"reversed {seen} of {len(F)} faces face them: every triangle's vertex order was reversed "
+                "(the written OBJ/GLB/PLY carry the reversed order)")
+
+
 def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, correct: bool = False, levelling: str = "none",
                 rig_path=None, config=None, progress=None) -> dict:
     """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict.
@@ -326,6 +348,7 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     cfg = config or TextureConfig()
     cfg = replace(cfg, correct=bool(correct), levelling=levelling)
     cfg, clean_note = clean_radius_from_poses(cfg, cameras, views)  # only ever widens the configured radius
+    F, winding_note = orient_mesh_to_views(V, F, views, cfg)
     result = texture_mesh(V, F, views, cfg)
     store = FolderProject(out_dir)
     # result.temperature_k holds kelvin for temperature frames and the frames' raw counts for count frames
@@ -366,6 +389,8 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
              "uint16_mapping": u16_info,
              "rig": None if rig_path is None else str(rig_path),
              "clean_radius_px": {"value": int(cfg.clean_radius_px), "reason": clean_note or "default"}}
+    if winding_note:
+        extra["mesh_winding"] = {"reversed": True, "reason": winding_note}
     if counts:
         extra["preview_palette"] = palette
     text = tx.texture_json(result, unit_out, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
