@@ -25,6 +25,10 @@ unit (``unit="K"``/``"C"``) and ``correct`` are refused for counts (no documente
 ``levelling="offsets"`` works and its offsets are in counts. RGB images and display numbers (``dn``)
 are listed as skipped. Rig mode (``rig``): thermal poses derived from the oriented RGB images through
 the rig's relative orientation (seed 002 eq. 4–5); its frames are taken as kelvin.
+
+Mesh winding: the texture needs each triangle's normal (right-hand rule) towards the images. When no face
+faces any image but the reversed mesh does (a plane fitted to a sparse cloud has an arbitrary normal sign),
+every triangle's vertex order is reversed and ``texture.json`` says so (``mesh_winding``).
 """
 
 from __future__ import annotations

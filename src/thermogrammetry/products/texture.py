@@ -127,7 +127,10 @@ def _from_dict(cls, d):
 @dataclass
 class TextureView:
     """One oriented thermal image: ``camera`` (a :class:`~thermogrammetry.Camera`), ``pose``
-    (``cam_from_world`` :class:`~thermogrammetry.geometry.Pose`) and ``image_k`` (H, W) kelvin."""
+    (``cam_from_world`` :class:`~thermogrammetry.geometry.Pose`) and ``image_k`` (H, W) kelvin — or the frame's
+    raw sensor counts (uint16 -> float32, exact) when the survey has no temperature frames; the texture then
+    holds counts throughout (``temperature_k`` fields included) and the caller labels them (pipeline.texture).
+    All views of one texture share one unit."""
 
     name: str
     camera: object
@@ -644,7 +647,8 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     ----------
     vertices : (V, 3) metres, in the frame of the views' poses
     faces : (F, 3) vertex indices (normals by the right-hand rule point towards the cameras)
-    views : K :class:`TextureView`, images in kelvin
+    views : K :class:`TextureView`, images in kelvin (or all in raw counts: values, offsets and the levelling RMS
+        are then counts; ``correct`` needs kelvin)
     config : :class:`TextureConfig`
 
     Returns
