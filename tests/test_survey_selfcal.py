@@ -34,13 +34,12 @@ def _fa(cam, termination=Termination.CONVERGED, std=None, reason=""):
 
 
 def test_ladder_rungs_follow_the_request():
-    rungs = sv._ladder_sets(sv.SELF_CALIBRATION, [0])
-    assert [set(r[0]) for r in rungs] == [set(sv.SELF_CALIBRATION), {"fx", "fy", "k1", "k2"}, {"fx", "fy", "k1"},
-                                          {"fx", "fy"}, set()]
+    rungs = sv._ladder_sets(sv.SELF_CALIBRATION, [0])[0]
+    assert [set(r) for r in rungs] == [set(sv.SELF_CALIBRATION), {"fx", "fy", "k1", "k2"}, {"fx", "fy", "k1"},
+                                       {"fx", "fy"}, set()]
     # a camera held fixed stays fixed; a smaller request starts lower and never repeats a rung
-    rungs = sv._ladder_sets({0: (), 1: ("fx", "fy", "k1")}, [0, 1])
-    assert [r[1] for r in rungs] == [("fx", "fy", "k1"), ("fx", "fy"), ()]
-    assert all(r[0] == () for r in rungs)
+    lad = sv._ladder_sets({0: (), 1: ("fx", "fy", "k1")}, [0, 1])
+    assert lad[1] == [("fx", "fy", "k1"), ("fx", "fy"), ()] and lad[0] == [()]
 
 
 @pytest.mark.parametrize("est, words", [
@@ -51,30 +50,30 @@ def test_ladder_rungs_follow_the_request():
 ])
 def test_implausible_intrinsics_are_named(est, words):
     free = {0: sv.SELF_CALIBRATION}
-    why = sv._intrinsics_problem(_fa(_cam(**est)), {0: _cam()}, free)
-    assert words in why and why.startswith("camera thermal:")
+    cam, why = sv._intrinsics_problem(_fa(_cam(**est)), {0: _cam()}, free)
+    assert cam == 0 and words in why and why.startswith("camera thermal:")
 
 
 def test_plausible_intrinsics_pass_at_the_edges_of_the_bands():
     # 4 % aspect, fx +23 % and fy +28 %, 14 % of the frame for the principal point, 9.5 % corner distortion
     ok = _cam(fx=940.0, fy=940.0 * 1.04, cx=320 + 0.14 * W, cy=256 - 0.14 * H, k1=-0.5)
     start = _cam(fx=765.0, fy=765.0)
-    assert sv._intrinsics_problem(_fa(ok), {0: start}, {0: sv.SELF_CALIBRATION}) == ""
+    assert sv._intrinsics_problem(_fa(ok), {0: start}, {0: sv.SELF_CALIBRATION}) == (None, "")
     # the same camera held fixed is not judged
-    assert sv._intrinsics_problem(_fa(_cam(fy=963.0)), {0: _cam()}, {0: ()}) == ""
+    assert sv._intrinsics_problem(_fa(_cam(fy=963.0)), {0: _cam()}, {0: ()}) == (None, "")
 
 
 def test_rank_deficient_solve_and_undetermined_sigma_are_refused():
     cam = _cam()
-    why = sv._intrinsics_problem(_fa(cam, Termination.RANK_DEFICIENT, reason="free network: rank defect"),
-                                 {0: cam}, {0: sv.SELF_CALIBRATION})
-    assert "rank defect" in why
+    c, why = sv._intrinsics_problem(_fa(cam, Termination.RANK_DEFICIENT, reason="free network: rank defect"),
+                                    {0: cam}, {0: sv.SELF_CALIBRATION})
+    assert c is None and "rank defect" in why
     std = np.full(len(cam.param_names), 0.5)
     std[cam.param_names.index("cy")] = np.nan
-    why = sv._intrinsics_problem(_fa(cam, std=std), {0: cam}, {0: sv.SELF_CALIBRATION})
-    assert "σ of cy not finite" in why
+    c, why = sv._intrinsics_problem(_fa(cam, std=std), {0: cam}, {0: sv.SELF_CALIBRATION})
+    assert c == 0 and "σ of cy not finite" in why
     # NaN σ of a parameter held fixed is expected, not a problem
-    assert sv._intrinsics_problem(_fa(cam, std=std), {0: cam}, {0: ("fx", "fy")}) == ""
+    assert sv._intrinsics_problem(_fa(cam, std=std), {0: cam}, {0: ("fx", "fy")}) == (None, "")
 
 
 def test_adjust_block_steps_down_and_restores_the_block(monkeypatch):
@@ -101,7 +100,7 @@ def test_adjust_block_steps_down_and_restores_the_block(monkeypatch):
     assert len(calls) == 2 and set(used[0]) == {"fx", "fy", "k1", "k2"}
     assert np.all(calls[1][1] == 0.0)  # the second solve started from the block as it was
     assert calls[1][2].param_dict["fy"] == 765.0  # ... and from the starting camera
-    assert len(steps) == 1 and "fy/fx = 1.259" in steps[0] and "adjusted again with fx, fy, k1, k2" in steps[0]
+    assert len(steps) == 1 and "fy/fx = 1.259" in steps[0] and "adjusted again with thermal: fx, fy, k1, k2" in steps[0]
     assert rec.cameras[0].param_dict["fx"] == 770.0 and np.all(rec.t == 1.0)
 
     # nothing determines the block, not even with the camera fixed: every rung tried, the last step says so
@@ -117,3 +116,33 @@ def test_adjust_block_steps_down_and_restores_the_block(monkeypatch):
     fa, used, steps = sv._adjust_block(rec, None, np.arange(n), None, sv.SELF_CALIBRATION)
     assert [set(c[0]) for c in calls][-1] == set() and len(calls) == 5
     assert steps[-1].startswith("with the camera held fixed") and "rank defect" in steps[-1]
+
+
+def test_only_the_camera_that_cannot_be_calibrated_steps_down(monkeypatch):
+    """RGB + thermal: the thermal camera with two frames of its own runs away, the RGB camera is determined.
+    Only the thermal camera steps down (measured on the frescoes through a rig: one ladder for both cameras
+    held the well-determined RGB camera fixed too)."""
+    import thermogrammetry.sfm.georef as georef
+
+    n = 4
+    rgb = Camera("opencv", (1920, 1080), {"fx": 1700.0, "fy": 1700.0, "cx": 960.0, "cy": 540.0}, name="rgb")
+    rec = SimpleNamespace(R=np.repeat(np.eye(3)[None], n, 0), t=np.zeros((n, 3)), registered=np.ones(n, bool),
+                          component=np.zeros(n, int), points=np.zeros((4, 3)), obs_valid=np.ones(8, bool),
+                          cameras=[_cam(), rgb], image_camera=np.array([0, 0, 1, 1]),
+                          status=[SimpleNamespace(registered=True, component=0, reason="") for _ in range(n)])
+    calls = []
+
+    def fake_final(rec_, xy, images, ctrl, *, self_calibrate, rig=None, **kw):
+        calls.append({c: tuple(v) for c, v in self_calibrate.items()})
+        # the thermal camera runs away while it has more than fx, fy free
+        rec_.cameras[0] = _cam(fy=316.0) if len(self_calibrate[0]) > 2 else _cam(fx=770.0, fy=772.0)
+        rec_.cameras[1] = Camera("opencv", (1920, 1080), {"fx": 1694.0, "fy": 1701.0, "cx": 965.0, "cy": 545.0}, name="rgb")
+        return SimpleNamespace(result=SimpleNamespace(termination=Termination.CONVERGED, success=True, reason="",
+                                                      camera_std=[]), notes=[])
+
+    monkeypatch.setattr(georef, "final_adjustment", fake_final)
+    fa, used, steps = sv._adjust_block(rec, None, np.arange(n), None, sv.SELF_CALIBRATION)
+    assert [set(c[1]) for c in calls] == [set(sv.SELF_CALIBRATION)] * 4  # the RGB camera keeps every parameter
+    assert [len(c[0]) for c in calls] == [8, 4, 3, 2]
+    assert set(used[1]) == set(sv.SELF_CALIBRATION) and set(used[0]) == {"fx", "fy"}
+    assert len(steps) == 3 and all(st.startswith("self-calibration of thermal:") for st in steps)

@@ -1174,14 +1174,16 @@ def _gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | None, li
                    f"{axes} by {fmt(shift)} m before the adjustment"]
 
 
-def _intrinsics_problem(fa, start_cams: dict, free_sets: dict) -> str:
-    """Why a final adjustment's self-calibration cannot be accepted ("" when it can).
+def _intrinsics_problem(fa, start_cams: dict, free_sets: dict) -> tuple[int | None, str]:
+    """Why a final adjustment's self-calibration cannot be accepted: ``(camera index, reason)`` for one camera's
+    implausible or undetermined intrinsics, ``(None, reason)`` when the solve itself failed, ``(None, "")`` when
+    it can be accepted.
 
     ``start_cams``: camera index -> Camera before the adjustment; ``free_sets``: camera index -> free names.
     """
     res = fa.result
     if not res.success or res.termination.value == "rank_deficient":
-        return f"the adjustment stopped: {res.reason or res.termination.value}"
+        return None, f"the adjustment stopped: {res.reason or res.termination.value}"
     lim = INTRINSICS_PLAUSIBLE
     order = sorted(start_cams)
     for c in order:
@@ -1195,72 +1197,84 @@ def _intrinsics_problem(fa, start_cams: dict, free_sets: dict) -> str:
             std = dict(zip(cam.param_names, np.asarray(res.camera_std[order.index(c)], float)))
             bad = sorted(n for n in free if n in std and not np.isfinite(std[n]))
             if bad and fa.covariance_asked:
-                return f"camera {cam.name or c}: σ of {', '.join(bad)} not finite (the block does not determine them)"
+                return c, f"camera {cam.name or c}: σ of {', '.join(bad)} not finite (the block does not determine them)"
         if "fx" in p and "fy" in p:
             if abs(p["fx"] / p0["fx"] - 1) > lim["focal"] or abs(p["fy"] / p0["fy"] - 1) > lim["focal"]:
-                return (f"camera {cam.name or c}: focal length {p['fx']:.1f}/{p['fy']:.1f} px from a start of {p0['fx']:.1f} px "
+                return c, (f"camera {cam.name or c}: focal length {p['fx']:.1f}/{p['fy']:.1f} px from a start of {p0['fx']:.1f} px "
                         f"(more than {lim['focal']:.0%} apart)")
             if abs(p["fy"] / p["fx"] - 1) > lim["aspect"]:
-                return f"camera {cam.name or c}: fy/fx = {p['fy'] / p['fx']:.3f} (pixels are square to within {lim['aspect']:.0%})"
+                return c, f"camera {cam.name or c}: fy/fx = {p['fy'] / p['fx']:.3f} (pixels are square to within {lim['aspect']:.0%})"
         if "cx" in p and (abs(p["cx"] - p0["cx"]) > lim["principal_point"] * w or abs(p["cy"] - p0["cy"]) > lim["principal_point"] * h):
-            return (f"camera {cam.name or c}: principal point ({p['cx']:.1f}, {p['cy']:.1f}) px, more than "
+            return c, (f"camera {cam.name or c}: principal point ({p['cx']:.1f}, {p['cy']:.1f}) px, more than "
                     f"{lim['principal_point']:.0%} of the frame from its start ({p0['cx']:.1f}, {p0['cy']:.1f})")
         if "k1" in p and "fx" in p:
             r2 = ((w / 2) ** 2 + (h / 2) ** 2) / p["fx"] ** 2
             d = abs(p.get("k1", 0.0) * r2 + p.get("k2", 0.0) * r2**2 + p.get("k3", 0.0) * r2**3)
             if d > lim["corner_distortion"]:
-                return f"camera {cam.name or c}: radial distortion {d:.0%} of the radius at the frame corner"
-    return ""
+                return c, f"camera {cam.name or c}: radial distortion {d:.0%} of the radius at the frame corner"
+    return None, ""
 
 
-def _ladder_sets(self_cal, cam_indices) -> list[dict]:
-    """Rungs of :data:`SELF_CALIBRATION_LADDER` for the requested self-calibration: camera index -> free names."""
-    want = {int(c): tuple(self_cal.get(int(c), ()) if isinstance(self_cal, dict) else self_cal) for c in cam_indices}
-    rungs, seen = [], set()
-    for rung in (None,) + SELF_CALIBRATION_LADDER:
-        sets = {c: (w if rung is None else tuple(n for n in w if n.lower() in rung)) for c, w in want.items()}
-        key = tuple(sorted(sets.items()))
-        if key not in seen:
-            seen.add(key)
-            rungs.append(sets)
-    return rungs
+def _ladder_sets(self_cal, cam_indices) -> dict:
+    """Rungs of :data:`SELF_CALIBRATION_LADDER` for the requested self-calibration, per camera index: a list of
+    tuples of free names, from the request down to none (no rung repeated)."""
+    out = {}
+    for c in cam_indices:
+        want = tuple(self_cal.get(int(c), ()) if isinstance(self_cal, dict) else self_cal)
+        rungs: list = []
+        for rung in (None,) + SELF_CALIBRATION_LADDER:
+            sets = want if rung is None else tuple(n for n in want if n.lower() in rung)
+            if sets not in rungs:
+                rungs.append(sets)
+        out[int(c)] = rungs
+    return out
 
 
 def _adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, **kw):
     """:func:`~thermogrammetry.sfm.georef.final_adjustment` with a self-calibration the block can carry.
 
-    The requested parameters first; when the solve stops rank deficient, a free parameter's σ is not finite or
-    the intrinsics are implausible (:data:`INTRINSICS_PLAUSIBLE`), ``rec`` is restored and the block adjusted
-    again one rung down :data:`SELF_CALIBRATION_LADDER` (fewer parameters), down to none. Returns the final
-    adjustment, the free parameters used per camera index and the reasons of every step down.
+    The requested parameters first. When one camera's intrinsics are implausible (:data:`INTRINSICS_PLAUSIBLE`)
+    or a free parameter's σ is not finite, that camera steps one rung down :data:`SELF_CALIBRATION_LADDER`
+    (fewer parameters); when the solve itself stops (rank deficient), every camera with free parameters
+    steps down. ``rec`` is restored and the block adjusted again, until the solve is accepted or every camera
+    is held fixed. (On the frescoes, RGB + thermal through a rig, the thermal camera with 2 frames of its own
+    ran to fy = 316 px while the RGB camera, 40 frames, was well determined: only the thermal one steps down.)
+    Returns the final adjustment, the free parameters used per camera index and the reasons of every step.
     """
     from ..sfm.georef import final_adjustment
 
     cams_in = sorted({int(c) for c in rec.image_camera[np.asarray(images)]})
     start = {c: rec.cameras[c] for c in cams_in}
-    rungs = _ladder_sets(self_cal, cams_in)
+    ladder = _ladder_sets(self_cal, cams_in)
+    level = {c: 0 for c in cams_in}
     snap = _rig_snapshot(rec)
     rig0 = (rigv.R.copy(), rigv.t.copy()) if rigv is not None else None
     steps: list[str] = []
-    fa = None
-    for k, sets in enumerate(rungs):
-        if k:
+    first = True
+    names = lambda v: ", ".join(v) or "nothing"  # noqa: E731
+    while True:
+        sets = {c: ladder[c][level[c]] for c in cams_in}
+        if not first:
             _restore(rec, snap)
             if rig0 is not None:
                 rigv.R, rigv.t = rig0[0].copy(), rig0[1].copy()
+        first = False
         fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=sets, rig=rigv, **kw)
         fa.cameras_after = {c: rec.cameras[c] for c in cams_in}
         fa.covariance_asked = bool(kw.get("compute_covariance", True))
-        why = _intrinsics_problem(fa, start, sets)
+        cam, why = _intrinsics_problem(fa, start, sets)
         if not why:
             return fa, sets, steps
-        if k + 1 < len(rungs):
-            nxt = rungs[k + 1]
-            steps.append(f"self-calibration of {', '.join(sorted({n for v in sets.values() for n in v})) or 'nothing'} refused: "
-                         f"{why}; adjusted again with {', '.join(sorted({n for v in nxt.values() for n in v})) or 'the camera held fixed'}")
-        else:
-            steps.append(f"with the camera held fixed: {why}")
-    return fa, rungs[-1], steps
+        down = [cam] if cam is not None else [c for c in cams_in if level[c] + 1 < len(ladder[c])]
+        down = [c for c in down if level[c] + 1 < len(ladder[c])]
+        if not down:
+            steps.append(f"with the camera held fixed: {why}" if all(not v for v in sets.values()) else
+                         f"with {', '.join(f'{start[c].name or c}: {names(sets[c])}' for c in cams_in)}: {why}")
+            return fa, sets, steps
+        for c in down:
+            level[c] += 1
+        steps.append(f"self-calibration of {', '.join(f'{start[c].name or c}: {names(sets[c])}' for c in down)} refused: {why}; "
+                     f"adjusted again with {', '.join(f'{start[c].name or c}: ' + (', '.join(ladder[c][level[c]]) or 'held fixed') for c in down)}")
 
 
 def _restore(rec, snap) -> None:
