@@ -837,7 +837,7 @@ class _ChunkedNormal:
         ok = True
         for o0, o1, p0, p1 in self.chunks:
             if o1 > o0:
-                Jc, Jp, (jpl), rw = self._chunk(o0, o1, p0, p1)
+                Jc, Jp, jpl, rw = self._chunk(o0, o1, p0, p1)
                 if build and nc:
                     self.U = (self.U + Jc.T @ Jc).tocsr()
                     self.gc += Jc.T @ rw
