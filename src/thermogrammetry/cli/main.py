@@ -14,7 +14,7 @@ from .app import app
 
 #: verb modules, imported in this order (each adds its command(s) to ``app``)
 VERB_MODULES: tuple[str, ...] = ("convert", "closerange", "correct", "calibrate", "survey", "plan", "dense", "ortho", "evaluate",
-                                  "texture", "demo")
+                                  "texture", "facade", "demo")
 
 
 def _register() -> None:

@@ -1143,6 +1143,9 @@ def _gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | None, li
     gcps = {gi for (i, gi, xy_, s_) in ctrl.gcp_obs if i in in_block}
     if len(gcps) < GNSS_OFFSET_MIN_GCPS:
         return None, []
+    if len(images) > 2500:  # the centres' σ need the covariance, which large blocks skip (as the final adjustment does)
+        return None, [f"GNSS against the GCPs: not checked for a datum offset ({len(images)} images: no covariance "
+                      "above 2500)"]
     snap = _rig_snapshot(rec)
     weak = dc_replace(ctrl, gnss_sigma=ctrl.gnss_sigma * 1e3)
     try:
