@@ -146,3 +146,19 @@ def test_only_the_camera_that_cannot_be_calibrated_steps_down(monkeypatch):
     assert [len(c[0]) for c in calls] == [8, 4, 3, 2]
     assert set(used[1]) == set(sv.SELF_CALIBRATION) and set(used[0]) == {"fx", "fy"}
     assert len(steps) == 3 and all(st.startswith("self-calibration of thermal:") for st in steps)
+
+
+def test_focal_band_only_when_the_start_is_the_files_focal_length():
+    """A video or an image without EXIF starts from a guess (1 x the width) that self-calibration must be free
+    to correct (2.3x on the synthetic video of tests/test_io_video.py); the ±30 % band applies to EXIF starts."""
+    est = _fa(_cam(fx=765.0 * 2.3, fy=765.0 * 2.3))
+    assert sv._intrinsics_problem(est, {0: _cam()}, {0: sv.SELF_CALIBRATION}, {0: True})[0] == 0
+    assert sv._intrinsics_problem(est, {0: _cam()}, {0: sv.SELF_CALIBRATION}, {0: False}) == (None, "")
+    # the aspect ratio is checked whatever the start
+    assert "fy/fx" in sv._intrinsics_problem(_fa(_cam(fx=1700.0, fy=1900.0)), {0: _cam()}, {0: sv.SELF_CALIBRATION}, {0: False})[1]
+    inputs = {"images": [{"camera_guess": {"source": "EXIF focal 13 mm / pitch 17 µm"}},
+                         {"camera_guess": {"source": "EXIF focal 9 mm, pixel pitch assumed 17 µm"}},
+                         {"camera_guess": {"source": "no focal length in the file: 1.0 x image width assumed (self-calibrated)"}},
+                         {"camera_guess": {"source": "EXIF 35 mm-equivalent focal 40 mm"}}]}
+    rec = SimpleNamespace(image_camera=np.array([0, 1, 2, 3]))
+    assert [sv._focal_from_exif(inputs, rec, k) for k in range(4)] == [True, False, False, True]

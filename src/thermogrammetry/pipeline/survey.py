@@ -65,7 +65,7 @@ BLOCK_RMS_GATE_PX = 3.0
 SELF_CALIBRATION_LADDER = (("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"), ("fx", "fy", "k1", "k2"), ("fx", "fy", "k1"),
                            ("fx", "fy"), ())
 #: plausibility of self-calibrated intrinsics against their start (EXIF focal length and pixel pitch, or the
-#: image centre): focal length within ±30 %, fy/fx within ±5 % (thermal and RGB sensors have square pixels to
+#: image centre): focal length within ±30 % (only when the start is the file's EXIF focal length), fy/fx within ±5 % (thermal and RGB sensors have square pixels to
 #: well under 1 %), principal point within 15 % of the frame, radial distortion at the frame corner below 20 %
 #: of the radius. Measured on the Thermitage fresco walls (thermal only, 6 frames tied by wrong matches): fy/fx
 #: 1.26 and a rank-deficient solve, reported as an oriented block before this check.
@@ -938,6 +938,10 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     self_cal = opt.self_calibrate if camera is None and rgb_cam is None else {
         k: (() if (camera is not None and str(cid).startswith("thermal")) or (rgb_cam is not None and str(cid).startswith("rgb"))
             else opt.self_calibrate) for k, cid in enumerate(meta["camera_ids"])}
+    # the focal-length band of the plausibility test applies only where the start came from the file's EXIF focal
+    # length and pixel pitch: a video or an image without them starts from a guess (1 x the width), which
+    # self-calibration is there to correct (a factor 2.3 on the synthetic video of tests/test_io_video.py)
+    focal_known = {k: _focal_from_exif(inputs, rec, k) for k in range(len(meta["camera_ids"]))}
     for ci, images in enumerate(comps):
         if len(images) == 0:
             continue
@@ -975,7 +979,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                 refused = "" if ok else why
         fa = None
         if rigv is not None and not refused:
-            fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, tie_sigma_px=opt.tie_sigma_px,
+            fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, focal_known=focal_known,
+                                                    tie_sigma_px=opt.tie_sigma_px,
                                                     max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
                                                     compute_covariance=len(images) <= 2500, manual_ties=t_obs or None)
             if not rigv.fixed:
@@ -994,7 +999,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             rigv = None
             fa = None
         if fa is None:
-            fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, tie_sigma_px=opt.tie_sigma_px,
+            fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, focal_known=focal_known,
+                                                    tie_sigma_px=opt.tie_sigma_px,
                                                     max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
                                                     compute_covariance=len(images) <= 2500, manual_ties=t_obs or None)
         notes += [f"block {ci + 1}: {x}" for x in fa.notes]
@@ -1177,12 +1183,22 @@ def _gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | None, li
                    f"{axes} by {fmt(shift)} m before the adjustment"]
 
 
-def _intrinsics_problem(fa, start_cams: dict, free_sets: dict) -> tuple[int | None, str]:
+def _focal_from_exif(inputs: dict, rec, cam_index: int) -> bool:
+    """True when every image of this camera had its starting focal length from EXIF focal length and pixel pitch
+    (``camera_guess.source`` "EXIF focal ... / pitch ..." or a 35 mm-equivalent focal), not a guess."""
+    srcs = [str(im.get("camera_guess", {}).get("source", "")) for im, c in zip(inputs["images"], rec.image_camera)
+            if int(c) == cam_index]
+    return bool(srcs) and all(s_.startswith("EXIF") and "assumed" not in s_ for s_ in srcs)
+
+
+def _intrinsics_problem(fa, start_cams: dict, free_sets: dict, focal_known: dict | None = None) -> tuple[int | None, str]:
     """Why a final adjustment's self-calibration cannot be accepted: ``(camera index, reason)`` for one camera's
     implausible or undetermined intrinsics, ``(None, reason)`` when the solve itself failed, ``(None, "")`` when
     it can be accepted.
 
-    ``start_cams``: camera index -> Camera before the adjustment; ``free_sets``: camera index -> free names.
+    ``start_cams``: camera index -> Camera before the adjustment; ``free_sets``: camera index -> free names;
+    ``focal_known``: camera index -> whether the starting focal length is the file's (only then is the focal
+    band of :data:`INTRINSICS_PLAUSIBLE` applied; default: for every camera).
     """
     res = fa.result
     if not res.success or res.termination.value == "rank_deficient":
@@ -1202,7 +1218,8 @@ def _intrinsics_problem(fa, start_cams: dict, free_sets: dict) -> tuple[int | No
             if bad and fa.covariance_asked:
                 return c, f"camera {cam.name or c}: σ of {', '.join(bad)} not finite (the block does not determine them)"
         if "fx" in p and "fy" in p:
-            if abs(p["fx"] / p0["fx"] - 1) > lim["focal"] or abs(p["fy"] / p0["fy"] - 1) > lim["focal"]:
+            known = True if focal_known is None else bool(focal_known.get(c, False))
+            if known and (abs(p["fx"] / p0["fx"] - 1) > lim["focal"] or abs(p["fy"] / p0["fy"] - 1) > lim["focal"]):
                 return c, (f"camera {cam.name or c}: focal length {p['fx']:.1f}/{p['fy']:.1f} px from a start of {p0['fx']:.1f} px "
                         f"(more than {lim['focal']:.0%} apart)")
             if abs(p["fy"] / p["fx"] - 1) > lim["aspect"]:
@@ -1233,7 +1250,7 @@ def _ladder_sets(self_cal, cam_indices) -> dict:
     return out
 
 
-def _adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, **kw):
+def _adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dict | None = None, **kw):
     """:func:`~thermogrammetry.sfm.georef.final_adjustment` with a self-calibration the block can carry.
 
     The requested parameters first. When one camera's intrinsics are implausible (:data:`INTRINSICS_PLAUSIBLE`)
@@ -1265,7 +1282,7 @@ def _adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, **kw):
         fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=sets, rig=rigv, **kw)
         fa.cameras_after = {c: rec.cameras[c] for c in cams_in}
         fa.covariance_asked = bool(kw.get("compute_covariance", True))
-        cam, why = _intrinsics_problem(fa, start, sets)
+        cam, why = _intrinsics_problem(fa, start, sets, focal_known)
         if not why:
             return fa, sets, steps
         down = [cam] if cam is not None else [c for c in cams_in if level[c] + 1 < len(ladder[c])]
