@@ -1439,19 +1439,10 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     else:
         cov = Q.copy(order="F")
     # cov = s2 T Q T^T; T is the identity but for the centre rows c+3:c+6 of each pose: [-R^T [t]x, -R^T]
-    for p in range(len(st.R)):
-        c = int(lay.pose_col[p])
-        if c < 0:
-            continue
-        A = -st.R[p].T @ skew(st.t[p])
-        B = -st.R[p].T
+    blocks = [(int(lay.pose_col[p]), -st.R[p].T @ skew(st.t[p]), -st.R[p].T) for p in range(len(st.R)) if lay.pose_col[p] >= 0]
+    for c, A, B in blocks:  # rows first (T Q), then columns ((T Q) T^T)
         cov[c + 3 : c + 6, :] = A @ cov[c : c + 3, :] + B @ cov[c + 3 : c + 6, :]
-    for p in range(len(st.R)):
-        c = int(lay.pose_col[p])
-        if c < 0:
-            continue
-        A = -st.R[p].T @ skew(st.t[p])
-        B = -st.R[p].T
+    for c, A, B in blocks:
         cov[:, c + 3 : c + 6] = cov[:, c : c + 3] @ A.T + cov[:, c + 3 : c + 6] @ B.T
     cov *= s2
     _symmetrise_inplace(cov)

@@ -156,7 +156,7 @@ def run_facade(survey_dir, out_dir, *, plane: str = "auto", cell_m: float | None
     from ..products.facade import FacadeGrid, plane_mosaic
     from ..radiometry.encoding import TemperatureUnit, from_kelvin
     from .project import FolderProject
-    from .texture import frames_unit, load_views, read_mesh
+    from .texture import check_views_unit, frames_unit, load_views, read_mesh
 
     if not (cell_m is None or (np.isfinite(cell_m) and cell_m > 0)):
         raise InvalidInputError(f"--cell {cell_m!r}: expected a cell size in metres > 0")
@@ -165,13 +165,7 @@ def run_facade(survey_dir, out_dir, *, plane: str = "auto", cell_m: float | None
     cameras = OrientedCameras.load(survey_dir)
     frame_unit = frames_unit(cameras)
     views, skipped = load_views(cameras, unit=frame_unit or "K")
-    if not views:
-        why = "; ".join(f"{n}: {r}" for n, r in skipped[:5])
-        raise InvalidInputError(f"{survey_dir}: no usable thermal image in kelvin or raw counts ({why or 'cameras.json lists none'})")
-    counts = frame_unit == "counts"
-    if counts and unit is not None:
-        raise InvalidInputError(f"--unit {unit}: the thermal frames of {survey_dir} are raw counts (no documented conversion); "
-                                "a temperature unit cannot be applied. Omit --unit: the mosaic then holds the counts")
+    counts = check_views_unit(views, skipped, frame_unit, survey_dir, unit, "mosaic")
     u_t = None if counts else TemperatureUnit(unit or "K")
     root = Path(survey_dir)
     root = root.parent if root.is_file() else root

@@ -1285,8 +1285,7 @@ def _adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: di
         cam, why = _intrinsics_problem(fa, start, sets, focal_known)
         if not why:
             return fa, sets, steps
-        down = [cam] if cam is not None else [c for c in cams_in if level[c] + 1 < len(ladder[c])]
-        down = [c for c in down if level[c] + 1 < len(ladder[c])]
+        down = [c for c in ([cam] if cam is not None else cams_in) if level[c] + 1 < len(ladder[c])]
         if not down:
             steps.append(f"with the camera held fixed: {why}" if all(not v for v in sets.values()) else
                          f"with {', '.join(f'{start[c].name or c}: {names(sets[c])}' for c in cams_in)}: {why}")
@@ -1298,6 +1297,7 @@ def _adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: di
 
 
 def _restore(rec, snap) -> None:
+    """Put ``rec`` back as :func:`_rig_snapshot` saw it."""
     rec.R[:], rec.t[:], rec.registered[:], rec.component[:] = snap["R"], snap["t"], snap["registered"], snap["component"]
     rec.points[:], rec.obs_valid[:] = snap["points"], snap["obs_valid"]
     rec.cameras[:] = snap["cameras"]
@@ -1316,11 +1316,7 @@ def _rig_refuse(rec, snap, rigv, block_images, names, why, ci, S=None) -> np.nda
     """Undo the rig views of a block; returns its images: the RGB block plus the thermal frames that were oriented
     on their own in the same component (they keep that orientation, moved by the block's datum similarity ``S``
     like the block). Other thermal partners: reason set."""
-    rec.R[:], rec.t[:], rec.registered[:], rec.component[:] = snap["R"], snap["t"], snap["registered"], snap["component"]
-    rec.points[:], rec.obs_valid[:] = snap["points"], snap["obs_valid"]
-    rec.cameras[:] = snap["cameras"]
-    for st, (r_, c_, w_) in zip(rec.status, snap["status"]):
-        st.registered, st.component, st.reason = r_, c_, w_
+    _restore(rec, snap)
     block_images = np.asarray(block_images, np.int64)
     comp = int(rec.component[block_images[0]]) if len(block_images) else -1
     keep = []

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import DataFileError, InvalidInputError, UnsupportedFormatError
 
-__all__ = ["read_mesh", "frames_unit", "load_views", "load_rig_views", "run_texture", "texture_report_html"]
+__all__ = ["read_mesh", "frames_unit", "load_views", "check_views_unit", "load_rig_views", "run_texture", "texture_report_html"]
 
 #: frame units that a texture can be made of: temperatures, or raw sensor counts labelled as such
 TEXTURE_UNITS = ("K", "counts")
@@ -112,6 +112,20 @@ def load_views(cameras, *, names=None, unit: str | None = None):
             continue
         views.append(TextureView(im.name, cameras.camera_of(im), im.pose, img))
     return views, skipped
+
+
+def check_views_unit(views, skipped, frame_unit, survey_dir, unit, product: str) -> bool:
+    """Whether the views hold raw counts; :class:`InvalidInputError` when there is no usable view, or when a
+    temperature ``unit`` is asked of count frames (``product`` names what would hold the counts)."""
+    if not views:
+        why = "; ".join(f"{n}: {r}" for n, r in skipped[:5])
+        raise InvalidInputError(f"{survey_dir}: no usable thermal image in kelvin or raw counts ({why or 'cameras.json lists none'})")
+    counts = frame_unit == "counts"
+    if counts and unit is not None:
+        raise InvalidInputError(f"--unit {unit}: the thermal frames of {survey_dir} are raw counts (no documented "
+                                f"conversion); a temperature unit cannot be applied. Omit --unit: the {product} then "
+                                "holds the counts, labelled as counts")
+    return counts
 
 
 def load_rig_views(cameras, rig: dict, *, source: str = "rig.json"):
@@ -334,15 +348,8 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     else:
         frame_unit = frames_unit(cameras)
         views, skipped = load_views(cameras, unit=frame_unit or "K")
-    if not views:
-        why = "; ".join(f"{n}: {r}" for n, r in skipped[:5])
-        raise InvalidInputError(f"{survey_dir}: no usable thermal image in kelvin or raw counts ({why or 'cameras.json lists none'})")
-    counts = frame_unit == "counts"
+    counts = check_views_unit(views, skipped, frame_unit, survey_dir, unit, "texture")
     if counts:
-        if unit is not None:
-            raise InvalidInputError(f"--unit {unit}: the thermal frames of {survey_dir} are raw counts (no documented "
-                                    "conversion); a temperature unit cannot be applied. Omit --unit: the texture then "
-                                    "holds the counts, labelled as counts")
         if correct:
             raise InvalidInputError(f"--correct: the thermal frames of {survey_dir} are raw counts (no documented conversion "
                                     "to temperature); the angle/emissivity/transmission correction needs temperatures "
