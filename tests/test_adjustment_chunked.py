@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from chunked_block import build_block
 from thermogrammetry.adjustment import SolverOptions, solve
@@ -121,8 +122,9 @@ def test_reduced_system_and_step_equal_the_full_path(small_chunks):
     for lam in (1e-3, 1e-1):  # the first comes from the construction pass, the second from a new pass
         Sc, rc, Vc, _ = ch.schur(lam)
         Sf, rf, Vf, _ = full.schur(lam)
+        assert sp.issparse(Sc) and isinstance(Sf, np.ndarray)  # sparse reduced matrix in the chunked path only
         big = np.max(np.abs(Sf))
-        np.testing.assert_allclose(Sc, Sf, rtol=0, atol=1e-12 * big)
+        np.testing.assert_allclose(Sc.toarray(), Sf, rtol=0, atol=1e-12 * big)
         np.testing.assert_allclose(rc, rf, rtol=0, atol=1e-12 * np.max(np.abs(rf)))
         np.testing.assert_allclose(Vc, Vf, rtol=1e-12, atol=0)
         cf = S._cho_factor(Sc)

@@ -183,7 +183,10 @@ class AdjustmentResult:
         Camera-side parameters in covariance order: ``"<camera>.<param>"``,
         ``"<pose>.wx|wy|wz|X0|Y0|Z0"`` (rotation increments in rad, projection centre in m),
         ``"rig<i>.wx..tz"``.
-    covariance, correlation : (n, n) arrays (a posteriori) or None
+    covariance : (n, n) array (a posteriori) or None
+    correlation : (n, n) array or None
+        Computed from ``covariance`` at each access (not stored: a second n x n matrix would double the
+        memory of the precision step of large blocks).
     std : (n,) array or None
     camera_std : list of (P,) arrays (NaN where fixed)
     pose_std : (n_poses, 6) array
@@ -218,7 +221,6 @@ class AdjustmentResult:
     chi2: dict = field(default_factory=dict)
     param_names: list = field(default_factory=list)
     covariance: np.ndarray | None = None
-    correlation: np.ndarray | None = None
     std: np.ndarray | None = None
     camera_std: list = field(default_factory=list)
     pose_std: np.ndarray | None = None
@@ -240,6 +242,17 @@ class AdjustmentResult:
     @property
     def success(self) -> bool:
         return self.termination.success
+
+    @property
+    def correlation(self) -> np.ndarray | None:
+        """(n, n) correlation matrix ``cov_ij / (std_i std_j)``, from ``covariance`` (NaN where a std is 0)."""
+        if self.covariance is None:
+            return None
+        std = np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = self.covariance / std[:, None]
+            corr /= std[None, :]
+        return corr
 
     @property
     def points(self) -> np.ndarray:
@@ -382,8 +395,9 @@ class _Data:
             self.xy = img.xy[a]
             self.sig = img.sigma[a]
         del img
-        self.vpose = np.asarray(pb.view_pose, dtype=np.int64)[self.view] if len(a) else np.zeros(0, np.int64)
-        self.vrig = np.asarray(pb.view_rig, dtype=np.int64)[self.view] if len(a) else np.zeros(0, np.int64)
+        # (int32: 8 B per observation less than int64; pose and rig counts are far below 2^31)
+        self.vpose = np.asarray(pb.view_pose, dtype=np.int32)[self.view] if len(a) else np.zeros(0, np.int32)
+        self.vrig = np.asarray(pb.view_rig, dtype=np.int32)[self.view] if len(a) else np.zeros(0, np.int32)
         self.c_pt, self.c_xyz, self.c_sig = pb.control_observations()
         self.g_pose, self.g_xyz, self.g_sig, self.g_lever = pb.gnss_observations()
         self.d_a, self.d_b, self.d_len, self.d_sig = pb.distance_observations()
@@ -394,6 +408,9 @@ class _Data:
 
 #: image observations per chunk in :func:`_evaluate` (bounds its temporaries: ~1.5 KB per observation)
 _EVAL_CHUNK = 32768
+#: the same for residuals only (the LM's trial steps, ~0.4 KB per observation): smaller, since the residuals of
+#: large blocks are evaluated while the factor of the reduced system is held
+_EVAL_CHUNK_RES = 8192
 
 
 def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool, sel=None, extra: bool = True):
@@ -443,8 +460,9 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool, sel=Non
 
     # image observations in chunks of observations: the temporaries (projections, Jacobians, index
     # triplets) are bounded by the chunk, not by the block; each chunk's rows become one CSR block
-    for a in range(0, K, _EVAL_CHUNK):
-        b = min(K, a + _EVAL_CHUNK)
+    chunk = _EVAL_CHUNK if want_jac else _EVAL_CHUNK_RES
+    for a in range(0, K, chunk):
+        b = min(K, a + chunk)
         nk = b - a
         ii = slice(a, b) if obs is None else obs[a:b]
         vpose, vrig = data.vpose[ii], data.vrig[ii]
@@ -717,6 +735,79 @@ def _add_sparse(A, M, sign=1.0):
         A[M.row, M.col] += M.data if sign == 1.0 else sign * M.data
 
 
+class _SparseSum:
+    """Sum of sparse ``nc x nc`` matrices (the chunks' Schur complements ``W_p V_p^-1 W_p^T``), kept as a list of
+    COO parts merged into one CSR matrix whenever the parts hold more than ``_SPARSE_MERGE`` entries (memory
+    bounded by the result and one batch, cost ~ one merge per batch instead of one sparse sum per chunk)."""
+
+    def __init__(self, n):
+        self.n = n
+        self.S = sp.csr_matrix((n, n))
+        self.parts = []
+        self.size = 0
+
+    def add(self, M):
+        M = M.tocoo()
+        if M.nnz:
+            self.parts.append((M.row.astype(np.int32), M.col.astype(np.int32), M.data))
+            self.size += M.nnz
+        if self.size > _SPARSE_MERGE:
+            self._merge()
+
+    def _merge(self):
+        if self.parts:
+            r, c, v = (np.concatenate(x) for x in zip(*self.parts))
+            self.parts.clear()
+            self.size = 0
+            self.S = (self.S + sp.csr_matrix((v, (r, c)), shape=(self.n, self.n))).tocsr()
+
+    def total(self):
+        self._merge()
+        self.S.sum_duplicates()
+        return self.S
+
+
+#: entries of the chunks' Schur complements gathered before they are merged into the sparse sum (16 B each)
+_SPARSE_MERGE = 1 << 18
+
+
+def _add_diagonal(S, d):
+    """``S + diag(d)`` for a sparse (returned in the same format) or dense (modified in place) square matrix."""
+    if sp.issparse(S):
+        return (S + sp.diags(d, format=S.format)).asformat(S.format)
+    S[np.diag_indices_from(S)] += d
+    return S
+
+
+class _SparseFactor:
+    """Factor of a sparse symmetric positive definite matrix: SuperLU with a symmetric fill-reducing ordering
+    (minimum degree on ``A^T + A``) and diagonal pivots (``SymmetricMode``, pivot threshold 0), i.e. ``P A P^T =
+    L D L^T`` stored as ``L U``; positive definiteness is checked on the pivots (``U``'s diagonal), as a
+    Cholesky factorisation would fail."""
+
+    def __init__(self, S):
+        import scipy.sparse.linalg as spla
+
+        self.lu = spla.splu(sp.csc_matrix(S), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                            options=dict(SymmetricMode=True))
+        piv = self.lu.U.diagonal()
+        if not (np.all(np.isfinite(piv)) and np.all(piv > 0)):
+            raise np.linalg.LinAlgError("reduced camera matrix not positive definite")
+        self.n = S.shape[0]
+
+    def solve(self, b):
+        return self.lu.solve(np.asarray(b, dtype=float))
+
+
+def _factor_solve(cf, b):
+    """Solve with the factor of a reduced matrix (:func:`_cho_factor`): dense Cholesky, sparse, or empty."""
+    if isinstance(cf, _SparseFactor):
+        return cf.solve(b)
+    if isinstance(cf[0], str):
+        return np.zeros(0)
+    return scipy.linalg.cho_solve(cf, b, check_finite=False)
+
+
 #: image observations per chunk of :class:`_ChunkedNormal` (bounds the temporaries of a chunk's Jacobian, sparse
 #: products and Schur contribution: ~3 KB per observation)
 _SCHUR_CHUNK = 8192
@@ -805,7 +896,7 @@ class _ChunkedNormal:
         first = self._pass(lam, build=True)
         self.dU = np.clip(self.U.diagonal(), 1e-6, 1e32) if nc else np.zeros(0)
         if first is not None and lam and nc:
-            first[0][np.diag_indices_from(first[0])] += lam * self.dU
+            first = (_add_diagonal(first[0], lam * self.dU),) + first[1:]
         self._first = (lam, first)  # handed out (once) by schur(lam)
         self.grad_max = max(float(np.max(np.abs(self.gc))) if nc else 0.0, float(np.max(np.abs(gp))) if npf else 0.0)
 
@@ -832,8 +923,7 @@ class _ChunkedNormal:
         Schur complement ``S`` (without ``lam dU``, added by the caller), its right-hand side and ``V^-1``.
         None when a damped point block is singular."""
         nc = self.lay.nc
-        S = np.zeros((nc, nc), order="F")  # accumulates W V^-1 W^T, turned into U - W V^-1 W^T at the end
-        # (Fortran order: factored in place by _cho_factor)
+        acc = _SparseSum(nc)  # accumulates W V^-1 W^T (sparse), turned into U - W V^-1 W^T at the end
         rhs = np.zeros(nc)
         ok = True
         for o0, o1, p0, p1 in self.chunks:
@@ -880,20 +970,20 @@ class _ChunkedNormal:
             B = B.tocsr()
             Vsp = sp.bsr_matrix((Vinv, np.arange(n), np.arange(n + 1)), shape=(3 * n, 3 * n)).tocsr()
             H = (B @ Vsp).tocsr()
-            _add_sparse(S, H @ B.T)
+            acc.add(H @ B.T)
             rhs += H @ self.gp[p0:p1].ravel()
         if not ok:
             return None
         if build:
             self.U.sum_duplicates()
-        S *= -1.0
-        _add_sparse(S, self.U)
+        S = (self.U - acc.total()).tocsc()
+        del acc
         rhs -= self.gc
         return S, rhs, self.Vinv
 
     def schur(self, lam, want_H=False):
-        """Reduced matrix (Fortran order, for in-place Cholesky), its right-hand side and ``V^-1`` for the
-        damping ``lam`` (a new pass over the Jacobians unless it is the first reduced system of this
+        """Reduced matrix (sparse, CSC: camera-camera blocks only where cameras share points), its right-hand
+        side and ``V^-1`` for the damping ``lam`` (a new pass over the Jacobians unless it is the first reduced system of this
         linearisation); None when a damped point block is singular."""
         if want_H:
             raise ValueError("the chunked normal equations do not keep W V^-1 (memory per observation)")
@@ -904,7 +994,7 @@ class _ChunkedNormal:
             self._first = None
             out = self._pass(lam, build=False)
             if out is not None and lam and self.lay.nc:
-                out[0][np.diag_indices_from(out[0])] += lam * self.dU
+                out = (_add_diagonal(out[0], lam * self.dU),) + out[1:]
         if out is None:
             return None
         S, rhs, Vinv = out
@@ -945,12 +1035,12 @@ class _ChunkedNormal:
         :class:`_Normal`); the refinement's extra pass over the Jacobians is made only when its
         correction exceeds ``_REFINE_RTOL`` of the step."""
         nc, npf = self.lay.nc, self.lay.npf
-        dc = np.zeros(0) if isinstance(cf[0], str) else scipy.linalg.cho_solve(cf, rhs, check_finite=False)
+        dc = _factor_solve(cf, rhs)
         if not npf:
             if nc:
                 res = -self.gc - self.U @ dc - lam * self.dU * dc
                 if np.all(np.isfinite(res)) and np.linalg.norm(res) > 1e-14 * np.linalg.norm(self.gc):
-                    dc = dc + scipy.linalg.cho_solve(cf, res, check_finite=False)
+                    dc = dc + _factor_solve(cf, res)
             return dc
         if not nc:
             dp, _ = self._back(dc, Vinv)
@@ -958,7 +1048,7 @@ class _ChunkedNormal:
         dp, Wdp = self._back(dc, Vinv, refine_lam=lam)
         res = -self.gc - self.U @ dc - lam * self.dU * dc - Wdp
         if np.all(np.isfinite(res)):
-            corr = scipy.linalg.cho_solve(cf, res, check_finite=False)
+            corr = _factor_solve(cf, res)
             if np.linalg.norm(corr) > _REFINE_RTOL * np.linalg.norm(dc):
                 dc = dc + corr
                 dp, _ = self._back(dc, Vinv)
@@ -1017,6 +1107,46 @@ def _spd_inverse_inplace(S):
     return c
 
 
+def _sparse_rank_test(Sn, tol):
+    """Rank test of a Jacobi-scaled sparse reduced matrix without forming it dense: None when its smallest
+    eigenvalue is above ``tol`` times its largest (as the dense test with all eigenvalues), otherwise
+    ``(condition, indices of the 4 largest components of the null direction)``.
+
+    The largest eigenvalue by Lanczos on ``Sn``, the smallest as the inverse of the largest of ``Sn^-1`` (Lanczos
+    on solves with the sparse factor, which also gives the null direction), both to a relative 1e-8 (the test
+    compares their ratio with ``tol``, 1e-12 by default). A matrix whose factorisation fails (no positive
+    pivots) is deficient; its null direction then comes from the dense eigen decomposition (an error case
+    only)."""
+    import scipy.sparse.linalg as spla
+
+    n = Sn.shape[0]
+    if n == 0:
+        return None
+    v0 = np.ones(n) / np.sqrt(n)  # deterministic start
+    try:
+        f = _SparseFactor(Sn)
+    except (np.linalg.LinAlgError, RuntimeError, ValueError):
+        f = None
+    if f is not None and n <= 2:
+        f = None  # (Lanczos needs n > k + 1: tiny systems go the dense way)
+    if f is not None:
+        try:
+            lmax = float(spla.eigsh(Sn, k=1, which="LA", v0=v0, tol=1e-8, return_eigenvectors=False)[0])
+            inv = spla.LinearOperator((n, n), matvec=f.solve, dtype=float)
+            mu, vec = spla.eigsh(inv, k=1, which="LA", v0=v0, tol=1e-8)
+        except spla.ArpackError:
+            f = None
+    if f is None:
+        ev, evec = np.linalg.eigh(Sn.toarray())
+        if ev[0] > tol * ev[-1]:
+            return None
+        return ev[-1] / max(ev[0], 1e-300), np.argsort(-np.abs(evec[:, 0]))[:4]
+    lmin = 1.0 / float(mu[0]) if mu[0] > 0 else 0.0
+    if lmin > tol * lmax:
+        return None
+    return lmax / max(lmin, 1e-300), np.argsort(-np.abs(vec[:, 0]))[:4]
+
+
 def _tangent_basis(n):
     """(3, 2) orthonormal basis of the plane orthogonal to the unit vector n (deterministic)."""
     a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
@@ -1027,9 +1157,15 @@ def _tangent_basis(n):
 
 def _cho_factor(S):
     """Cholesky factor of the reduced matrix, computed in place when ``S`` is in Fortran order (``S`` is
-    then overwritten: the callers do not use it afterwards)."""
+    then overwritten: the callers do not use it afterwards); a :class:`_SparseFactor` when ``S`` is sparse
+    (chunked path). None when ``S`` is not positive definite."""
     if S.shape[0] == 0:
         return ("empty",)
+    if sp.issparse(S):
+        try:
+            return _SparseFactor(S)
+        except (np.linalg.LinAlgError, RuntimeError, ValueError):
+            return None
     try:
         cf = scipy.linalg.cho_factor(S, check_finite=False, overwrite_a=S.flags.f_contiguous)
     except (np.linalg.LinAlgError, ValueError):
@@ -1397,6 +1533,26 @@ def _precision(pb, lay, st, data, opt, active, warnings):
             return (Termination.RANK_DEFICIENT, f"free network: rank defect larger than the {defect} datum parameters")
         Q = Qfull[:nc, :nc]
         Qpp_full = Qfull[nc:, nc:]
+    elif sp.issparse(S):  # chunked path: sparse reduced matrix
+        d = np.sqrt(np.maximum(S.diagonal(), 1e-300))
+        Dm = sp.diags(1.0 / d)
+        Sn = (Dm @ S @ Dm).tocsc()
+        del S, Dm
+        bad = _sparse_rank_test(Sn, opt.rank_tolerance)
+        if bad is not None:
+            cond, k = bad
+            involved = ", ".join(lay.names[i] for i in k)
+            return (
+                Termination.RANK_DEFICIENT,
+                f"datum or parameters undetermined (condition {cond:.3g}); null direction involves {involved}",
+            )
+        Sd = Sn.toarray(order="F")  # the inverse is dense: the one nc x nc matrix of the precision step
+        del Sn
+        Q = _spd_inverse_inplace(Sd)
+        del Sd
+        Q /= d[:, None]
+        Q /= d[None, :]
+        Qfull = None
     else:
         if nc:
             # Jacobi scaling in place: Sn = D^-1 S D^-1 (unit diagonal), S^-1 = D^-1 Sn^-1 D^-1
@@ -1447,10 +1603,7 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     cov *= s2
     _symmetrise_inplace(cov)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / std[:, None]
-        corr /= std[None, :]
-    out.update(param_names=names, covariance=cov, std=std, correlation=corr)
+    out.update(param_names=names, covariance=cov, std=std)  # (the correlation is computed on access)
     kind = np.zeros(nc, dtype=np.int8)  # 1 = intrinsics or rig (findings), 0 = pose or point
     for cc in lay.cam_cols:
         kind[cc[cc >= 0]] = 1
@@ -1476,11 +1629,14 @@ def _precision(pb, lay, st, data, opt, active, warnings):
         # strict upper triangle, row by row (as np.triu_indices), in row blocks (no nc^2 temporaries)
         step = max(1, int(4e6 // nc))
         for a0 in range(0, nc, step):
-            big = np.triu(np.abs(corr[a0 : a0 + step]) > opt.correlation_warning, a0 + 1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                corr = cov[a0 : a0 + step] / std[a0 : a0 + step, None]
+                corr /= std[None, :]
+            big = np.triu(np.abs(corr) > opt.correlation_warning, a0 + 1)
             for a, b in zip(*np.nonzero(big)):
-                a += a0
-                if kind[a] or kind[b]:  # pose-pose correlations are block geometry, not a finding
-                    warnings.append(f"high correlation {corr[a, b]:+.3f} between {names[a]} and {names[b]}")
+                if kind[a + a0] or kind[b]:  # pose-pose correlations are block geometry, not a finding
+                    warnings.append(f"high correlation {corr[a, b]:+.3f} between {names[a + a0]} and {names[b]}")
+            del corr
     if red > 0:
         tcrit = scipy.stats.t.ppf(1 - opt.significance_alpha / 2, red)
         for c, cc in enumerate(lay.cam_cols):
