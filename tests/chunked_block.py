@@ -14,8 +14,12 @@ from thermogrammetry.adjustment import BundleProblem
 from thermogrammetry.geometry.rotations import matrix_from_axis_angle
 
 
-def build_block(n_lines=4, per_line=6, n_points=500, seed=3, gauge="control", outliers=8, rig=False, plane=True):
-    """Returns (problem, truth) with truth = dict(C=(F, 3) centres, P=(N, 3) points, camera=Camera)."""
+def build_block(n_lines=4, per_line=6, n_points=500, seed=3, gauge="control", outliers=8, rig=False, plane=True,
+                datum=True):
+    """Returns (problem, truth) with truth = dict(C=(F, 3) centres, P=(N, 3) points, camera=Camera).
+
+    ``datum=False`` leaves out the GNSS priors, the control points and the scale bar (a datum defect of 7 with
+    the gauge ``"control"``)."""
     rng = np.random.default_rng(seed)
     cam = Camera("opencv", (640, 512), dict(fx=758.0, fy=758.0, cx=319.5, cy=255.5, k1=-0.1, k2=0.05))
     cam2 = Camera("opencv", (640, 512), dict(fx=700.0, fy=700.0, cx=320.0, cy=256.0))
@@ -67,6 +71,8 @@ def build_block(n_lines=4, per_line=6, n_points=500, seed=3, gauge="control", ou
             i = np.nonzero((Xc[:, 2] > 0) & (xy[:, 0] >= 0) & (xy[:, 0] < 640) & (xy[:, 1] >= 0) & (xy[:, 1] < 512) & (seen >= 2))[0]
             pb.add_image_points(c2, pb.add_rig_view(ir, views[k]), pidx[i], xy[i] + rng.normal(0, 0.3, (len(i), 2)), sigma_px=0.3)
     pb.set_points_fixed(np.nonzero(seen < 2)[0])
+    if not datum:
+        return pb, dict(C=C, P=P, camera=cam)
     pb.add_gnss(np.arange(len(C)), C + rng.normal(0, 0.03, C.shape), 0.03)
     ctrl = np.nonzero(seen >= 3)[0][n_plane: n_plane + 6]
     pb.add_control(ctrl, P[ctrl] + rng.normal(0, 0.01, (len(ctrl), 3)), 0.01)

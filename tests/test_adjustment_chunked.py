@@ -26,6 +26,7 @@ from chunked_block import build_block
 from thermogrammetry.adjustment import SolverOptions, solve
 from thermogrammetry.adjustment import solver as S
 from thermogrammetry.errors import ConfigError
+from thermogrammetry.results import Termination
 
 FULL = 10**12  # chunked_min_observations: never chunked
 CHUNKED = 0  # always chunked
@@ -171,3 +172,70 @@ def test_threshold_option(monkeypatch):
     monkeypatch.setattr(S, "_ChunkedNormal", boom)
     pb, _ = build_block(n_lines=2, per_line=4, n_points=200)
     assert solve(pb, SolverOptions(compute_redundancy=False)).success
+
+
+def test_sparse_reduced_system_gives_the_dense_solution_and_pose_sigmas(small_chunks, monkeypatch):
+    """The chunked path's reduced camera system is sparse (camera-camera blocks only where two frames share
+    points; SuperLU with a symmetric ordering) and gives the solution and the pose sigmas of the full path's
+    dense Cholesky. A wider block (8 lines of 5 frames) so that most frame pairs share no point.
+
+    Tolerances as in :func:`_compare`: both factorisations are backward stable on a positive definite matrix,
+    so the steps differ by the matrix's condition times 1e-16 (measured: centres 1e-13 m, sigmas < 1e-9
+    relative), far below the asserted 1e-7 m / 1e-7 relative and far below the sigmas themselves (cm)."""
+    pb, truth = build_block(n_lines=8, per_line=5, n_points=900, seed=21, plane=False)
+    seen = []
+    orig = S._SparseFactor.__init__
+
+    def spy(self, A):
+        seen.append((A.nnz, A.shape[0]))
+        orig(self, A)
+
+    monkeypatch.setattr(S._SparseFactor, "__init__", spy)
+    opt = dict(loss="huber", compute_redundancy=False)
+    ra = solve(pb, SolverOptions(chunked_min_observations=FULL, **opt))
+    assert not seen  # the full path keeps its dense Cholesky
+    rb = solve(pb, SolverOptions(chunked_min_observations=CHUNKED, **opt))
+    assert seen  # every LM step and the precision step factor the sparse matrix
+    nnz, nc = seen[0]
+    assert nnz < 0.6 * nc * nc  # sparse indeed: frames far apart share no point
+    _compare(ra, rb)
+    np.testing.assert_allclose(rb.covariance, ra.covariance, rtol=1e-7, atol=1e-7 * np.max(np.abs(ra.covariance)))
+    # and the sigmas are right: centres within their sigmas of the truth
+    z = (_centres(rb) - truth["C"]) / rb.pose_std[:, 3:]
+    assert np.max(np.abs(z)) < 4.5  # 120 normalised errors: |z| < 4.5 with probability ~0.999
+    assert 0.3 < np.sqrt(np.mean(z**2)) < 2.0
+
+
+def test_datum_defect_is_reported_by_the_sparse_path(small_chunks):
+    """No GNSS, no control: the precision step finds the 7-parameter defect on the sparse reduced matrix (the
+    dense path's eigenvalue test, here by Lanczos on the matrix and on solves with its factor)."""
+    pb, _ = build_block(datum=False, plane=False, outliers=0, seed=5)
+    for chunked in (FULL, CHUNKED):
+        res = solve(pb, SolverOptions(chunked_min_observations=chunked, compute_redundancy=False))
+        assert res.termination is Termination.RANK_DEFICIENT, (chunked, res.reason)
+        assert "undetermined" in res.reason and "null direction involves" in res.reason
+
+
+def test_sparse_rank_test_against_the_eigenvalues():
+    """``_sparse_rank_test`` against numpy's eigenvalues: a well-conditioned matrix passes, a singular one
+    (graph Laplacian of a path: null vector = ones) and a nearly singular one fail, with their condition."""
+    rng = np.random.default_rng(0)
+    n = 60
+    A = sp.random(n, n, density=0.05, random_state=1) + sp.eye(n) * 3.0
+    M = (A.T @ A).tocsc()
+    d = np.sqrt(M.diagonal())
+    Mn = (sp.diags(1 / d) @ M @ sp.diags(1 / d)).tocsc()
+    assert S._sparse_rank_test(Mn, 1e-12) is None
+    L = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tolil()
+    L[0, 0] = L[n - 1, n - 1] = 1.0  # path Laplacian: singular
+    L = L.tocsc()
+    out = S._sparse_rank_test((L / 2.0).tocsc(), 1e-12)
+    assert out is not None and out[0] > 1e12
+    # nearly singular: smallest eigenvalue 1e-14 of the largest; the condition is reported within Lanczos' 1e-8
+    Qr, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    ev = np.geomspace(1e-14, 1.0, n)
+    N = sp.csc_matrix((Qr * ev) @ Qr.T)
+    out = S._sparse_rank_test(N, 1e-12)
+    assert out is not None
+    assert out[0] == pytest.approx(1e14, rel=1e-2)  # (rounding of the dense matrix: 1e-16 absolute on 1e-14)
+    assert S._sparse_rank_test(N, 1e-15) is None
