@@ -586,9 +586,10 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool, sel=Non
     return r, Jc, jp, pslot
 
 
-def _robust(r, K, opt: SolverOptions):
-    """Per-row sqrt weights and the robust cost 1/2 sum rho."""
-    w = np.ones_like(r)
+def _robust(r, K, opt: SolverOptions, weights: bool = True):
+    """Per-row sqrt weights and the robust cost 1/2 sum rho (weights None when not ``weights``: a trial
+    step needs only the cost)."""
+    w = np.ones_like(r) if weights else None
     if opt.loss is Loss.TRIVIAL or K == 0:
         return w, 0.5 * float(r @ r)
     s = r[: 2 * K].reshape(K, 2)
@@ -601,7 +602,8 @@ def _robust(r, K, opt: SolverOptions):
     else:
         rho = c2 * np.log1p(s / c2)
         d1 = 1.0 / (1.0 + s / c2)
-    w[: 2 * K] = np.repeat(np.sqrt(d1), 2)
+    if weights:
+        w[: 2 * K] = np.repeat(np.sqrt(d1), 2)
     rest = r[2 * K :]
     return w, 0.5 * (float(np.sum(rho)) + float(rest @ rest))
 
@@ -824,6 +826,8 @@ def _point_chunks(lay: _Layout, data: _Data):
         return cached
     slot = lay.point_slot[data.pt]
     order = np.argsort(slot, kind="stable")
+    if 2 * len(order) < 2**31 - 1:  # held for the whole solve: int32 (4 B per observation less)
+        order = order.astype(np.int32)
     n0 = int(np.sum(slot < 0))
     chunks = [(a, min(n0, a + _SCHUR_CHUNK), -1, -1) for a in range(0, n0, _SCHUR_CHUNK)]
     npf = lay.npf
@@ -1248,13 +1252,16 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
             if r_new is None:
                 cost_new, rho, ok = float("inf"), -1.0, False
             else:
-                w_new, cost_new = _robust(r_new, data.K, opt)
+                _, cost_new = _robust(r_new, data.K, opt, weights=False)  # (weights only if accepted)
                 rho = (cost - cost_new) / model if model > 0 else -1.0
                 ok = bool(np.isfinite(cost_new)) and rho > 1e-3
         if ok:
             change = cost - cost_new
             st, cost = st_new, cost_new
-            r, w = r_new, w_new
+            r = r_new
+            del r_new
+            # the chunked path linearises at these residuals; the full path re-evaluates them with the Jacobian
+            w = _robust(r, data.K, opt)[0] if chunked else None
             radius = min(1e16, radius / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
             decrease = 2.0
             need = True
