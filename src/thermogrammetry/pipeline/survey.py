@@ -794,6 +794,7 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
         pairs.append((i, j, idx))
         pc[(i, j)] = len(idx)
     tracks = build_tracks([int(counts[n]) for n in names], pairs)
+    del pairs  # the matches (8 B per match) are in the tracks now: not held through the reconstruction
     refinement = None
     if refine and len(tracks.track):
         from ..sfm.lsm import refine_tracks
