@@ -15,8 +15,8 @@ Reading a mark (:func:`read_ring_marks`)
    rotation ``q``; ``det A > 0`` keeps the sense of rotation of a front view).
 3. The image (lightly smoothed) is sampled in that frame on the disc (ρ ≤ 0.5: the hot level of a
    bright mark), in the gap between disc and ring (cold level), on three circles across the ring
-   (720 angles) and just outside the ring (cold again). Values are normalised to 0 (cold) .. 1 (hot);
-   the gap and the outside must read cold (a grid circle of another mark, a random blob or a mark
+   (720 angles) and just outside the ring (cold again; at least half of that circle inside the frame).
+   Values are normalised to 0 (cold) .. 1 (hot); the gap and the outside must read cold (a grid circle of another mark, a random blob or a mark
    whose ring leaves the frame fails here).
 4. The ring's angular profile is cut at 0.5 into arcs; an arc of ``n`` sectors (bridges blurred away
    or not) is centred on the middle of its ``n`` sectors, so every arc gives the sector phase modulo
@@ -141,8 +141,11 @@ def _read_one(img, cand_row, target, bright, geo):
     # a ring is there (decoded or not): a clean gap and outside, and at least half a sector's worth of
     # hot ring; a mark cut by the frame border counts as well, so that its arcs are painted over
     out["ring"] = bool(gap_hot < 0.05 and out_hot < 0.1 and 0.5 / n < ring_hot < 1.0 - 0.5 / n)
-    if np.isnan(ring).any() or np.isnan(outside).any():
+    if np.isnan(ring).any():
         out["reason"] = "ring leaves the frame"
+        return out
+    if np.isnan(outside).mean() > 0.5:
+        out["reason"] = "the mask outside the ring leaves the frame"
         return out
     noise = 1.4826 * np.median(np.abs(np.diff(s_gap))) / np.sqrt(2.0)
     if gap_hot > 0.02 or out_hot > 0.1 or noise > 0.12:

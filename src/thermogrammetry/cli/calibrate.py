@@ -427,7 +427,8 @@ def _summary(console, cal: dict, output, keys) -> None:
             n_dec = sum(len(c["decoded"]) for c in coded)
             n_num = sum(c["ordering"] == "coded marks" for c in coded)
             console.print(f"coded marks: {n_dec} decoded in {len(coded)} images; numbering fixed by them in {n_num}/"
-                          f"{len(coded)} (the others keep the geometric numbering)", highlight=False)
+                          f"{len(coded)}" + (" (the others keep the geometric numbering)" if n_num < len(coded) else ""),
+                          highlight=False)
     cb = cal["run"].get("target", {}).get("centre_bias") if isinstance(cal.get("run"), dict) else None
     if cb and cb.get("rounds"):
         ch = ", ".join(f"{h['bias_change_px']:.4f}" for h in cb["rounds"] if h.get("bias_change_px") is not None)
