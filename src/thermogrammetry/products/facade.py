@@ -267,11 +267,40 @@ def _normalise(p):
     return T, (p - c) * s
 
 
+#: a homography needs 4 points with no 3 on a line: each of them at least this share of the points' span
+#: away from the line through two others
+GENERAL_POSITION_FRACTION = 0.05
+
+
+def _general_position(P, frac: float = GENERAL_POSITION_FRACTION) -> bool:
+    """Whether the plane points (N, 2) hold 4 points with no 3 nearly collinear (greedy: the farthest pair,
+    the point farthest from their line, then the point farthest from all three lines)."""
+
+    def dist_line(p, q, X):
+        d = q - p
+        return np.abs(d[0] * (X[:, 1] - p[1]) - d[1] * (X[:, 0] - p[0])) / max(np.hypot(*d), 1e-300)
+
+    D = np.linalg.norm(P[:, None] - P[None], axis=2)
+    i, j = np.unravel_index(np.argmax(D), D.shape)
+    span = D[i, j]
+    if not span > 0:
+        return False
+    d3 = dist_line(P[i], P[j], P)
+    k = int(np.argmax(d3))
+    if d3[k] < frac * span:
+        return False
+    d4 = np.minimum(np.minimum(d3, dist_line(P[i], P[k], P)), dist_line(P[j], P[k], P))
+    return bool(np.max(d4) >= frac * span)
+
+
 def fit_facade_homography(plane_ab, image_xy_px, *, camera=None, iterations: int = 10) -> HomographyFit:
     """Homography from ≥ 4 plane points (N, 2) m to their measured pixels (N, 2) (module docstring).
 
     Raises :class:`~thermogrammetry.errors.TooFewPointsError` below 4 points and
-    :class:`~thermogrammetry.errors.DegenerateInputError` when 3 of 4 are collinear (rank-deficient DLT).
+    :class:`~thermogrammetry.errors.DegenerateInputError` when no 4 points are in general position (3 of 4
+    collinear, within ``GENERAL_POSITION_FRACTION`` of the points' span, or a rank-deficient DLT) or when the
+    fitted plane's horizon line passes between the points (some would be behind the camera).
+    The returned ``H`` is scaled so that ``w = H[2]·(a, b, 1) > 0`` at the points (in front of the camera).
     """
     from ..errors import DegenerateInputError
 
@@ -283,6 +312,10 @@ def fit_facade_homography(plane_ab, image_xy_px, *, camera=None, iterations: int
         raise TooFewPointsError(f"facade homography: {len(P)} points given; expected at least 4 with known plane coordinates")
     if not (np.all(np.isfinite(P)) and np.all(np.isfinite(X))):
         raise InvalidInputError("facade homography: non-finite coordinates")
+    if not _general_position(P):
+        raise DegenerateInputError(f"facade homography: the {len(P)} plane points hold no 4 points with no 3 collinear "
+                                   f"(within {GENERAL_POSITION_FRACTION:.0%} of their span); expected 4+ points spread "
+                                   "over the facade")
     Xi = camera.undistort(X) if camera is not None else X
     Tp, p = _normalise(P)
     Tx, x = _normalise(Xi)
@@ -316,6 +349,11 @@ def fit_facade_homography(plane_ab, image_xy_px, *, camera=None, iterations: int
             break
     H = np.append(h, 1.0).reshape(3, 3)
     q = np.c_[P, np.ones(len(P))] @ H.T
+    if not (np.all(q[:, 2] > 0) or np.all(q[:, 2] < 0)) or not np.all(np.isfinite(H)):
+        raise DegenerateInputError("facade homography: the fit puts some points behind the camera (the horizon line "
+                                   "passes between them); check the measurements and the point ids")
+    if q[0, 2] < 0:
+        H, q = -H, -q
     res = Xi - q[:, :2] / q[:, 2:3]
     return HomographyFit(H, res, float(np.sqrt(np.mean(np.sum(res**2, axis=1)))), camera)
 
