@@ -1,13 +1,13 @@
-"""``facade`` workflow: thermal orthoimage of a flat facade from an oriented survey, without a mesh (seed 002).
+"""``facade`` workflow: thermal orthoimage of a flat facade without a mesh (seed 002), two routes.
 
-Reads a survey folder (``cameras.json`` + frames) through :class:`~thermogrammetry.io.oriented.OrientedCameras`,
+**Oriented** (:func:`run_facade`): reads a survey folder (``cameras.json`` + frames) through :class:`~thermogrammetry.io.oriented.OrientedCameras`,
 puts the facade plane in object space (given, or fitted to the survey's sparse cloud), and calls
 :func:`thermogrammetry.products.facade.plane_mosaic` (image choice per tile by resolution on the surface and
 distance from the image border, one image per cell, values sampled from it, nothing blended). Writes::
 
     facade_temperature.tif   float32 in the chosen unit (K or °C), or raw counts labelled as counts; NaN = none
     facade_source.tif        int32 index of the source image (facade.json "index"), -1 = none
-    facade_angle.tif         float32 viewing angle of the source image (deg)
+    facade_angle.tif         float32 viewing angle of the source image (deg); oriented route only
     facade_resolution.tif    float32 resolution of the source image on the facade (px/m)
     facade.png               palette preview with its colour scale
     facade.json              plane (origin, u along, v up, normal), grid, unit, index -> image, coverage, notes
@@ -20,6 +20,20 @@ The fitted plane (``plane="auto"``): RANSAC on ``sparse.ply`` (fixed seed), inli
 camera-to-point distance, refined by least squares on the inliers; normal towards the cameras; ``v`` is the
 cameras' mean "up" (−y of the camera frame) projected on the plane, so a facade is upright whatever the
 frame; extent: the 1st–99th percentile of the inliers in plane coordinates.
+
+**Homography** (:func:`run_facade_homography`): stand-alone thermal frames read through the io layer (like
+``survey``), each rectified by :func:`~thermogrammetry.products.facade.fit_facade_homography` from >= 4 points with
+known facade coordinates (``points.csv``: ``id,u,v`` metres; measurements ``image,id,x,y`` px, (0, 0) the centre of
+the top-left pixel, the survey's CSV rules), mosaicked by
+:func:`~thermogrammetry.products.facade.homography_mosaic` with the same image-choice rule and source map; grid
+``(u, v)`` = the points' coordinates. No orientation, so no viewing angle (``facade_angle.tif`` omitted, said in
+``facade.json``). An image with < 4 points, no 4 in general position or unreadable is skipped with its reason;
+:class:`NothingMosaickedError` (CLI exit 1) when none is left.
+
+**Levelling** (both routes, ``levelling="offsets"``): per-image additive offsets from the cells that two or more
+images can serve (:func:`~thermogrammetry.products.facade.level_offsets`, texture's estimator), ADDED to every cell
+of their image; ``facade.json`` holds each offset with its formal σ, the held image, the pair counts and the overlap
+RMS before/after, and ``values_altered: true``.
 
 References
 ----------

@@ -24,6 +24,13 @@ cannot exclude occluders (stated in the result's ``notes``).
 
 Values are sampled bilinearly from one image per cell; nothing is blended or filled (NaN, source −1).
 
+Optional levelling (``levelling="offsets"``, both mosaics; it ALTERS the values): per-image additive offsets
+``o_k`` with ``T_a(x) + o_a = T_b(x) + o_b`` over pairs of images that can both serve a cell ``x``, least squares
+by :func:`thermogrammetry.products.texture.estimate_offsets`, the image supplying most cells held at 0
+(:func:`level_offsets`). Memory stays bounded: the mosaics select cells in chunks/bands and keep every image's
+value only at a deterministic sample of at most ``LEVELLING_SAMPLE_CELLS`` cells (and at most
+``LEVELLING_MAX_PAIRS`` pairs), never an images × cells stack.
+
 References
 ----------
 .. [1] Barazzetti, Erba, Previtali, Rosina, Scaioni (2013), seed 002: thermal orthophotos of facades,
@@ -362,13 +369,6 @@ def _bilinear(img, xy):
     from .texture import _bilinear as b
 
     return b(img, xy)
-
-
-def _tile_ids(grid: FacadeGrid, tile_m: float):
-    h, w = grid.shape
-    per = max(1, int(round(tile_m / grid.cell_m)))
-    r, c = np.mgrid[0:h, 0:w]
-    return (r // per) * ((w + per - 1) // per) + (c // per)
 
 
 def _choose(scores_cells, usable, tiles):
