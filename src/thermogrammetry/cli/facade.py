@@ -123,8 +123,10 @@ def facade(
     if d["route"] == "homography":
         for n, hm in d["homographies"].items():
             console.print(f"  {n}: {hm['points']} points, homography residual RMS {hm['rms_px']:.3g} px", highlight=False)
-    for s in d["skipped"]:
+    for s in d["skipped"][:5]:
         console.print(f"  skipped {s['image']}: {s['reason']}", highlight=False, soft_wrap=True)
+    if len(d["skipped"]) > 5:
+        console.print(f"  ... {len(d['skipped']) - 5} more skipped (facade.json \"skipped\")", highlight=False)
     if d["levelling"] == "offsets":
         vu = "counts" if d["unit"] == "counts" else "K"
         rb, ra = d.get("offsets_rms_before_after_counts" if vu == "counts" else "offsets_rms_before_after_k")
