@@ -140,9 +140,14 @@ def part1(args) -> int:
     # camera centres vs RTK GNSS
     g = _gnss_of(img_dir, s["crs"])
     C = {im["name"]: np.array(im["center"]) for im in ours["cameras"]["images"]}
-    D = np.array([C[k] - g[k] for k in C])
-    print(f"centres - RTK GNSS after the adjustment (GNSS as priors): RMS X {np.sqrt(np.mean(D[:, 0]**2)) * 100:.1f} "
-          f"Y {np.sqrt(np.mean(D[:, 1]**2)) * 100:.1f} Z {np.sqrt(np.mean(D[:, 2]**2)) * 100:.1f} cm")
+    out_ = {f["image"]: f for f in s.get("gnss_flagged", []) if not f["used"]}
+    D = np.array([C[k] - g[k] for k in C if k not in out_])
+    print(f"centres - RTK GNSS after the adjustment (GNSS as priors, {len(D)} images): RMS X "
+          f"{np.sqrt(np.mean(D[:, 0]**2)) * 100:.1f} Y {np.sqrt(np.mean(D[:, 1]**2)) * 100:.1f} "
+          f"Z {np.sqrt(np.mean(D[:, 2]**2)) * 100:.1f} cm")
+    for k, f in out_.items():
+        print(f"  GNSS left out as a blunder: {k} (adjusted - GNSS {f['dx']:+.3f}, {f['dy']:+.3f}, {f['dz']:+.3f} m, "
+              f"{f['sigma']:.0f} sigma)")
     print("steps (s): " + ", ".join(f"{st['name']} {st['seconds']:.1f}" for st in s["steps"]))
     cam = s["cameras"]["thermal"]
     print("camera: " + ", ".join(f"{k} {v:.4g} ± {cam['std'][k]:.2g}" for k, v in cam["params"].items() if cam["std"].get(k)))

@@ -232,7 +232,7 @@ def test_targets_and_synthetic_do_not_import_calibration():
     import thermogrammetry
 
     root = Path(thermogrammetry.__file__).parent
-    files = [root / "targets.py"] + [p for p in (root / "synthetic").glob("*.py") if p.name != "testfield.py"]
+    files = sorted((root / "targets").glob("*.py")) + [p for p in (root / "synthetic").glob("*.py") if p.name != "testfield.py"]
     bad = []
     for p in files:
         for node in ast.walk(ast.parse(p.read_text())):

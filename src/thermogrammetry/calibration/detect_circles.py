@@ -704,8 +704,23 @@ def detect_circle_grid(image, spec: CircleGridSpec, image_id: str = "", *, polar
     Detection
         ``points_px`` (K, 2) in canonical order (:func:`order_grid_by_homography`), ``object_ids``
         (K,): ``arange(N)`` for a whole grid, the found circles' ids for a partial one.
+
+    Notes
+    -----
+    A :class:`~thermogrammetry.targets.CodedCircleGridTarget` with marks goes through
+    :func:`~thermogrammetry.calibration.detect_circle_marks.detect_coded_circle_grid`: the ring-coded
+    marks are read, their rings painted over, this detector runs on the plain grid, and the decoded
+    marks fix the numbering (the 180° ambiguity of a whole symmetric grid, the placement of a partial
+    one); ``extra["coded_marks"]`` records which marks were decoded.
     """
     spec = spec_of(spec, CircleGridSpec, "CircleGridSpec")
+    if getattr(spec, "marks", ()):
+        # ring-coded marks (seed 003): read them, paint their rings over, number the grid by them
+        from .detect_circle_marks import detect_coded_circle_grid
+
+        return detect_coded_circle_grid(image, spec, image_id, polarity=polarity, refine=refine,
+                                        perspective_correction=perspective_correction, partial=partial,
+                                        min_partial_points=min_partial_points, flatfield=flatfield)
     if polarity not in ("auto", "bright", "dark"):
         raise ConfigError(f"polarity: expected 'auto', 'bright' or 'dark', got {polarity!r}")
     if refine not in ("edges", "moments", "none"):

@@ -4,6 +4,8 @@ Routes (public contract)::
 
     thermogrammetry calibrate IMAGES... --target chessboard --corners 6x5 --spacing-mm 100 -o OUT
     thermogrammetry calibrate IMAGES... --target circles --grid 7x4 --spacing-mm 50 [--asymmetric] -o OUT
+    thermogrammetry calibrate IMAGES... --target circles --grid 7x4 --spacing-mm 50 --diameter-mm 20 \
+        --coded-marks default -o OUT          (seed 003: 28 circles, 4 ring-coded marks)
     thermogrammetry calibrate IMAGES... --target coded --corners 11x9 --spacing-mm 50.5 --marker-mm 161.5 -o OUT
     thermogrammetry calibrate IMAGES... --target coded --target-file parameters.yaml -o OUT
     thermogrammetry calibrate --control control.csv --measurements measurements.csv \\
@@ -118,6 +120,7 @@ def calibrate(
     spacing_mm: Optional[float] = typer.Option(None, "--spacing-mm", help="Square size / centre spacing in mm."),
     asymmetric: bool = typer.Option(False, "--asymmetric", help="Asymmetric (staggered) circle grid."),
     diameter_mm: Optional[float] = typer.Option(None, "--diameter-mm", help="Circle diameter in mm: the centroid bias of each circle (perspective and distortion) is computed from the calibrated camera and poses and removed, iterated with the calibration (3 rounds)."),
+    coded_marks: Optional[str] = typer.Option(None, "--coded-marks", help="Circle grid whose circles partly carry ring-coded marks (seed 003; design in thermogrammetry.targets.coded_marks: a ring of 12 sectors at 1.5-2.5 disc radii, sector k cut out for a 1-bit, code ids 0-15): 'default' = the seed-003 layout of a 7x4 grid (1x1=0,5x1=1,2x2=2,4x2=3), or a comma-separated list COLUMNxROW=CODE (0-based column and row of the marked circle). The decoded marks fix the grid's numbering (180° turn, partial views); needs --diameter-mm."),
     control: Optional[Path] = typer.Option(None, "--control", help="Control points CSV: id,X,Y,Z[,sX,sY,sZ] (metres)."),
     measurements: Optional[Path] = typer.Option(None, "--measurements", help="Image measurements CSV: image,id,x,y[,sx,sy] (pixels)."),
     image_size: Optional[str] = typer.Option(None, "--image-size", help="WIDTHxHEIGHT in pixels (CSV route), e.g. 320x240."),
@@ -136,7 +139,8 @@ def calibrate(
     err = Console(stderr=True, soft_wrap=True)
     try:
         coded = dict(marker_mm=marker_mm, hidden_squares=hidden_squares, marker_bits=marker_bits, dictionary=dictionary,
-                     marker_id=marker_id, bottom_left_square=bottom_left_square, target_file=target_file)
+                     marker_id=marker_id, bottom_left_square=bottom_left_square, target_file=target_file,
+                     coded_marks=coded_marks)
         run = _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, control, measurements, image_size,
                    pixel_pitch_um, focal_mm, output, k45, affinity, name, coded)
     except typer.BadParameter as exc:
@@ -206,6 +210,32 @@ def _coded_spec(corners, spacing_mm, coded: dict):
     return CodedCheckerboardSpec(**kw)
 
 
+def _coded_marks(value: str, cols: int, rows: int, diameter_mm) -> tuple:
+    """``--coded-marks`` as ((column, row, code id), ...); BadParameter naming the value otherwise."""
+    import re
+
+    from ..targets import SEED003_MARKS
+
+    text = str(value).strip()
+    if diameter_mm is None:
+        raise typer.BadParameter(f"--coded-marks {value!r} needs --diameter-mm (the rings are sized from the circle "
+                                 "diameter, e.g. --diameter-mm 20)")
+    if text.lower() in ("default", "seed003", "seed-003"):
+        if (cols, rows) != (7, 4):
+            raise typer.BadParameter(f"--coded-marks {value!r} is the seed-003 layout of a 7x4 grid, but --grid is "
+                                     f"{cols}x{rows}: give the marks as COLUMNxROW=CODE,... (e.g. 1x1=0,3x2=1)")
+        return SEED003_MARKS
+    marks = []
+    for entry in text.split(","):
+        m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*=\s*(\d+)\s*", entry)
+        if m is None:
+            raise typer.BadParameter(f"--coded-marks {value!r}: entry {entry.strip()!r}: expected COLUMNxROW=CODE with "
+                                     "non-negative integers (0-based column and row of the marked circle, the ring's "
+                                     "code id), e.g. 1x1=0, or 'default'")
+        marks.append(tuple(int(g) for g in m.groups()))
+    return tuple(marks)
+
+
 def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, control, measurements, image_size,
          pixel_pitch_um, focal_mm, output, k45, affinity, name, coded=None):
     coded = coded or {}
@@ -252,6 +282,9 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
             kind = "coded"
         if kind not in ("chessboard", "circles", "coded"):
             raise typer.BadParameter(f"--target {target!r}: expected chessboard, circles or coded")
+        if kind != "circles" and coded.get("coded_marks") is not None:
+            raise typer.BadParameter(f"--coded-marks {coded['coded_marks']!r} describes ring-coded marks on a circle grid: "
+                                     "use it with --target circles")
         if kind != "coded" and coded.get("target_file") is not None:
             raise typer.BadParameter("--target-file describes a coded checkerboard: use it with --target coded")
         if not (kind == "coded" and coded.get("target_file") is not None) and (spacing_mm is None or spacing_mm <= 0):
@@ -277,6 +310,18 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
             cols, rows = _pair(grid, "--grid")
             spec = CircleGridSpec(cols, rows, spacing_mm, asymmetric=asymmetric, diameter_mm=diameter_mm)
             desc = f"{'asymmetric' if asymmetric else 'symmetric'} circle grid {cols}x{rows}, {spacing_mm:g} mm spacing"
+            if coded.get("coded_marks") is not None:
+                from ..errors import ConfigError
+                from ..targets import CodedCircleGridTarget
+
+                marks = _coded_marks(coded["coded_marks"], cols, rows, diameter_mm)
+                try:
+                    spec = CodedCircleGridTarget(cols, rows, spacing_mm, asymmetric=asymmetric, diameter_mm=diameter_mm,
+                                                 marks=marks)
+                except ConfigError as exc:
+                    raise typer.BadParameter(f"--coded-marks {coded['coded_marks']!r}: {exc}") from None
+                desc += (f", {len(marks)} ring-coded marks ("
+                         + ", ".join(f"{c}x{r}={i}" for c, r, i in spec.marks) + ")")
         detect = _detector(kind)
         interim = detect is None
         # circles of known size: raw centroids, then the bias iterated with the calibration
@@ -327,6 +372,15 @@ def _run(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, con
                                                                "of large circles"}
         prog_desc["detections"] = {d.image_id: {"found": bool(d.found), "method": d.method, "reason": d.reason}
                                    for d in dets}
+        if getattr(spec, "marks", ()):
+            prog_desc["coded_marks"] = [list(m) for m in spec.marks]
+            for d in dets:
+                cm = d.extra.get("coded_marks", {})
+                prog_desc["detections"][d.image_id]["coded_marks"] = {
+                    "decoded": sorted(int(k) for k in cm.get("decoded", {})),
+                    "undecoded": int(cm.get("undecoded", 0)),
+                    "ordering": cm.get("ordering", ""),
+                }
         cams, pts, ims, not_detected, meta = prepare_detections(dets, spec.object_points() * 1e-3, target=prog_desc,
                                                                 pixel_pitch_um=pixel_pitch_um, focal_mm=focal_mm,
                                                                 camera_name=name)
@@ -368,6 +422,13 @@ def _summary(console, cal: dict, output, keys) -> None:
         console.print(f"target found in {sum(cnt.values())}/{len(dets)} images"
                       + (f" ({', '.join(f'{m}: {k}' for m, k in sorted(cnt.items(), key=lambda x: -x[1]))})" if cnt else ""),
                       highlight=False)
+        coded = [v["coded_marks"] for v in dets.values() if v.get("found") and "coded_marks" in v]
+        if coded:
+            n_dec = sum(len(c["decoded"]) for c in coded)
+            n_num = sum(c["ordering"] == "coded marks" for c in coded)
+            console.print(f"coded marks: {n_dec} decoded in {len(coded)} images; numbering fixed by them in {n_num}/"
+                          f"{len(coded)}" + (" (the others keep the geometric numbering)" if n_num < len(coded) else ""),
+                          highlight=False)
     cb = cal["run"].get("target", {}).get("centre_bias") if isinstance(cal.get("run"), dict) else None
     if cb and cb.get("rounds"):
         ch = ", ".join(f"{h['bias_change_px']:.4f}" for h in cb["rounds"] if h.get("bias_change_px") is not None)

@@ -1,13 +1,13 @@
-"""``facade`` workflow: thermal orthoimage of a flat facade from an oriented survey, without a mesh (seed 002).
+"""``facade`` workflow: thermal orthoimage of a flat facade without a mesh (seed 002), two routes.
 
-Reads a survey folder (``cameras.json`` + frames) through :class:`~thermogrammetry.io.oriented.OrientedCameras`,
+**Oriented** (:func:`run_facade`): reads a survey folder (``cameras.json`` + frames) through :class:`~thermogrammetry.io.oriented.OrientedCameras`,
 puts the facade plane in object space (given, or fitted to the survey's sparse cloud), and calls
 :func:`thermogrammetry.products.facade.plane_mosaic` (image choice per tile by resolution on the surface and
 distance from the image border, one image per cell, values sampled from it, nothing blended). Writes::
 
     facade_temperature.tif   float32 in the chosen unit (K or °C), or raw counts labelled as counts; NaN = none
     facade_source.tif        int32 index of the source image (facade.json "index"), -1 = none
-    facade_angle.tif         float32 viewing angle of the source image (deg)
+    facade_angle.tif         float32 viewing angle of the source image (deg); oriented route only
     facade_resolution.tif    float32 resolution of the source image on the facade (px/m)
     facade.png               palette preview with its colour scale
     facade.json              plane (origin, u along, v up, normal), grid, unit, index -> image, coverage, notes
@@ -21,6 +21,20 @@ camera-to-point distance, refined by least squares on the inliers; normal toward
 cameras' mean "up" (−y of the camera frame) projected on the plane, so a facade is upright whatever the
 frame; extent: the 1st–99th percentile of the inliers in plane coordinates.
 
+**Homography** (:func:`run_facade_homography`): stand-alone thermal frames read through the io layer (like
+``survey``), each rectified by :func:`~thermogrammetry.products.facade.fit_facade_homography` from >= 4 points with
+known facade coordinates (``points.csv``: ``id,u,v`` metres; measurements ``image,id,x,y`` px, (0, 0) the centre of
+the top-left pixel, the survey's CSV rules), mosaicked by
+:func:`~thermogrammetry.products.facade.homography_mosaic` with the same image-choice rule and source map; grid
+``(u, v)`` = the points' coordinates. No orientation, so no viewing angle (``facade_angle.tif`` omitted, said in
+``facade.json``). An image with < 4 points, no 4 in general position or unreadable is skipped with its reason;
+:class:`NothingMosaickedError` (CLI exit 1) when none is left.
+
+**Levelling** (both routes, ``levelling="offsets"``): per-image additive offsets from the cells that two or more
+images can serve (:func:`~thermogrammetry.products.facade.level_offsets`, texture's estimator), ADDED to every cell
+of their image; ``facade.json`` holds each offset with its formal σ, the held image, the pair counts and the overlap
+RMS before/after, and ``values_altered: true``.
+
 References
 ----------
 .. [1] Barazzetti, Erba, Previtali, Rosina, Scaioni (2013), seed 002: thermal orthophotos of facades.
@@ -33,9 +47,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataFileError, InvalidInputError, TooFewPointsError
+from ..errors import DataFileError, InvalidInputError, ThermogrammetryError, TooFewPointsError
 
-__all__ = ["fit_facade_plane", "parse_plane", "run_facade"]
+__all__ = ["NothingMosaickedError", "fit_facade_plane", "parse_plane", "read_plane_points", "run_facade", "run_facade_homography"]
 
 #: RANSAC iterations of the plane fit (seeded: deterministic)
 PLANE_RANSAC_ITERATIONS = 2000
@@ -143,25 +157,31 @@ def _extent_from_views(plane, views) -> tuple[float, float, float, float]:
     return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
 
 
-def run_facade(survey_dir, out_dir, *, plane: str = "auto", cell_m: float | None = None, unit: str | None = None,
-               tile_m: float = 1.0, occluders_path=None) -> dict:
-    """The ``facade`` verb as a function; returns the ``facade.json`` content as a dict.
-
-    ``unit``: ``"K"`` or ``"C"`` for kelvin frames (default K); must stay None for frames in raw counts (the
-    mosaic then holds counts, labelled as such).
-    """
-    from ..io.oriented import OrientedCameras
-    from ..io.tiff import encode_raster_tiff, encode_temperature_tiff
-    from ..products import texture_export as tx
-    from ..products.facade import FacadeGrid, plane_mosaic
-    from ..radiometry.encoding import TemperatureUnit, from_kelvin
-    from .project import FolderProject
-    from .texture import check_views_unit, frames_unit, load_views, read_mesh
-
+def _check_common(cell_m, tile_m, levelling):
     if not (cell_m is None or (np.isfinite(cell_m) and cell_m > 0)):
         raise InvalidInputError(f"--cell {cell_m!r}: expected a cell size in metres > 0")
     if not (np.isfinite(tile_m) and tile_m > 0):
         raise InvalidInputError(f"--tile {tile_m!r}: expected a tile size in metres > 0")
+    if str(levelling).lower() not in ("none", "offsets"):
+        raise InvalidInputError(f"--levelling {levelling!r}: expected none or offsets")
+    return str(levelling).lower()
+
+
+def run_facade(survey_dir, out_dir, *, plane: str = "auto", cell_m: float | None = None, unit: str | None = None,
+               tile_m: float = 1.0, occluders_path=None, levelling: str = "none") -> dict:
+    """The ``facade`` verb as a function; returns the ``facade.json`` content as a dict.
+
+    ``unit``: ``"K"`` or ``"C"`` for kelvin frames (default K); must stay None for frames in raw counts (the
+    mosaic then holds counts, labelled as such). ``levelling``: ``"none"`` (default) or ``"offsets"``
+    (per-image additive offsets from the overlaps, :func:`thermogrammetry.products.facade.level_offsets`:
+    they alter the values, and are reported in ``facade.json``).
+    """
+    from ..io.oriented import OrientedCameras
+    from ..products.facade import FacadeGrid, plane_mosaic
+    from ..radiometry.encoding import TemperatureUnit
+    from .texture import check_views_unit, frames_unit, load_views, read_mesh
+
+    levelling = _check_common(cell_m, tile_m, levelling)
     cameras = OrientedCameras.load(survey_dir)
     frame_unit = frames_unit(cameras)
     views, skipped = load_views(cameras, unit=frame_unit or "K")
@@ -205,7 +225,44 @@ def run_facade(survey_dir, out_dir, *, plane: str = "auto", cell_m: float | None
                                 "give a larger --cell")
     grid = FacadeGrid(a0, a1, b0, b1, cell_m)
     occ = read_mesh(occluders_path) if occluders_path is not None else None
-    mos = plane_mosaic(views, pl, grid, occluders=occ, tile_m=tile_m)
+    mos = plane_mosaic(views, pl, grid, occluders=occ, tile_m=tile_m, levelling=levelling)
+    head = {"route": "oriented", "survey": str(survey_dir),
+            "plane": {"origin": list(map(float, pl.origin)), "u": list(map(float, pl.u)), "v": list(map(float, pl.v)),
+                      "normal": pl.normal.tolist(), "how": how}}
+    grid_conv = ("row 0 at the top; cell (r, c) centred at a = a0 + (c + 0.5) cell, b = b1 - (r + 0.5) cell; "
+                 "X = origin + a u + b v")
+    return _write_outputs(out_dir, mos, counts, u_t, head, grid_conv, skipped, tile_m)
+
+
+def _levelling_json(mos, counts: bool) -> dict:
+    lev = mos.levelling
+    key = "offsets_rms_before_after_counts" if counts else "offsets_rms_before_after_k"
+    if lev is None:
+        return {"levelling": "none", "offsets": None, "offsets_sigma": None, "offsets_fixed_image": None, key: None}
+    names = mos.names
+    return {"levelling": "offsets",
+            "offsets": {n: float(o) for n, o in zip(names, lev.offsets)},
+            "offsets_sigma": {n: (float(s) if np.isfinite(s) else None) for n, s in zip(names, lev.sigma)},
+            "offsets_fixed_image": names[lev.fixed],
+            key: [lev.rms_before, lev.rms_after],
+            "offsets_pairs": {n: int(p) for n, p in zip(names, lev.pairs)},
+            "offsets_not_levelled": [n for n, c in zip(names, lev.connected) if not c],
+            "offsets_cells_sampled": lev.cells_sampled,
+            "offsets_note": ("per-image additive offsets (" + ("counts" if counts else "K") + ") from the overlaps: least "
+                             "squares over pairs of images' values at sampled cells that both can serve, the image "
+                             "supplying most cells held at 0; each offset was ADDED to every cell of its image. sigma: "
+                             "formal, treating the pairs as independent (a lower bound)" + (f"; {lev.note}" if lev.note else ""))}
+
+
+def _write_outputs(out_dir, mos, counts: bool, u_t, head: dict, grid_conv: str, skipped, tile_m: float,
+                   extra: dict | None = None) -> dict:
+    """Write the rasters, the preview and facade.json of a mosaic; returns facade.json as a dict."""
+    from ..io.tiff import encode_raster_tiff, encode_temperature_tiff
+    from ..products import texture_export as tx
+    from ..radiometry.encoding import from_kelvin
+    from .project import FolderProject
+
+    grid = mos.grid
     store = FolderProject(out_dir)
     vals = mos.temperature_k.astype(np.float32) if counts else from_kelvin(mos.temperature_k, u_t).astype(np.float32)
     if counts:
@@ -214,26 +271,39 @@ def run_facade(survey_dir, out_dir, *, plane: str = "auto", cell_m: float | None
         data, _ = encode_temperature_tiff(mos.temperature_k, unit=u_t.value, encoding="float32")
         store.write_bytes("facade_temperature.tif", data)
     store.write_bytes("facade_source.tif", tx.int32_tiff_bytes(mos.source))
-    store.write_bytes("facade_angle.tif", encode_raster_tiff(mos.angle_deg, unit="deg",
-                                                             description="viewing angle of the source image (deg); NaN = none"))
+    files = ["facade_temperature.tif", "facade_source.tif"]
+    if mos.angle_deg is not None:
+        store.write_bytes("facade_angle.tif", encode_raster_tiff(mos.angle_deg, unit="deg",
+                                                                 description="viewing angle of the source image (deg); NaN = none"))
+        files.append("facade_angle.tif")
     store.write_bytes("facade_resolution.tif", encode_raster_tiff(mos.resolution_px_per_m, unit="px/m",
                                                                   description="resolution of the source image on the facade"))
     unit_out = "counts" if counts else u_t.value
     store.write_bytes("facade.png", _preview_png(vals, unit_out))
+    files += ["facade_resolution.tif", "facade.png", "facade.json"]
     filled = int((mos.source >= 0).sum())
     used = sorted({int(s) for s in np.unique(mos.source) if s >= 0})
-    out = {"format": "thermogrammetry/facade", "version": 1, "survey": str(survey_dir), "unit": unit_out,
+    lev = mos.levelling
+    out = {"format": "thermogrammetry/facade", "version": 1, **head, "unit": unit_out,
            "quantity": "raw_counts" if counts else "temperature",
-           "plane": {"origin": list(map(float, pl.origin)), "u": list(map(float, pl.u)), "v": list(map(float, pl.v)),
-                     "normal": pl.normal.tolist(), "how": how},
-           "grid": {"a0": a0, "a1": a1, "b0": b0, "b1": b1, "cell": cell_m, "shape": list(grid.shape),
-                    "convention": "row 0 at the top; cell (r, c) centred at a = a0 + (c + 0.5) cell, "
-                                  "b = b1 - (r + 0.5) cell; X = origin + a u + b v"},
+           "grid": {"a0": grid.a0, "a1": grid.a1, "b0": grid.b0, "b1": grid.b1, "cell": grid.cell_m, "shape": list(grid.shape),
+                    "convention": grid_conv},
            "cells_total": int(mos.source.size), "cells_filled": filled,
            "index": {str(k): n for k, n in enumerate(mos.names)}, "images_used": len(used),
+           "cells_per_image": {n: int(c) for n, c in zip(mos.names, np.bincount(mos.source[mos.source >= 0],
+                                                                               minlength=len(mos.names)))},
            "skipped": [{"image": n, "reason": r} for n, r in skipped],
            "tile": tile_m, "notes": mos.notes,
-           "values": "each cell's value is sampled (bilinear) from one image, chosen per tile; nothing blended or filled"}
+           **_levelling_json(mos, counts),
+           "values_altered": lev is not None,
+           "values": ("each cell's value is sampled (bilinear) from one image, chosen per tile; nothing blended or filled"
+                      + ("; per-image offsets ADDED (levelling=offsets)" if lev is not None else "")),
+           "files": files}
+    if mos.angle_deg is None:
+        out["angle"] = ("facade_angle.tif not written: without an orientation (homography route) the viewing angle "
+                        "is not known")
+    if extra:
+        out.update(extra)
     store.write_text("facade.json", json.dumps(out, indent=1))
     return out
 
@@ -259,3 +329,231 @@ def _preview_png(vals, unit: str) -> bytes:
     fig.savefig(buf, format="png", bbox_inches="tight")
     plt.close(fig)
     return buf.getvalue()
+
+
+# ------------------------------------------------------------------------------------------------ homography route
+class NothingMosaickedError(ThermogrammetryError):
+    """No image could be rectified (every one lacked points, was degenerate or unreadable): exit 1."""
+
+
+def read_plane_points(path):
+    """``points.csv``: ``id,u,v`` (metres on the facade plane: u along, v up), the rules of
+    :mod:`thermogrammetry.io.testfield_csv` (header any order, case-insensitive; ``#`` comments; comma,
+    semicolon or tab). Returns ``(ids tuple, uv (M, 2) float, source)``; errors name the file, row and value."""
+    from ..errors import CorruptFileError, UnsupportedFormatError
+    from ..io.testfield_csv import _header, _num, _rows, _text, read_text
+
+    text, source = read_text(path)
+    _, rows = _rows(text)
+    if not rows:
+        raise UnsupportedFormatError(f"{source}: empty file; expected a header id,u,v (metres on the facade plane) and "
+                                     "one row per point")
+    cmap, data = _header(rows, ("id", "u", "v"), (), source, "plane")
+    if not data:
+        raise UnsupportedFormatError(f"{source}: no points after the header")
+    ids, uv, seen = [], [], {}
+    for n, row in data:
+        pid = _text(row, cmap, "id", n, source)
+        if pid in seen:
+            raise CorruptFileError(f"{source}, row {n}: duplicate point id {pid!r} (first on row {seen[pid]})")
+        seen[pid] = n
+        ids.append(pid)
+        uv.append([_num(row, cmap, c, n, source, "metres on the facade plane") for c in ("u", "v")])
+    return tuple(ids), np.array(uv, float), source
+
+
+def _decode_frames(images, input_unit):
+    """Files/folders -> ([(name, array float32, unit 'K'|'counts', source path)], skipped[(name, reason)], notes)."""
+    from ..io import iter_thermal
+    from .survey import expand_inputs
+
+    files, notes = expand_inputs([str(p) for p in images])
+    frames, skipped, used = [], [], set()
+    for path in files:
+        try:
+            got = []
+            for im in iter_thermal(path, unit=input_unit):
+                if im.temperature_k is not None:
+                    arr, u = np.asarray(im.temperature_k, np.float32), "K"
+                    if not np.isfinite(arr).any():
+                        raise InvalidInputError(f"{path}: no finite temperature in the frame")
+                else:
+                    arr, u = np.asarray(im.raw_counts, np.float32), "counts"
+                fi = im.metadata.frame_index
+                got.append(("" if fi is None else f"_f{fi:05d}", arr, u))
+        except (ThermogrammetryError, OSError, ValueError) as exc:
+            reason = str(exc).replace("pass unit='K' or unit='C'", "give --input-unit K or C")
+            skipped.append((Path(path).name, f"not read: {reason}"))
+            continue
+        for sfx, arr, u in got:
+            name = Path(path).stem + sfx
+            base, k = name, 1
+            while name in used:
+                k += 1
+                name = f"{base}_{k}"
+            used.add(name)
+            frames.append((name, arr, u, str(path)))
+    return frames, skipped, notes
+
+
+def _footprint_extent(fits, shapes, pts_uv):
+    """Union of the images' footprints on the plane (their corners through H^-1, images whose four corners all
+    map in front), clipped to the points' bounding box grown by half its size on every side."""
+    lo_p, hi_p = pts_uv.min(axis=0), pts_uv.max(axis=0)
+    span = np.maximum(hi_p - lo_p, 1e-6)
+    lo_c, hi_c = lo_p - 0.5 * span, hi_p + 0.5 * span
+    ab = [pts_uv]
+    for fit, (h, w) in zip(fits, shapes):
+        c = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]], float)
+        if fit.camera is not None:
+            c = fit.camera.undistort(c)
+        q = np.c_[c, np.ones(4)] @ np.linalg.inv(fit.H).T
+        if np.all(q[:, 2] > 0) or np.all(q[:, 2] < 0):  # all four corners on the plane in front of the camera
+            ab.append(q[:, :2] / q[:, 2:3])
+    ab = np.clip(np.concatenate(ab), lo_c, hi_c)
+    lo, hi = ab.min(axis=0), ab.max(axis=0)
+    return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
+
+
+def run_facade_homography(images, points_csv, measurements_csv, out_dir, *, cell_m: float | None = None,
+                          unit: str | None = None, input_unit: str | None = None, tile_m: float = 1.0,
+                          levelling: str = "none", camera_path=None, extent: str | None = None) -> dict:
+    """The ``facade --images`` route: rectify thermal frames by homographies from points of known plane
+    coordinates (no orientation), mosaic them with the image-choice rule of the oriented route.
+
+    Parameters
+    ----------
+    images : files and/or folders of thermal frames (read by :func:`thermogrammetry.io.iter_thermal`: FLIR/DJI
+        R-JPEG, TIFF incl. float kelvin/°C with ``input_unit``, SEQ/CSQ, CSV/NPY matrices)
+    points_csv : ``id,u,v`` metres on the facade plane (:func:`read_plane_points`)
+    measurements_csv : ``image,id,x,y[,sx,sy]`` pixels, (0, 0) the centre of the top-left pixel; image named with
+        or without extension (:func:`thermogrammetry.io.testfield_csv.read_measurements_csv`)
+    out_dir : output folder (written only when a mosaic was made)
+    cell_m : cell size (m); default the median over the images of one pixel on the plane at the image centre
+    unit : ``"K"``/``"C"`` for temperature frames (default K), None for raw counts (the mosaic holds counts)
+    input_unit : ``"K"``/``"C"``: unit of float TIFFs that declare none
+    levelling : ``"none"`` or ``"offsets"`` (see :func:`run_facade`)
+    camera_path : optional ``camera.json`` (from ``calibrate``): measured points are undistorted and the lens
+        distortion re-applied when sampling; without it the frames are taken as distortion-free
+    extent : optional ``"u0,u1,v0,v1"`` (m); default: the images' footprints on the plane, clipped to the points'
+        bounding box grown by half its size on every side
+
+    Returns
+    -------
+    dict, the ``facade.json`` content. Images without 4 usable points, with a degenerate configuration or
+    unreadable are listed in ``skipped`` with the reason; :class:`NothingMosaickedError` when none is left.
+    """
+    from ..errors import CorruptFileError
+    from ..io.testfield_csv import read_measurements_csv
+    from ..products.facade import FacadeGrid, fit_facade_homography, homography_mosaic
+    from ..radiometry.encoding import TemperatureUnit
+
+    levelling = _check_common(cell_m, tile_m, levelling)
+    if input_unit is not None and str(input_unit).upper() not in ("K", "C"):
+        raise InvalidInputError(f"--input-unit {input_unit!r}: expected K or C")
+    ext = None
+    if extent is not None:
+        try:
+            ext = [float(x) for x in str(extent).split(",")]
+        except ValueError:
+            ext = []
+        if len(ext) != 4 or not np.all(np.isfinite(ext)) or not (ext[1] > ext[0] and ext[3] > ext[2]):
+            raise InvalidInputError(f"--extent {extent!r}: expected u0,u1,v0,v1 in metres on the facade plane with "
+                                    "u1 > u0 and v1 > v0")
+    ids, uv, p_src = read_plane_points(points_csv)
+    meas = read_measurements_csv(measurements_csv)
+    pid = {k: i for i, k in enumerate(ids)}
+    for r, (im, m_id) in enumerate(zip(meas.image, meas.id)):
+        if m_id not in pid:
+            raise CorruptFileError(f"{meas.source}, row {meas.lines[r]}: point id {m_id!r} (image {im!r}) is not in "
+                                   f"{p_src}; known ids: {', '.join(ids[:8])}{' ...' if len(ids) > 8 else ''}")
+    camera = None
+    if camera_path is not None:
+        from ..camera import Camera
+
+        camera = Camera.load(camera_path)
+    frames, skipped, notes = _decode_frames(images, None if input_unit is None else str(input_unit).upper())
+    units = {u for _, _, u, _ in frames}
+    frame_unit = "K" if "K" in units else ("counts" if "counts" in units else None)
+    if frame_unit == "K" and "counts" in units:
+        skipped += [(n, "raw counts: the mosaic is made of the kelvin frames (units are never mixed)")
+                    for n, _, u, _ in frames if u == "counts"]
+        frames = [f for f in frames if f[2] == "K"]
+    counts = frame_unit == "counts"
+    if counts and unit is not None:
+        raise InvalidInputError(f"--unit {unit}: the thermal frames are raw counts (no documented conversion); a "
+                                "temperature unit cannot be applied. Omit --unit: the mosaic then holds the counts, "
+                                "labelled as counts")
+    u_t = None if counts else TemperatureUnit(unit or "K")
+    # measurements per frame: the image column names the frame with or without its extension
+    by_name: dict[str, list[int]] = {}
+    for r, im in enumerate(meas.image):
+        by_name.setdefault(im, []).append(r)
+    matched = set()
+    fits, kept, shapes, homs = [], [], [], {}
+    for name, arr, u, path in frames:
+        keys = [k for k in by_name if k in (name, Path(path).name) or Path(k).stem == name]
+        rows = [r for k in keys for r in by_name[k]]
+        matched.update(keys)
+        if camera is not None and tuple(camera.image_size) != (arr.shape[1], arr.shape[0]):
+            skipped.append((name, f"{arr.shape[1]} x {arr.shape[0]} px; --camera is {camera.image_size[0]} x "
+                                  f"{camera.image_size[1]} px"))
+            continue
+        if not rows:
+            skipped.append((name, f"no measurements in {meas.source}"))
+            continue
+        P = uv[[pid[meas.id[r]] for r in rows]]
+        X = meas.xy[rows]
+        try:
+            fit = fit_facade_homography(P, X, camera=camera)
+        except (InvalidInputError, np.linalg.LinAlgError) as exc:
+            skipped.append((name, f"{len(rows)} point(s): {exc}"))
+            continue
+        fits.append(fit)
+        kept.append((name, arr))
+        shapes.append(arr.shape)
+        homs[name] = {"points": len(rows), "rms_px": fit.rms_px, "H": fit.H.tolist(),
+                      "residuals_px": {meas.id[r]: [float(fit.residuals_px[i, 0]), float(fit.residuals_px[i, 1])]
+                                       for i, r in enumerate(rows)}}
+    unknown = sorted(set(by_name) - matched)
+    if unknown:
+        notes.append(f"{meas.source}: measurements of {len(unknown)} image(s) that are not inputs, ignored: "
+                     f"{', '.join(unknown[:5])}{' ...' if len(unknown) > 5 else ''}")
+    if not fits:
+        why = "; ".join(f"{n}: {r}" for n, r in skipped[:8]) or "no input image"
+        raise NothingMosaickedError(f"facade: no image could be rectified ({why})")
+    if ext is None:
+        ext = _footprint_extent(fits, shapes, uv[[pid[i] for i in sorted({meas.id[r] for r in range(len(meas.id))})]])
+    if cell_m is None:  # one pixel of the median image on the plane, at the point seen at the image centre
+        fp = []
+        for fit, (h, w) in zip(fits, shapes):
+            c = np.array([[(w - 1) / 2, (h - 1) / 2]])
+            if fit.camera is not None:
+                c = fit.camera.undistort(c)
+            q = np.array([c[0, 0], c[0, 1], 1.0]) @ np.linalg.inv(fit.H).T
+            if q[2] != 0:
+                sv = float(fit.jacobian_min_sv(q[0] / q[2], q[1] / q[2]))
+                if np.isfinite(sv) and sv > 0:
+                    fp.append(1.0 / sv)
+        cell_m = float(np.median(fp)) if fp else float(max(ext[1] - ext[0], ext[3] - ext[2]) / 1000)
+    a0, a1, b0, b1 = ext
+    if (a1 - a0) / cell_m * (b1 - b0) / cell_m > 60e6:
+        raise InvalidInputError(f"facade: {a1 - a0:.2f} x {b1 - b0:.2f} at {cell_m:g} per cell is over 60 million cells; "
+                                "give a larger --cell or an --extent")
+    grid = FacadeGrid(a0, a1, b0, b1, cell_m)
+    names = [n for n, _ in kept]
+    mos = homography_mosaic([a for _, a in kept], fits, grid, names=names, tile_m=tile_m, levelling=levelling)
+    if not np.any(mos.source >= 0):
+        raise NothingMosaickedError(f"facade: the {len(fits)} rectified image(s) cover no cell of the extent "
+                                    f"u {a0:g}..{a1:g}, v {b0:g}..{b1:g} m")
+    for n, f in zip(names, fits):
+        homs[n]["max_residual_px"] = float(np.max(np.linalg.norm(f.residuals_px, axis=1)))
+    head = {"route": "homography", "images": [str(p) for p in images], "plane_points": str(points_csv),
+            "plane_measurements": str(measurements_csv), "camera": None if camera_path is None else str(camera_path),
+            "plane": {"how": "the facade plane's own coordinates (u along, v up, metres) from " + str(points_csv),
+                      "extent": "given (--extent)" if extent is not None else
+                      "the images' footprints, clipped to the points' bounding box grown by half its size"},
+            "homographies": homs, "input_notes": notes}
+    grid_conv = ("row 0 at the top; cell (r, c) centred at u = a0 + (c + 0.5) cell, v = b1 - (r + 0.5) cell "
+                 "(u, v: the coordinates of points.csv)")
+    return _write_outputs(out_dir, mos, counts, u_t, head, grid_conv, skipped, tile_m)

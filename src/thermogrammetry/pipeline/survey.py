@@ -58,6 +58,9 @@ __all__ = ["SurveyOptions", "SurveyInput", "survey_steps", "run_survey", "VIDEO_
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".tif", ".tiff", ".png", ".seq", ".csq", ".fff", ".csv", ".npy", ".bmp", ".is2"}
 #: a block whose final tie-point reprojection RMS exceeds this is rejected (reported, not exported)
 BLOCK_RMS_GATE_PX = 3.0
+#: an image whose adjusted antenna position is more than this many GNSS σ from its GNSS position (on any axis) is
+#: named in survey.json (``gnss_flagged``) and in the notes: its orientation or its GNSS tag is wrong
+GNSS_FLAG_SIGMA = 5.0
 
 #: self-calibration steps down this ladder (each rung intersected with the parameters asked for) while the
 #: block cannot carry it: the adjustment stops rank deficient, a free parameter's σ is not finite, or the
@@ -1363,7 +1366,7 @@ def _rig_scale_local(rec, images, rig, master, rigv) -> list:
 def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results, extra=None,
                    rig_only=None):
     from ..io.oriented import OrientedCameras, OrientedImage
-    from ..sfm.georef import axis_statistics
+    from ..sfm.georef import axis_statistics, gnss_misfit
 
     cam_ids = project.read_json("work/reconstruction.json")["camera_ids"]
     images_out = []
@@ -1413,6 +1416,32 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
                        "rms_px": float(np.sqrt(np.mean(np.sum(v**2, 1)))) if v is not None and len(v) else None,
                        "unit": inputs["images"][i]["unit"], "sensor": inputs["images"][i]["sensor"],
                        **({"rig_only": True} if ok and i in (rig_only or {}) else {})})
+    # GNSS misfit per image: adjusted antenna position − given GNSS position (a surveyor's check of every centre)
+    gnss_d, flagged = [], []
+    for ci, images, fa, how, geo in fa_all:
+        if not geo:
+            continue
+        for i, (d, z) in sorted(gnss_misfit(rec, images, ctrl).items()):
+            st = status[i]
+            st["gnss_residual_m"] = [float(x) for x in d]
+            st["gnss_residual_sigma"] = float(np.max(z))
+            used = i not in fa.gnss_rejected
+            if used:
+                gnss_d.append(d)
+            else:
+                st["gnss_used"] = False
+            if np.max(z) > GNSS_FLAG_SIGMA:
+                flagged.append((i, d, float(np.max(z)), used))
+    if flagged:
+        if len(flagged) > max(3, 0.1 * len(gnss_d)):
+            notes = notes + [f"{len(flagged)} of {len(gnss_d)} adjusted camera centres are more than {GNSS_FLAG_SIGMA:g} σ "
+                             "from their GNSS positions (gnss_flagged): the GNSS σ given is too optimistic for this "
+                             "flight, or the GNSS and the images do not belong together"]
+        else:
+            notes = notes + [f"{names[i]}: adjusted camera centre {np.linalg.norm(d):.3f} m from its GNSS position "
+                             f"({z:.1f} σ{'' if used else '; that GNSS position was left out of the final adjustment'}): "
+                             "its orientation (e.g. tie points on occluding edges or repeated structure) or its GNSS tag "
+                             "is wrong; check it before using its products" for i, d, z, used in flagged]
     for f in inputs["failed"]:
         status.append({"name": Path(f["file"]).name, "oriented": False, "block": None, "reason": f["reason"], "tie_points": 0,
                        "rms_px": None, "unit": None, "sensor": None})
@@ -1439,6 +1468,9 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
         "reprojection_rms_px": rms,
         "gcps": axis_statistics(gcp_errors),
         "checkpoints": axis_statistics([c["error"] for c in checks if c.get("error") is not None]),
+        "gnss": axis_statistics(gnss_d),
+        "gnss_flagged": [{"image": names[i], "dx": float(d[0]), "dy": float(d[1]), "dz": float(d[2]), "sigma": z,
+                          "used": used} for i, d, z, used in flagged],
         "crs": crs,
         "seconds": None,
         "georeferenced": bool(crs),

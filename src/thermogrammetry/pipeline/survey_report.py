@@ -126,6 +126,12 @@ def write_survey_report(project) -> None:
             f"<tr><td class=l>{html.escape(c['id'])}</td><td>{c['n_images']}</td>" + (
                 "".join(f"<td>{c[k]:.4f}</td>" for k in ("dx", "dy", "dz", "sx", "sy", "sz")) if "dx" in c
                 else f"<td class=l colspan=6>{html.escape(c.get('reason', ''))}</td>") + "</tr>" for c in s["checkpoint_errors"]) + "</table>")
+    if s.get("gnss", {}).get("n"):
+        parts.append(_axis_table("Camera centres against GNSS (adjusted antenna − given)", s["gnss"]))
+        if s.get("gnss_flagged"):
+            parts.append("<p class='bad'>Camera centres far from their GNSS positions (orientation or GNSS tag wrong): "
+                         + ", ".join(f"{html.escape(g['image'])} ({np.hypot(np.hypot(g['dx'], g['dy']), g['dz']):.3f} m, "
+                                     f"{g['sigma']:.1f} σ)" for g in s["gnss_flagged"]) + "</p>")
     if s.get("gcp_rejected_measurements"):
         parts.append("<p class='bad'>GCP measurements rejected (blunders: not visible or wrongly identified): " + ", ".join(
             f"{html.escape(r['id'])} in {html.escape(r['image'])} ({r['residual_px']:.1f} px)" for r in s["gcp_rejected_measurements"]) + "</p>")

@@ -24,6 +24,13 @@ cannot exclude occluders (stated in the result's ``notes``).
 
 Values are sampled bilinearly from one image per cell; nothing is blended or filled (NaN, source −1).
 
+Optional levelling (``levelling="offsets"``, both mosaics; it ALTERS the values): per-image additive offsets
+``o_k`` with ``T_a(x) + o_a = T_b(x) + o_b`` over pairs of images that can both serve a cell ``x``, least squares
+by :func:`thermogrammetry.products.texture.estimate_offsets`, the image supplying most cells held at 0
+(:func:`level_offsets`). Memory stays bounded: the mosaics select cells in chunks/bands and keep every image's
+value only at a deterministic sample of at most ``LEVELLING_SAMPLE_CELLS`` cells (and at most
+``LEVELLING_MAX_PAIRS`` pairs), never an images × cells stack.
+
 References
 ----------
 .. [1] Barazzetti, Erba, Previtali, Rosina, Scaioni (2013), seed 002: thermal orthophotos of facades,
@@ -40,8 +47,8 @@ import numpy as np
 
 from ..errors import ConfigError, InvalidInputError, ShapeError, TooFewPointsError
 
-__all__ = ["FacadeGrid", "FacadePlane", "FacadeMosaic", "HomographyFit", "fit_facade_homography", "homography_mosaic",
-           "plane_mosaic"]
+__all__ = ["FacadeGrid", "FacadePlane", "FacadeMosaic", "FacadeLevelling", "HomographyFit", "fit_facade_homography",
+           "homography_mosaic", "level_offsets", "plane_mosaic"]
 
 
 @dataclass(frozen=True)
@@ -108,6 +115,123 @@ class FacadeMosaic:
     notes: str = ""
     angle_deg: np.ndarray | None = None
     fits: list = field(default_factory=list)
+    levelling: "FacadeLevelling | None" = None
+
+
+# ------------------------------------------------------------------------------------------- levelling
+#: cells sampled for the levelling (at most; a deterministic random subset of the grid)
+LEVELLING_SAMPLE_CELLS = 200_000
+#: image pairs (two images' values at one sampled cell) at most in the least squares
+LEVELLING_MAX_PAIRS = 1_000_000
+
+
+@dataclass
+class FacadeLevelling:
+    """Per-image additive offsets estimated from the overlaps (``levelling="offsets"``).
+
+    ``offsets`` (K,) in the mosaic's value unit (kelvin, or counts for count frames), ADDED to every cell of
+    their image; ``sigma`` (K,) their formal standard deviation (NaN: not estimated); ``fixed`` the image
+    held at 0 (the one supplying most cells); ``pairs`` (K,) pair differences per image; ``connected`` (K,)
+    bool: the image is tied to the held image through overlaps (the others are not levelled, offset 0);
+    ``rms_before`` / ``rms_after`` RMS of the pair differences before and after; ``cells_sampled`` cells with
+    >= 2 usable images that entered the estimate.
+    """
+
+    offsets: np.ndarray
+    sigma: np.ndarray
+    fixed: int
+    pairs: np.ndarray
+    connected: np.ndarray
+    rms_before: float
+    rms_after: float
+    cells_sampled: int
+    note: str = ""
+
+
+def _sample_mask(n: int, n_sample: int, seed: int = 0) -> np.ndarray:
+    """(n,) bool: a deterministic random subset of ``min(n, n_sample)`` cells."""
+    m = np.zeros(n, bool)
+    if n <= n_sample:
+        m[:] = True
+    else:
+        m[np.random.default_rng(seed).choice(n, n_sample, replace=False)] = True
+    return m
+
+
+def level_offsets(values, cells_per_image, *, max_pairs: int = LEVELLING_MAX_PAIRS, seed: int = 0) -> FacadeLevelling:
+    """Per-image offsets from sampled overlap cells, by :func:`thermogrammetry.products.texture.estimate_offsets`.
+
+    Parameters
+    ----------
+    values : (S, K) float, each image's value at S sampled cells (NaN where the image cannot serve the cell);
+        rows with fewer than 2 values are ignored
+    cells_per_image : (K,) int, cells each image supplies to the whole mosaic: the largest is held at 0
+    max_pairs : int, rows are subsampled (deterministically) until their pairs fit; all pairs of the kept rows
+        are used, so the formal σ below counts them exactly
+
+    Returns
+    -------
+    :class:`FacadeLevelling`. σ is the least-squares formal one, ``s² (MᵀM)⁻¹`` over the pair differences with
+    ``s`` from their residuals: it treats the pairs as independent, which they are not quite (a cell seen by
+    3+ images gives dependent pairs; cells finer than a pixel share pixels), so it is a lower bound.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from .texture import Selection, estimate_offsets
+
+    V = np.asarray(values, np.float32)
+    cnt = np.asarray(cells_per_image, np.int64)
+    K = V.shape[1]
+    fixed = int(np.argmax(cnt))
+    fin = np.isfinite(V)
+    m = fin.sum(axis=1)
+    keep = m >= 2
+    V, fin, m = V[keep], fin[keep], m[keep]
+    per_row = m * (m - 1) // 2
+    if per_row.sum() > max_pairs:  # fewer rows, every pair of each kept row
+        order = np.random.default_rng(seed).permutation(len(V))
+        take = np.sort(order[: int(np.searchsorted(np.cumsum(per_row[order]), max_pairs, side="right"))])
+        V, fin, m = V[take], fin[take], m[take]
+    nan = np.full(K, np.nan)
+    Fm = fin.astype(np.float64)
+    Nkj = Fm.T @ Fm  # (K, K) cells shared by images k and j
+    np.fill_diagonal(Nkj, 0.0)
+    _, comp = connected_components(coo_matrix(Nkj > 0), directed=False)
+    connected = comp == comp[fixed]
+    connected &= (Nkj.sum(axis=1) > 0) | (np.arange(K) == fixed)
+    if not np.any(connected & (np.arange(K) != fixed)):
+        return FacadeLevelling(np.zeros(K), nan, fixed, np.zeros(K, np.int64), connected, float("nan"), float("nan"),
+                               int(len(V)), "no overlap with the held image: nothing levelled")
+    V = np.where(connected[None, :], V, np.nan).astype(np.float32)  # images not tied to the held one stay out
+    fin = np.isfinite(V)
+    m = fin.sum(axis=1)
+    use = m >= 2
+    V, fin, m = V[use], fin[use], m[use]
+    total = int((m * (m - 1) // 2).sum())
+    sel = Selection(np.zeros(len(V), np.int64), np.zeros(len(V)), np.zeros(len(V)), np.zeros(len(V)), m,
+                    np.zeros((len(V), 0), bool), V)
+    off, fixed_, pairs, rb, ra = estimate_offsets(sel, K, max_pairs=max(total, 1), seed=seed, fixed=fixed)
+    off = np.where(connected, off, 0.0)
+    # formal sigma: cov = s^2 (M^T M)^-1, M^T M = the pair graph's Laplacian without the held image
+    Fm = fin.astype(np.float64)
+    Nkj = Fm.T @ Fm
+    np.fill_diagonal(Nkj, 0.0)
+    L = np.diag(Nkj.sum(axis=1)) - Nkj
+    free = np.flatnonzero(connected & (np.arange(K) != fixed))
+    sig = nan.copy()
+    sig[fixed] = 0.0
+    dof = total - len(free)
+    if dof > 0:
+        s2 = ra**2 * total / dof
+        try:
+            cov = s2 * np.linalg.inv(L[np.ix_(free, free)])
+            sig[free] = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        except np.linalg.LinAlgError:
+            pass
+    note = "" if np.all(connected) else (f"{int((~connected).sum())} image(s) share no overlap chain with the held image: "
+                                         "not levelled (offset 0, sigma null)")
+    return FacadeLevelling(off, sig, fixed_, np.asarray(pairs, np.int64), connected, float(rb), float(ra), int(len(V)), note)
 
 
 # ------------------------------------------------------------------------------------------- homography
@@ -150,11 +274,40 @@ def _normalise(p):
     return T, (p - c) * s
 
 
+#: a homography needs 4 points with no 3 on a line: each of them at least this share of the points' span
+#: away from the line through two others
+GENERAL_POSITION_FRACTION = 0.05
+
+
+def _general_position(P, frac: float = GENERAL_POSITION_FRACTION) -> bool:
+    """Whether the plane points (N, 2) hold 4 points with no 3 nearly collinear (greedy: the farthest pair,
+    the point farthest from their line, then the point farthest from all three lines)."""
+
+    def dist_line(p, q, X):
+        d = q - p
+        return np.abs(d[0] * (X[:, 1] - p[1]) - d[1] * (X[:, 0] - p[0])) / max(np.hypot(*d), 1e-300)
+
+    D = np.linalg.norm(P[:, None] - P[None], axis=2)
+    i, j = np.unravel_index(np.argmax(D), D.shape)
+    span = D[i, j]
+    if not span > 0:
+        return False
+    d3 = dist_line(P[i], P[j], P)
+    k = int(np.argmax(d3))
+    if d3[k] < frac * span:
+        return False
+    d4 = np.minimum(np.minimum(d3, dist_line(P[i], P[k], P)), dist_line(P[j], P[k], P))
+    return bool(np.max(d4) >= frac * span)
+
+
 def fit_facade_homography(plane_ab, image_xy_px, *, camera=None, iterations: int = 10) -> HomographyFit:
     """Homography from ≥ 4 plane points (N, 2) m to their measured pixels (N, 2) (module docstring).
 
     Raises :class:`~thermogrammetry.errors.TooFewPointsError` below 4 points and
-    :class:`~thermogrammetry.errors.DegenerateInputError` when 3 of 4 are collinear (rank-deficient DLT).
+    :class:`~thermogrammetry.errors.DegenerateInputError` when no 4 points are in general position (3 of 4
+    collinear, within ``GENERAL_POSITION_FRACTION`` of the points' span, or a rank-deficient DLT) or when the
+    fitted plane's horizon line passes between the points (some would be behind the camera).
+    The returned ``H`` is scaled so that ``w = H[2]·(a, b, 1) > 0`` at the points (in front of the camera).
     """
     from ..errors import DegenerateInputError
 
@@ -166,6 +319,10 @@ def fit_facade_homography(plane_ab, image_xy_px, *, camera=None, iterations: int
         raise TooFewPointsError(f"facade homography: {len(P)} points given; expected at least 4 with known plane coordinates")
     if not (np.all(np.isfinite(P)) and np.all(np.isfinite(X))):
         raise InvalidInputError("facade homography: non-finite coordinates")
+    if not _general_position(P):
+        raise DegenerateInputError(f"facade homography: the {len(P)} plane points hold no 4 points with no 3 collinear "
+                                   f"(within {GENERAL_POSITION_FRACTION:.0%} of their span); expected 4+ points spread "
+                                   "over the facade")
     Xi = camera.undistort(X) if camera is not None else X
     Tp, p = _normalise(P)
     Tx, x = _normalise(Xi)
@@ -199,6 +356,11 @@ def fit_facade_homography(plane_ab, image_xy_px, *, camera=None, iterations: int
             break
     H = np.append(h, 1.0).reshape(3, 3)
     q = np.c_[P, np.ones(len(P))] @ H.T
+    if not (np.all(q[:, 2] > 0) or np.all(q[:, 2] < 0)) or not np.all(np.isfinite(H)):
+        raise DegenerateInputError("facade homography: the fit puts some points behind the camera (the horizon line "
+                                   "passes between them); check the measurements and the point ids")
+    if q[0, 2] < 0:
+        H, q = -H, -q
     res = Xi - q[:, :2] / q[:, 2:3]
     return HomographyFit(H, res, float(np.sqrt(np.mean(np.sum(res**2, axis=1)))), camera)
 
@@ -207,13 +369,6 @@ def _bilinear(img, xy):
     from .texture import _bilinear as b
 
     return b(img, xy)
-
-
-def _tile_ids(grid: FacadeGrid, tile_m: float):
-    h, w = grid.shape
-    per = max(1, int(round(tile_m / grid.cell_m)))
-    r, c = np.mgrid[0:h, 0:w]
-    return (r // per) * ((w + per - 1) // per) + (c // per)
 
 
 def _choose(scores_cells, usable, tiles):
@@ -233,50 +388,103 @@ def _choose(scores_cells, usable, tiles):
     return best.reshape(tiles.shape)
 
 
+def _apply_levelling(T, src, values_sample, cells_per_image):
+    lev = level_offsets(values_sample, cells_per_image)
+    ok = src >= 0
+    T[ok] = (T[ok] + lev.offsets[src[ok]]).astype(T.dtype)
+    return lev
+
+
 def homography_mosaic(images: Sequence[np.ndarray], fits: Sequence[HomographyFit], grid: FacadeGrid, *, names=None,
-                      tile_m: float = 1.0, border_px: float = 2.0, border_fraction: float = 0.1) -> FacadeMosaic:
-    """Mosaic of rectified images (kelvin) on the facade grid; image choice by the module's rule."""
+                      tile_m: float = 1.0, border_px: float = 2.0, border_fraction: float = 0.1,
+                      levelling: str = "none", band_values: int = 4_000_000) -> FacadeMosaic:
+    """Mosaic of rectified images on the facade grid; image choice by the module's rule.
+
+    Parameters
+    ----------
+    images : K (H_k, W_k) arrays, kelvin (or all raw counts: the mosaic then holds counts)
+    fits : K :class:`HomographyFit`, plane (a, b) m -> pixels of each image
+    grid : :class:`FacadeGrid`
+    levelling : ``"none"`` or ``"offsets"`` (per-image offsets from the overlaps, :func:`level_offsets`; they
+        alter the values and are returned in ``levelling``)
+    band_values : the grid is processed in bands of whole tile rows holding about this many (cell, image)
+        values, so memory does not grow with K x cells
+
+    Returns
+    -------
+    :class:`FacadeMosaic` (``angle_deg`` None: no orientation, no viewing angle)
+    """
+    from .texture import Levelling
+
+    lev_mode = Levelling(levelling)
     if len(images) != len(fits) or not len(images):
         raise InvalidInputError(f"homography_mosaic: {len(images)} images and {len(fits)} homographies; expected the same number >= 1")
-    A, B = grid.centres()
-    h, w = A.shape
+    images = [np.asarray(im, np.float32) for im in images]
+    h, w = grid.shape
     K = len(images)
-    scores = np.zeros((K, h, w))
-    usable = np.zeros((K, h, w), bool)
-    xys = []
-    for k, (img, fit) in enumerate(zip(images, fits)):
-        img = np.asarray(img)
-        H_, W_ = img.shape
-        xy = fit.to_pixels(A, B)
-        xys.append(xy)
-        bd = np.minimum(np.minimum(xy[..., 0] + 0.5, W_ - 0.5 - xy[..., 0]), np.minimum(xy[..., 1] + 0.5, H_ - 0.5 - xy[..., 1]))
-        q = np.stack([A, B, np.ones_like(A)], -1) @ fit.H.T
-        front = q[..., 2] > 0
-        ok = front & np.isfinite(bd) & (bd >= border_px + 0.5)
-        usable[k] = ok
-        b0 = border_fraction * min(W_, H_)
-        scores[k] = np.where(ok, fit.jacobian_min_sv(A, B) * np.minimum(1.0, np.maximum(bd, 0) / b0), 0.0)
-    best = _choose(scores, usable, _tile_ids(grid, tile_m))
+    per = max(1, int(round(tile_m / grid.cell_m)))
+    band = per * max(1, int(band_values // max(1, K * w * per)))
     T = np.full((h, w), np.nan, np.float32)
     res = np.full((h, w), np.nan, np.float32)
-    for k in range(K):
-        m = best == k
-        if np.any(m):
-            T[m] = _bilinear(np.asarray(images[k], np.float32), xys[k][m])
-            res[m] = fits[k].jacobian_min_sv(A[m], B[m])
-    src = best.astype(np.int32)
+    src = np.full((h, w), -1, np.int32)
+    sample = _sample_mask(h * w, LEVELLING_SAMPLE_CELLS).reshape(h, w) if lev_mode is Levelling.OFFSETS else None
+    samples = []
+    A_all, B_all = grid.centres()
+    for r0 in range(0, h, band):
+        A, B = A_all[r0:r0 + band], B_all[r0:r0 + band]
+        bh = A.shape[0]
+        scores = np.zeros((K, bh, w))
+        usable = np.zeros((K, bh, w), bool)
+        xys = []
+        for k, (img, fit) in enumerate(zip(images, fits)):
+            H_, W_ = img.shape
+            xy = fit.to_pixels(A, B)
+            xys.append(xy)
+            bd = np.minimum(np.minimum(xy[..., 0] + 0.5, W_ - 0.5 - xy[..., 0]), np.minimum(xy[..., 1] + 0.5, H_ - 0.5 - xy[..., 1]))
+            q = np.stack([A, B, np.ones_like(A)], -1) @ fit.H.T
+            front = q[..., 2] > 0
+            ok = front & np.isfinite(bd) & (bd >= border_px + 0.5)
+            usable[k] = ok
+            b0 = border_fraction * min(W_, H_)
+            scores[k] = np.where(ok, fit.jacobian_min_sv(A, B) * np.minimum(1.0, np.maximum(bd, 0) / b0), 0.0)
+        r, c = np.mgrid[0:bh, 0:w]
+        tiles = (r // per) * ((w + per - 1) // per) + (c // per)
+        best = _choose(scores, usable, tiles)
+        for k in range(K):
+            m = best == k
+            if np.any(m):
+                T[r0:r0 + bh][m] = _bilinear(images[k], xys[k][m])
+                res[r0:r0 + bh][m] = fits[k].jacobian_min_sv(A[m], B[m])
+        src[r0:r0 + bh] = best
+        if sample is not None:
+            sm = sample[r0:r0 + bh] & (usable.sum(axis=0) >= 2)
+            vals = np.full((int(sm.sum()), K), np.nan, np.float32)
+            for k in range(K):
+                u = usable[k][sm]
+                vals[u, k] = _bilinear(images[k], xys[k][sm][u])
+            samples.append(vals)
+    lev = None
+    if sample is not None:
+        lev = _apply_levelling(T, src, np.concatenate(samples) if samples else np.zeros((0, K), np.float32),
+                               np.bincount(src[src >= 0], minlength=K))
     return FacadeMosaic(T, src, res, list(names) if names is not None else [str(i) for i in range(K)], grid,
                         notes="homography rectification: nothing in front of the plane is known; occluders are not excluded",
-                        fits=list(fits))
+                        fits=list(fits), levelling=lev)
 
 
-def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None, tile_m: float = 1.0, config=None) -> FacadeMosaic:
+def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None, tile_m: float = 1.0, config=None,
+                 levelling: str = "none", chunk_cells: int = 250_000) -> FacadeMosaic:
     """Ortho on a plane from oriented images (``views``: :class:`~thermogrammetry.products.texture.TextureView`).
 
     ``occluders``: optional ``(vertices, faces)`` of geometry in front of the plane (e.g. a mesh of a
     balcony or a tree); with it every cell gets the texture module's occlusion and mixed-pixel tests.
+    ``levelling``: ``"none"`` or ``"offsets"`` (per-image offsets from the overlaps, :func:`level_offsets`,
+    estimated from a sample of at most ``LEVELLING_SAMPLE_CELLS`` cells; they alter the values).
+    The cells are selected and sampled ``chunk_cells`` at a time (each image's value is held for one chunk only).
     """
-    from .texture import TextureConfig, pixel_surfaces, select_and_sample, _intersector
+    from .texture import Levelling, TextureConfig, pixel_surfaces, select_and_sample, _intersector
+
+    lev_mode = Levelling(levelling)
 
     cfg = config or TextureConfig()
     A, B = grid.centres()
@@ -311,16 +519,31 @@ def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None,
     scores = face_view_scores(V, F, views, max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
     inter = _intersector(V, F)
     surfaces = [pixel_surfaces(inter, V, F, v) for v in views]
-    sel = select_and_sample(inter, V, F, views, surfaces, scores, P, face.ravel(), cfg)
-    T = sel.temperature_k.reshape(h, w).astype(np.float32)
-    src = sel.source.reshape(h, w).astype(np.int32)
-    ang = sel.angle_deg.reshape(h, w).astype(np.float32)
+    K = len(views)
+    N = h * w
+    fr = face.ravel()
+    T = np.full(N, np.nan, np.float32)
+    src = np.full(N, -1, np.int32)
+    ang = np.full(N, np.nan, np.float32)
+    dist = np.full(N, np.nan)
+    sample = _sample_mask(N, LEVELLING_SAMPLE_CELLS) if lev_mode is Levelling.OFFSETS else None
+    samples = []
+    for i0 in range(0, N, max(1, int(chunk_cells))):
+        sl = slice(i0, min(N, i0 + max(1, int(chunk_cells))))
+        sel = select_and_sample(inter, V, F, views, surfaces, scores, P[sl], fr[sl], cfg)
+        T[sl], src[sl], ang[sl], dist[sl] = sel.temperature_k, sel.source, sel.angle_deg, sel.distance_m
+        if sample is not None:
+            samples.append(sel.all_k[sample[sl] & (sel.n_usable >= 2)])
+        del sel
+    T, src, ang, dist = T.reshape(h, w), src.reshape(h, w), ang.reshape(h, w), dist.reshape(h, w)
     res = np.full((h, w), np.nan, np.float32)
     ok = src >= 0
-    K = len(views)
     fpx = np.array([0.5 * (v.camera.K[0, 0] + v.camera.K[1, 1]) for v in views])
-    res[ok] = (fpx[src[ok]] * np.cos(np.deg2rad(ang[ok])) / sel.distance_m.reshape(h, w)[ok]).astype(np.float32)
-    _ = nf_plane, K
+    res[ok] = (fpx[src[ok]] * np.cos(np.deg2rad(ang[ok])) / dist[ok]).astype(np.float32)
+    lev = None
+    if sample is not None:
+        lev = _apply_levelling(T, src, np.concatenate(samples), np.bincount(src[ok], minlength=K))
+    _ = nf_plane
     notes = ("ortho on a plane with occluding geometry: occlusion and mixed-pixel tests applied" if occluders is not None else
              "ortho on a plane without occluding geometry: only the plane is known; objects in front are not excluded")
-    return FacadeMosaic(T, src, res, [v.name for v in views], grid, notes=notes, angle_deg=ang)
+    return FacadeMosaic(T, src, res, [v.name for v in views], grid, notes=notes, angle_deg=ang, levelling=lev)

@@ -496,8 +496,12 @@ def select_and_sample(intersector, vertices, faces, views, surfaces, scores, poi
     return Selection(src, T, ang, dist, n_ok, occl, all_k)
 
 
-def estimate_offsets(selection: Selection, n_views: int, *, max_pairs: int = 200_000, seed: int = 0):
+def estimate_offsets(selection: Selection, n_views: int, *, max_pairs: int = 200_000, seed: int = 0,
+                     fixed: int | None = None):
     """Least-squares per-image offsets from overlaps (module docstring), one image held at 0.
+
+    ``fixed``: the image held at 0 (default: the one that supplies most points of ``selection``; a caller that
+    passes a subsample of its points gives the image that supplies most of all of them).
 
     Returns ``(offsets_k (K,), fixed index, pairs per image (K,), rms_before_k, rms_after_k)``; images
     without overlap keep offset 0 (pairs = 0).
@@ -515,7 +519,7 @@ def estimate_offsets(selection: Selection, n_views: int, *, max_pairs: int = 200
     blocks = [(k, j, int(np.count_nonzero(fin[:, k] & fin[:, j]))) for k in range(n_views) for j in range(k + 1, n_views)]
     blocks = [bl for bl in blocks if bl[2] > 0]
     counts = np.bincount(src[src >= 0], minlength=n_views)
-    fixed = int(np.argmax(counts))
+    fixed = int(np.argmax(counts)) if fixed is None else int(fixed)
     if not blocks:
         return np.zeros(n_views), fixed, np.zeros(n_views, np.int64), float("nan"), float("nan")
     total = sum(bl[2] for bl in blocks)

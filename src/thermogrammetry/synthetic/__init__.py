@@ -9,6 +9,7 @@ Submodules
 radiance   Planck band radiance, its inverse, Fresnel directional emissivity (local, exact).
 sensor     thermal sensor effects: PSF blur, vignetting, temporal noise (NETD), fixed-pattern noise.
 targets    calibration targets (circle grids, chessboards) rendered by supersampled inverse mapping.
+coded_circle_grid_set  seed-003-like mask circle grid with ring-coded marks, whole and partial views.
 surfaces   radiometrically exact rendering of a flat surface (temperature, emissivity, angle).
 terrain    DSM with buildings, temperature and emissivity fields, heightfield ray casting.
 survey     UAV survey: flight lines, thermal frames / video, GNSS, GCPs, ground truth in a project.
@@ -28,6 +29,9 @@ _LAZY = {
     "TargetTemperatures": "targets",
     "RenderedTarget": "targets",
     "render_target_image": "targets",
+    # mask circle grid with seed 003's ring-coded marks
+    "CodedCircleGridSet": "coded_circle_grid_set",
+    "make_coded_circle_grid_set": "coded_circle_grid_set",
     # sensor
     "SensorEffects": "sensor",
     "apply_sensor_effects": "sensor",

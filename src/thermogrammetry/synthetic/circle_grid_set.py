@@ -23,7 +23,7 @@ from ..targets import BOARD, FEATURE, SURROUND, CircleGridTarget
 from .targets import HotSpot, RenderedTarget, render_target_image
 from .testfield import look_at_pose
 
-__all__ = ["CircleGridSet", "DisplacedCircleGrid", "make_circle_grid_set", "displace_centres_in_image",
+__all__ = ["CircleGridSet", "DisplacedCircleGrid", "DisplacedCodedCircleGrid", "make_circle_grid_set", "displace_centres_in_image",
            "render_circle_grid_view",
            "STRONG_BARREL_CAMERA"]
 
@@ -85,6 +85,31 @@ class DisplacedCircleGrid(CircleGridTarget):
         return (c[:, None, :] + rim[None, :, :]).reshape(-1, 3)
 
 
+@dataclass(frozen=True)
+class DisplacedCodedCircleGrid(DisplacedCircleGrid):
+    """:class:`DisplacedCircleGrid` whose marked circles carry the ring codes of ``coded`` (a
+    :class:`~thermogrammetry.targets.CodedCircleGridTarget`), each ring moved with its disc (the
+    whole mark is made off its nominal place).
+
+    Attributes
+    ----------
+    coded : CodedCircleGridTarget -- the nominal coded grid (same columns, rows, spacing, diameter).
+    """
+
+    coded: _t.CodedCircleGridTarget = field(default=None, compare=False, repr=False)
+
+    def classify(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        """Part label (SURROUND=0, BOARD=1 mask, FEATURE=2 displaced circle or cut-out ring sector), int8."""
+        lab = super().classify(x_mm, y_mm)
+        if self.coded is None or not self.coded.marks:
+            return lab
+        x, y = np.asarray(x_mm, dtype=np.float64), np.asarray(y_mm, dtype=np.float64)
+        cen = self.circle_centres_mm()[self.coded.mark_point_ids]
+        ring = self.coded.ring_mask(x, y, cen) & (lab == BOARD)
+        lab[ring & np.isfinite(x) & np.isfinite(y)] = FEATURE
+        return lab
+
+
 def displace_centres_in_image(camera, R: np.ndarray, t: np.ndarray, centres_mm: np.ndarray, shift_px: np.ndarray,
                               iterations: int = 4) -> np.ndarray:
     """Target-plane offsets (mm) that move the projections of ``centres_mm`` by ``shift_px``.
@@ -129,7 +154,9 @@ def render_circle_grid_view(camera, pose, target: CircleGridTarget, *, centre_no
     Parameters
     ----------
     camera, pose : as :func:`~thermogrammetry.synthetic.targets.render_target_image` (pose: (R, t), metres).
-    target : CircleGridTarget (mm) -- the nominal grid.
+    target : CircleGridTarget (mm) -- the nominal grid; a
+        :class:`~thermogrammetry.targets.CodedCircleGridTarget` is drawn with its ring-coded marks (with
+        centre noise each ring moves with its disc: :class:`DisplacedCodedCircleGrid`).
     centre_noise_px : float
         σ (px per image coordinate) of an N(0, σ²) shift of every circle's projected centre, made by
         rendering the circle displaced in the target plane (:func:`displace_centres_in_image`).
@@ -149,8 +176,14 @@ def render_circle_grid_view(camera, pose, target: CircleGridTarget, *, centre_no
             raise ConfigError("render_circle_grid_view: centre_noise_px > 0 needs rng (a seeded numpy Generator)")
         shift = rng.normal(0.0, centre_noise_px, (target.n_points, 2))
         off = displace_centres_in_image(camera, R, t, target.object_points(), shift)
-        draw = DisplacedCircleGrid(target.columns, target.rows, target.spacing_mm, asymmetric=target.asymmetric,
-                                   diameter_mm=target.diameter_mm, margin_mm=target.margin_mm, offsets_mm=off)
+        if getattr(target, "marks", ()):
+            # a coded grid: each mark's ring moves with its disc
+            draw = DisplacedCodedCircleGrid(target.columns, target.rows, target.spacing_mm,
+                                            asymmetric=target.asymmetric, diameter_mm=target.diameter_mm,
+                                            margin_mm=target.margin_mm, offsets_mm=off, coded=target)
+        else:
+            draw = DisplacedCircleGrid(target.columns, target.rows, target.spacing_mm, asymmetric=target.asymmetric,
+                                       diameter_mm=target.diameter_mm, margin_mm=target.margin_mm, offsets_mm=off)
     r = render_target_image(camera, (R, t), draw, **render_kw)
     r.target = target  # object points and points_px are the nominal grid's in either case
     return r, shift

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ConfigError
+from ..errors import ConfigError
 
 __all__ = [
     "circle_centroid_bias",
@@ -592,3 +592,17 @@ def circle_centroid_bias(camera, R: np.ndarray, t: np.ndarray, centres_m: np.nda
     cy = ((y + y1) * cr).sum(axis=1) / (6 * A)
     centre = camera.project(c @ R.T + t)
     return np.column_stack([cx, cy]) - centre
+
+
+# ring-coded marks on a circle grid (seed 003); imported last: the module builds on CircleGridTarget
+from .coded_marks import (  # noqa: E402
+    SEED003_MARKS,
+    CodedCircleGridTarget,
+    code_bits_of,
+    match_ring_code,
+    ring_codes,
+    seed003_coded_grid,
+)
+
+__all__ += ["CodedCircleGridTarget", "SEED003_MARKS", "ring_codes", "code_bits_of", "match_ring_code",
+            "seed003_coded_grid"]
