@@ -151,6 +151,38 @@ def _run(cmd):
     return t, mem, rc
 
 
+def _plan_frames(s: float) -> int:
+    """Frames of the flight plan of :func:`thermogrammetry.synthetic.survey.make_survey` on the benchmark's terrain
+    of ``130 s x 100 s`` m with :func:`uav_thermal_config` (its line and exposure count, without building the
+    terrain; :func:`chain` prints the count of the plan actually made)."""
+    from thermogrammetry.synthetic.survey import _gsd_footprint
+    from thermogrammetry.synthetic.survey_files import uav_thermal_config
+
+    cfg = uav_thermal_config(seed=0)
+    across, along = _gsd_footprint(cfg)
+    margin = cfg.flight_height_m * np.tan(3 * np.deg2rad(cfg.attitude_sigma_deg)) + 1.0
+    W, H = 130.0 * s, 100.0 * s
+    if W - along - 2 * margin <= 0 or H - across - 2 * margin <= 0:
+        return 0
+    n_lines = max(1, int(np.ceil((H - across - 2 * margin) / (across * (1 - cfg.sidelap)))) + 1)
+    step = along * (1 - cfg.overlap)
+    n_along = max(1, int(np.floor((W - along - 2 * margin) / step + 1e-9)) + 1)
+    return n_lines * n_along
+
+
+def chain_scale(n: int) -> tuple[float, int]:
+    """Terrain scale ``s`` (terrain ``130 s x 100 s`` m, the aspect of :func:`uav_thermal_config`'s) whose flight
+    plan has the frame count nearest to ``n`` (the smallest such ``s``), and that count.
+
+    The plan has ``lines x exposures`` frames, both counted over the terrain minus one footprint and two margins,
+    so the count grows faster than the area: ``s = sqrt(n / 56)`` (56 frames at s = 1) gave 120 frames for 100
+    and 644 for 400. Only products of the two counts are possible, hence "nearest"."""
+    grid = np.arange(1.0, 12.0, 0.0005)
+    counts = np.array([_plan_frames(float(s)) for s in grid])
+    k = int(np.argmin(np.abs(counts - n)))
+    return float(grid[k]), int(counts[k])
+
+
 def chain(sizes, workers: int, keep: str | None = None, steps_only=None) -> int:
     import contextlib
     import tempfile
@@ -164,10 +196,12 @@ def chain(sizes, workers: int, keep: str | None = None, steps_only=None) -> int:
     _run([sys.executable, "-c", "pass"])  # starts the launcher while this process is still small
     rows = []
     for n in sizes:
-        s = float(np.sqrt(n / 56.0))
+        s, planned = chain_scale(n)
         ter = TerrainConfig(width_m=130.0 * s, height_m=100.0 * s, n_buildings=max(1, round(5 * s * s)),
                             n_trees=max(1, round(10 * s * s)), n_roads=max(1, round(s)))
         scene = make_survey(uav_thermal_config(seed=0, terrain=ter))
+        print(f"--chain {n}: terrain scale {s:.4f} ({130.0 * s:.1f} x {100.0 * s:.1f} m), flight plan of "
+              f"{len(scene.frames)} frames (predicted {planned})", flush=True)
         if keep:
             ctx = contextlib.nullcontext(str(Path(keep) / f"n{n}"))
         else:
