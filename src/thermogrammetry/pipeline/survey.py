@@ -1159,6 +1159,14 @@ def _gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | None, li
     snap = _rig_snapshot(rec)
     weak = dc_replace(ctrl, gnss_sigma=ctrl.gnss_sigma * 1e3)
     try:
+        # GCP measurement blunders first, on the block with its cameras held: with a datum of a few GCPs and
+        # self-calibration, a wrong measurement (a GCP "measured" where it is not) can bend the block until it fits
+        # within the rejection threshold (seen: focal length -8 %, the GNSS offset 4.8 m off in Z)
+        fa0 = final_adjustment(rec, xy, images, weak, self_calibrate=(), compute_covariance=False, **kw)
+        bad = {(int(i), gid) for i, gid, _e in fa0.gcp_rejected}
+        _restore(rec, snap)
+        if bad:
+            weak = dc_replace(weak, gcp_obs=[o for o in weak.gcp_obs if (int(o[0]), ctrl.gcp_ids[o[1]]) not in bad])
         fa = final_adjustment(rec, xy, images, weak, self_calibrate=self_cal, compute_covariance=True, **kw)
         off = gnss_offset(rec.centers()[images], fa.center_std[images], ctrl.gnss_xyz[images], ctrl.gnss_sigma[images]) \
             if fa.result.success else None
