@@ -255,6 +255,7 @@ def _apply_solution(rec, p, cam_block, view, pts, pidx, rig) -> None:
 
 
 def _state(rec, rig) -> tuple:
+    """What an adjustment changes in ``rec`` (and the rig), to go back to it with :func:`_set_state`."""
     return (rec.R.copy(), rec.t.copy(), rec.points.copy(), rec.obs_valid.copy(), list(rec.cameras),
             None if rig is None else (np.copy(rig.R), np.copy(rig.t)))
 
@@ -277,9 +278,10 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, robust_ti
     a robust loss to the end (Huber, k = :data:`HUBER_K` σ), and that solution is kept when it resolves the
     conflict (fewer such images, none new) without bending the block (median tie residual within 10 % of least
     squares'); otherwise the least-squares solution stays and the survey names the images. Only for a few such
-    images (<= 10 % of those with GNSS): many mean a GNSS σ or datum that is wrong for the whole flight. Measured on the 64-station ring around the synthetic building (occluder in front of the south
-    wall): the two stations facing the occluder 0.41 / 0.44 m (13 σ) from their RTK GNSS and 3.0° / 2.5° off
-    under least squares; see the notes of ``tests/test_texture_survey_poses.py`` for the robust figures.
+    images (<= 10 % of those with GNSS): many mean a GNSS σ or datum that is wrong for the whole flight.
+    Measured on the 64-station ring around the synthetic building (occluder in front of the south wall): the
+    two stations facing the occluder 0.41 / 0.44 m (13 σ) from their RTK GNSS and 3.0° / 2.5° off under least
+    squares; see ``tests/test_texture_survey_poses.py`` for the robust figures.
     Keyword arguments: those of :func:`_final_adjustment`.
     """
     rig = kw.get("rig")
@@ -358,8 +360,7 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
     gnss_active = np.ones(len(rec.registered), bool)
     gnss_rejected: list[int] = []
     gnss_screened = False
-    start = (rec.R.copy(), rec.t.copy(), rec.points.copy(), list(rec.cameras),
-             None if rig is None else (np.copy(rig.R), np.copy(rig.t)))
+    start = _state(rec, rig)
     for round_ in range(5):
         obs = rec.obs_valid & in_block[tr.image] & np.isfinite(rec.points[tr.track]).all(1)
         cnt = np.bincount(tr.track[obs], minlength=len(rec.points))
@@ -439,10 +440,7 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
                     gnss_rejected += far
                     notes.append(f"{len(far)} GNSS position(s) more than {GNSS_REJECT_SIGMA:g} σ from the robust "
                                  "solution left out of the final adjustment (see gnss_flagged)")
-                    rec.R[:], rec.t[:], rec.points[:] = start[0], start[1], start[2]
-                    rec.cameras[:] = start[3]
-                    if start[4] is not None:
-                        rig.R, rig.t = np.copy(start[4][0]), np.copy(start[4][1])
+                    _set_state(rec, rig, start)
                     continue
         if robust:
             # tie blunders
