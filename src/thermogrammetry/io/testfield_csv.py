@@ -170,6 +170,17 @@ def _text(row, cmap, col, n, source) -> str:
     return row[i]
 
 
+
+def _unique_id_rows(data, cmap, source):
+    """``(row number, id, row)`` of every data row; a point id on two rows is an error naming both rows."""
+    seen = {}
+    for n, row in data:
+        pid = _text(row, cmap, "id", n, source)
+        if pid in seen:
+            raise CorruptFileError(f"{source}, row {n}: duplicate point id {pid!r} (first on row {seen[pid]})")
+        seen[pid] = n
+        yield n, pid, row
+
 def parse_control_csv(text: str, source: str = "control.csv") -> ControlPoints:
     """Parse ``id,X,Y,Z[,sX,sY,sZ]`` (metres). See the module docstring for the rules."""
     _, rows = _rows(text)
@@ -179,12 +190,8 @@ def parse_control_csv(text: str, source: str = "control.csv") -> ControlPoints:
     if not data:
         raise UnsupportedFormatError(f"{source}: no control points after the header")
     has_std = "sX" in cmap
-    ids, xyz, std, seen = [], [], [], {}
-    for n, row in data:
-        pid = _text(row, cmap, "id", n, source)
-        if pid in seen:
-            raise CorruptFileError(f"{source}, row {n}: duplicate point id {pid!r} (first on row {seen[pid]})")
-        seen[pid] = n
+    ids, xyz, std = [], [], []
+    for n, pid, row in _unique_id_rows(data, cmap, source):
         ids.append(pid)
         xyz.append([_num(row, cmap, c, n, source, "metres") for c in ("X", "Y", "Z")])
         if has_std:

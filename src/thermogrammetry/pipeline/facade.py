@@ -340,8 +340,8 @@ def read_plane_points(path):
     """``points.csv``: ``id,u,v`` (metres on the facade plane: u along, v up), the rules of
     :mod:`thermogrammetry.io.testfield_csv` (header any order, case-insensitive; ``#`` comments; comma,
     semicolon or tab). Returns ``(ids tuple, uv (M, 2) float, source)``; errors name the file, row and value."""
-    from ..errors import CorruptFileError, UnsupportedFormatError
-    from ..io.testfield_csv import _header, _num, _rows, _text, read_text
+    from ..errors import UnsupportedFormatError
+    from ..io.testfield_csv import _header, _num, _rows, _unique_id_rows, read_text
 
     text, source = read_text(path)
     _, rows = _rows(text)
@@ -351,12 +351,8 @@ def read_plane_points(path):
     cmap, data = _header(rows, ("id", "u", "v"), (), source, "plane")
     if not data:
         raise UnsupportedFormatError(f"{source}: no points after the header")
-    ids, uv, seen = [], [], {}
-    for n, row in data:
-        pid = _text(row, cmap, "id", n, source)
-        if pid in seen:
-            raise CorruptFileError(f"{source}, row {n}: duplicate point id {pid!r} (first on row {seen[pid]})")
-        seen[pid] = n
+    ids, uv = [], []
+    for n, pid, row in _unique_id_rows(data, cmap, source):
         ids.append(pid)
         uv.append([_num(row, cmap, c, n, source, "metres on the facade plane") for c in ("u", "v")])
     return tuple(ids), np.array(uv, float), source
@@ -365,22 +361,13 @@ def read_plane_points(path):
 def _decode_frames(images, input_unit):
     """Files/folders -> ([(name, array float32, unit 'K'|'counts', source path)], skipped[(name, reason)], notes)."""
     from ..io import iter_thermal
-    from .survey import expand_inputs
+    from .survey import expand_inputs, frame_values
 
     files, notes = expand_inputs([str(p) for p in images])
     frames, skipped, used = [], [], set()
     for path in files:
         try:
-            got = []
-            for im in iter_thermal(path, unit=input_unit):
-                if im.temperature_k is not None:
-                    arr, u = np.asarray(im.temperature_k, np.float32), "K"
-                    if not np.isfinite(arr).any():
-                        raise InvalidInputError(f"{path}: no finite temperature in the frame")
-                else:
-                    arr, u = np.asarray(im.raw_counts, np.float32), "counts"
-                fi = im.metadata.frame_index
-                got.append(("" if fi is None else f"_f{fi:05d}", arr, u))
+            got = [frame_values(im, path, counts_dtype=np.float32) for im in iter_thermal(path, unit=input_unit)]
         except (ThermogrammetryError, OSError, ValueError) as exc:
             reason = str(exc).replace("pass unit='K' or unit='C'", "give --input-unit K or C")
             skipped.append((Path(path).name, f"not read: {reason}"))

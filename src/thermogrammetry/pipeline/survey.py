@@ -275,6 +275,21 @@ def _camera_guess(width, height, md) -> dict:
             "pitch_um": None}
 
 
+def frame_values(im, path, counts_dtype=np.uint16) -> tuple[str, np.ndarray, str]:
+    """One decoded frame (:func:`thermogrammetry.io.iter_thermal`) -> ``(name suffix, values, unit)``: float32 kelvin
+    (``"K"``) when the reader gave temperatures, else the raw counts (``"counts"``, as ``counts_dtype``); the suffix is
+    ``_fNNNNN`` for a frame of a sequence, else empty. A temperature frame without one finite value is an
+    :class:`UnsupportedFormatError` naming ``path``."""
+    if im.temperature_k is not None:
+        arr, unit = np.asarray(im.temperature_k, np.float32), "K"
+        if not np.isfinite(arr).any():
+            raise UnsupportedFormatError(f"{path}: no finite temperature in the frame")
+    else:
+        arr, unit = np.asarray(im.raw_counts, counts_dtype), "counts"
+    fi = im.metadata.frame_index
+    return ("" if fi is None else f"_f{fi:05d}"), arr, unit
+
+
 def _decode(path: Path, input_unit: str | None):
     """One input file -> list of (name suffix, array, unit, geotag dict, camera guess dict, note)."""
     from ..io import iter_thermal
@@ -285,15 +300,9 @@ def _decode(path: Path, input_unit: str | None):
     try:
         out = []
         for im in iter_thermal(path, unit=input_unit):
-            if im.temperature_k is not None:
-                arr, unit = np.asarray(im.temperature_k, np.float32), "K"
-                if not np.isfinite(arr).any():
-                    raise UnsupportedFormatError(f"{path}: no finite temperature in the frame")
-            else:
-                arr, unit = np.asarray(im.raw_counts, np.uint16), "counts"
+            sfx, arr, unit = frame_values(im, path)
             md = im.metadata
             h, w = arr.shape
-            sfx = "" if md.frame_index is None else f"_f{md.frame_index:05d}"
             out.append((sfx, arr, unit, _geotag_dict(md.geotag), _camera_guess(w, h, md),
                         "raw counts (no documented conversion): geometry and products labelled as counts" if unit == "counts" else ""))
         return out
