@@ -76,8 +76,10 @@ INTRINSICS_PLAUSIBLE = {"focal": 0.30, "aspect": 0.05, "principal_point": 0.15, 
 
 #: below this share of images with a verified pair, the low-texture features are tried as well
 LOW_TEXTURE_SHARE = 0.8
+LOW_TEXTURE_BA_GROWTH = 1.0  # tracked low-texture sequences: a bundle adjustment after every added image
+LOW_TEXTURE_SELF_CALIBRATION = ("k1", "k2")  # ... and only radial distortion self-calibrated (+ fx, fy without EXIF focal)
+LOW_TEXTURE_PATTERN_SIGMA_PX = 8.0  # the tracker removes the sensor pattern's part finer than this blur (fixed_pattern)
 LOW_TEXTURE_GUIDED_RADIUS_PX = 10.0  # search radius of guided matching in the low-texture fallback
-LOW_TEXTURE_SEQUENCE_WINDOW = 3  # without positions, the low-texture fallback matches each frame with its next 3
 
 VIDEO_SUFFIXES = {".mp4", ".mkv", ".mov", ".avi", ".ts", ".m4v", ".webm"}
 SELF_CALIBRATION = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
@@ -678,7 +680,8 @@ def _gnss_xyz(inputs: dict, opt: SurveyOptions, crs_out: str | None):
     return xyz, sig, crs_out, notes
 
 
-def _fixed_pattern(project: ProjectStore, inputs: dict, names: list) -> str | None:
+def _fixed_pattern(project: ProjectStore, inputs: dict, names: list, *, highpass_sigma_px: float = 0.0,
+                   key: str = "lowtexture/pattern.npz") -> str | None:
     """Estimate the thermal sensor's fixed pattern from its frames (the most common frame size); its key or None."""
     from ..sfm.features import fixed_pattern
 
@@ -690,14 +693,62 @@ def _fixed_pattern(project: ProjectStore, inputs: dict, names: list) -> str | No
         return None
     members = max(groups.values(), key=len)
     frames = [f for f in (_read_frame(project, nm) for nm in members[:: max(1, len(members) // 60)]) if f.ndim == 2]
-    pat = fixed_pattern(frames)
+    pat = fixed_pattern(frames, highpass_sigma_px=highpass_sigma_px)
     if pat is None:
         return None
-    _save_npz(project, "lowtexture/pattern.npz", pattern=pat)
-    return "lowtexture/pattern.npz"
+    _save_npz(project, key, pattern=pat)
+    return key
 
 
-def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None, rig=None) -> dict:
+def _track_thermal_sequence(project: ProjectStore, inputs: dict, thermal: list, cams: dict, cam_ids: list,
+                            pattern_key: str | None) -> tuple[dict, list]:
+    """Low-texture fallback without positions: the thermal frames tracked as a sequence (input order).
+
+    Writes ``lowtexture/features/<name>.npz`` (the tracked points; no descriptors: zero rows) and
+    ``lowtexture/matches/<i>_<j>.npz`` of the verified consecutive pairs. Returns (feature counts by name, match
+    results ``(i, j, n_putative, n_verified, reason)`` of the consecutive pairs).
+    """
+    from ..sfm.lowtexture import track_sequence
+
+    names = [inputs["images"][k]["name"] for k in thermal]
+    pattern = _load_npz(project, pattern_key)["pattern"] if pattern_key else None
+    shapes = [(int(inputs["images"][k]["height"]), int(inputs["images"][k]["width"])) for k in thermal]
+    counts: dict = {}
+    res: list = []
+    # runs of consecutive frames of one size (a sequence of one sensor); the tracker sees one run at a time
+    start = 0
+    for end in range(1, len(thermal) + 1):
+        if end < len(thermal) and shapes[end] == shapes[start]:
+            continue
+        run = thermal[start:end]
+        pat = pattern if pattern is not None and pattern.shape == shapes[start] else None
+        st = track_sequence(lambda a, run=run: _read_frame(project, inputs["images"][run[a]]["name"]), len(run), pattern=pat,
+                            cameras=[cams[cam_ids[k]] for k in run])
+        for a, k in enumerate(run):
+            nm = inputs["images"][k]["name"]
+            xy = st.xy[a]
+            _save_npz(project, f"lowtexture/features/{nm}.npz", xy=xy, size=np.full(len(xy), 12.0, np.float32),
+                      angle=np.zeros(len(xy), np.float32), descriptors=np.zeros((len(xy), 128), np.float32))
+            counts[nm] = len(xy)
+        for a in range(1, len(run)):
+            i, j = run[a - 1], run[a]
+            m = st.matches.get((a - 1, a))
+            reason = st.reasons.get((a - 1, a), "")
+            if m is not None and not reason:
+                _save_npz(project, f"lowtexture/matches/{i}_{j}.npz", idx=m)
+            res.append((i, j, int(st.n_putative.get((a - 1, a), 0)), 0 if m is None or reason else len(m), reason))
+        if end < len(thermal):
+            res.append((thermal[end - 1], thermal[end], 0, 0, f"frame size {shapes[end]} differs from the previous frame's"))
+        start = end
+    return counts, res
+
+
+def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None, rig=None, *,
+                  low_texture_only: bool = False) -> dict:
+    """Pairs, matching and verification; with ``low_texture == "auto"`` the low-texture fallback when fewer than
+    80 % of the thermal frames find a verified pair. ``low_texture_only``: the primary matching is already in
+    ``work/pairs.json`` (its orientation left < 80 % of the thermal frames in one block): only the fallback runs,
+    and its ties replace the thermal ones whenever it verifies any pair (the orientation judges them)."""
     from ..sfm.matching import select_pairs
 
     inputs = project.read_json("work/inputs.json")
@@ -723,9 +774,14 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
     def connected(res):
         return len({k for i, j, npu, nv, reason in res if not reason for k in (i, j)})
 
-    res = match("")
+    if low_texture_only:
+        prev = project.read_json("work/pairs.json")
+        res = [tuple(r) for r in prev["pairs"]]
+        info = dict(prev.get("features", {}))
+    else:
+        res = match("")
+        info = {"features": f"{opt.features.detector.value}/{opt.features.enhancement.value}", "connected": connected(res)}
     n = len(names)
-    info = {"features": f"{opt.features.detector.value}/{opt.features.enhancement.value}", "connected": connected(res)}
     # the low-texture fallback concerns the thermal frames only: RGB images of a combined block keep their own
     # features and matches (their texture is fine; a sequence-window pair list and thermal preprocessing would
     # only lose their links -- measured on the frescoes, RGB + thermal: the RGB block fell from 40 to 27 images)
@@ -737,29 +793,36 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
     def connected_thermal(res):
         return len({k for i, j, npu, nv, reason in res if not reason for k in (i, j) if is_th[k]})
 
-    if opt.low_texture == "auto" and nt >= 2 and connected_thermal(res) < LOW_TEXTURE_SHARE * nt:
+    if opt.low_texture == "auto" and nt >= 2 and "low_texture" not in info and (
+            low_texture_only or connected_thermal(res) < LOW_TEXTURE_SHARE * nt):
         # low-texture frames (facades, walls, water, fields): the sensor's fixed pattern estimated from the
         # sequence and removed, more SIFT features (lower contrast threshold), and matches guided by a
         # homography from the few that pass the global ratio test
         th_names = [names[k] for k in thermal]
-        pattern_key = _fixed_pattern(project, inputs, th_names)
-        lt = replace(opt.features, detector="sift", enhancement="clahe", contrast_threshold=0.005,
-                     max_features=max(opt.features.max_features, 4000))
-        counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key) for nm in th_names],
-                                    opt, None, "features"))
         mopt_lt = replace(opt.matching, guided_radius_px=LOW_TEXTURE_GUIDED_RADIUS_PX)
         pairs_lt = [(i, j) for i, j in pairs if is_th[i] and is_th[j]]
         have_pos = xyz is not None and int(np.all(np.isfinite(xyz[thermal]), axis=1).sum()) >= 2
-        if not have_pos:
-            # no positions: sequence neighbours only (frames in acquisition order). Weak, repetitive texture
-            # matched across the whole set links frames that cannot overlap (a window to its neighbour)
-            seq = select_pairs(nt, None, options=replace(opt.matching, exhaustive_up_to=0, window=LOW_TEXTURE_SEQUENCE_WINDOW))
-            pairs_lt = sorted((thermal[a], thermal[b]) for a, b in seq)
-        res_lt = match("lowtexture/", mopt_lt, pairs_lt)
-        info["low_texture"] = {"features": "sift/clahe on pattern-corrected thermal frames, guided matching",
+        if have_pos:
+            pattern_key = _fixed_pattern(project, inputs, th_names)
+            lt = replace(opt.features, detector="sift", enhancement="clahe", contrast_threshold=0.005,
+                         max_features=max(opt.features.max_features, 4000))
+            counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key) for nm in th_names],
+                                        opt, None, "features"))
+        if have_pos:
+            res_lt = match("lowtexture/", mopt_lt, pairs_lt)
+            how = "sift/clahe on pattern-corrected thermal frames, guided matching"
+        else:
+            # no positions: the frames are taken as a sequence (acquisition order) and tracked frame to frame
+            pattern_key = _fixed_pattern(project, inputs, th_names, highpass_sigma_px=LOW_TEXTURE_PATTERN_SIGMA_PX,
+                                         key="lowtexture/pattern_fine.npz")
+            counts_lt, res_lt = _track_thermal_sequence(project, inputs, thermal, cams, cam_ids, pattern_key)
+            how = "pattern-corrected thermal frames tracked frame to frame (KLT), consecutive pairs verified"
+        info["low_texture"] = {"features": how, "sequence": not have_pos,
                                "fixed_pattern": bool(pattern_key), "thermal_connected": connected_thermal(res_lt),
-                               "thermal_connected_before": connected_thermal(res), "thermal_images": nt}
-        if connected_thermal(res_lt) > connected_thermal(res):
+                               "thermal_connected_before": connected_thermal(res), "thermal_images": nt,
+                               "trigger": ("orientation: < 80 % of the thermal frames in one block" if low_texture_only
+                                           else "matching: < 80 % of the thermal frames with a verified pair")}
+        if connected_thermal(res_lt) > (1 if low_texture_only else connected_thermal(res)):
             for nm in th_names:
                 project.write_bytes(f"features/{nm}.npz", project.read_bytes(f"lowtexture/features/{nm}.npz"))
             for i, j, npu, nv, reason in res_lt:
@@ -772,7 +835,9 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
             res = sorted([r for r in res if not (is_th[r[0]] or is_th[r[1]])] + list(res_lt) + list(res_cross),
                          key=lambda r: (r[0], r[1]))
             info["used"] = ("low-texture fallback for the thermal frames (fixed pattern removed, SIFT with a low "
-                            "contrast threshold, homography-guided matching)")
+                            "contrast threshold, homography-guided matching)" if have_pos else
+                            "low-texture fallback for the thermal frames (fixed pattern removed, frames tracked as a "
+                            "sequence, consecutive pairs verified)")
     kept = [(i, j, nv) for i, j, npu, nv, reason in res if not reason]
     project.write_json("work/pairs.json", {"pairs": [[i, j, npu, nv, reason] for i, j, npu, nv, reason in res], "features": info})
     return {"pairs_tried": len(pairs), "pairs_verified": len(kept), "images_connected": connected(res), "features": info,
@@ -831,6 +896,104 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
         "tie_refinement": refinement})
     return {"oriented": int(rec.registered.sum()), "of": len(names), "components": [len(c) for c in rec.components()],
             "tracks": int(tracks.n_tracks), "reason": rec.reason, "tie_refinement": refinement}
+
+
+def _largest_thermal_block(project: ProjectStore) -> tuple[int, int]:
+    """(thermal images, thermal images in the largest oriented block) of the last orientation."""
+    inputs = project.read_json("work/inputs.json")["images"]
+    status = project.read_json("work/reconstruction.json")["status"]
+    th = [k for k, im in enumerate(inputs) if im.get("sensor", "thermal") == "thermal"]
+    count: dict = {}
+    for k in th:
+        if status[k]["registered"]:
+            count[status[k]["component"]] = count.get(status[k]["component"], 0) + 1
+    return len(th), max(count.values(), default=0)
+
+
+def _low_texture_sequence_used(project: ProjectStore) -> bool:
+    """Whether the thermal ties are the low-texture fallback's tracked sequence (``work/pairs.json``)."""
+    info = project.read_json("work/pairs.json").get("features", {}) if project.exists("work/pairs.json") else {}
+    return "used" in info and bool(info.get("low_texture", {}).get("sequence"))
+
+
+def _low_texture_orient_options(project: ProjectStore, opt: SurveyOptions) -> SurveyOptions:
+    """Orientation options for a tracked low-texture sequence: a bundle adjustment after every added image.
+
+    A walk along a plain wall is a long strip of frames whose tracks span 3-5 frames; registered one after the other
+    with an adjustment only every 25 % of growth, the strip drifts and its ends flip (the planar-pose ambiguity):
+    synthetic low-texture facade, 30 frames, true camera given -- rotations 4.9 deg RMS (max 22) off and the block
+    split; with an adjustment after every image 30/30, 0.82 deg RMS (centres 0.3 % of the block's length)."""
+    if not _low_texture_sequence_used(project):
+        return opt
+    return replace(opt, reconstruction=replace(opt.reconstruction, ba_growth=LOW_TEXTURE_BA_GROWTH))
+
+
+def _low_texture_self_calibration(project: ProjectStore, camera_ids: list, self_cal, focal_known: dict):
+    """Self-calibration of the thermal cameras of a tracked low-texture sequence: radial distortion only (and the
+    focal length when it is a guess, not the file's EXIF value). Returns ``(self_cal, note or "")``.
+
+    A strip of frames along a plane cannot carry the focal length and the principal point: they trade against the
+    block's bending. Synthetic low-texture facade (30 frames, EXIF focal): incremental block 0.64-0.89 deg RMS off
+    in rotation; the final adjustment with the 8 parameters bent it to 3.6-5.9 deg (fx +10 %, cy +29 px), with
+    k1, k2 only it stays at 0.60-0.92 deg (k1 -0.051 for a true -0.05)."""
+    if not _low_texture_sequence_used(project):
+        return self_cal, ""
+    out, limited = {}, []
+    for k, cid in enumerate(camera_ids):
+        req = tuple(self_cal.get(k, ())) if isinstance(self_cal, dict) else tuple(self_cal)
+        if str(cid).startswith("thermal"):
+            allow = LOW_TEXTURE_SELF_CALIBRATION if focal_known.get(k) else ("fx", "fy") + LOW_TEXTURE_SELF_CALIBRATION
+            kept = tuple(p for p in req if p in allow)
+            if kept != req:
+                limited.append(f"{cid}: {', '.join(kept) or 'none'}")
+            req = kept
+        out[k] = req
+    note = ("low-texture sequence: self-calibration limited to " + "; ".join(limited) +
+            " (a strip of frames along a wall cannot carry the focal length and principal point)") if limited else ""
+    return out, note
+
+
+def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None, rgb_camera=None,
+                            rig=None) -> dict:
+    """:func:`step_orient`, then, with ``low_texture == "auto"``, the low-texture fallback when the orientation left
+    fewer than 80 % of the thermal frames in one block although the matching did not trigger it (descriptor matches
+    on noise and the sensor's pattern verify pairs that no orientation can use: a plain wall's frames were all
+    "connected" and none oriented). The fallback's ties replace the thermal ones and the orientation is run again;
+    its result is kept only when its largest block holds more thermal frames, else everything is put back as it was.
+    """
+    out = step_orient(project, _low_texture_orient_options(project, opt), camera, progress, rgb_camera)
+    if opt.low_texture != "auto" or "low_texture" in project.read_json("work/pairs.json").get("features", {}):
+        return out
+    nt, best = _largest_thermal_block(project)
+    if nt < 2 or best >= LOW_TEXTURE_SHARE * nt:
+        return out
+    inputs = project.read_json("work/inputs.json")["images"]
+    keep = ["work/pairs.json", "work/features.json", "work/reconstruction.json", "work/reconstruction.npz"]
+    keep += [f"work/tie_xy/{im['name']}.npz" for im in inputs]
+    keep += [f"features/{im['name']}.npz" for im in inputs if im.get("sensor", "thermal") == "thermal"]
+    keep += [f"matches/{i}_{j}.npz" for i, j, _, _, reason in project.read_json("work/pairs.json")["pairs"] if not reason]
+    keep = [k for k in keep if project.exists(k)]
+    for k in keep:  # the primary result, put aside on disk (features can be large)
+        project.write_bytes(f"lowtexture/primary/{k}", project.read_bytes(k))
+
+    def restore():
+        for k in keep:
+            project.write_bytes(k, project.read_bytes(f"lowtexture/primary/{k}"))
+
+    m = step_matching(project, opt, camera, None, rig, low_texture_only=True)
+    lt = m["features"].get("low_texture", {})
+    if "used" not in m["features"]:
+        restore()
+        out["low_texture"] = {**lt, "kept": False, "why": "the fallback verified no consecutive pair"}
+        return out
+    out2 = step_orient(project, _low_texture_orient_options(project, opt), camera, progress, rgb_camera)
+    _, best2 = _largest_thermal_block(project)
+    if best2 > best:
+        out2["low_texture"] = {**lt, "kept": True, "largest_thermal_block_before": best, "largest_thermal_block": best2}
+        return out2
+    restore()
+    out["low_texture"] = {**lt, "kept": False, "why": f"its largest block holds {best2} thermal frames, the primary's {best}"}
+    return out
 
 
 def _load_reconstruction(project: ProjectStore):
@@ -955,6 +1118,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     # length and pixel pitch: a video or an image without them starts from a guess (1 x the width), which
     # self-calibration is there to correct (a factor 2.3 on the synthetic video of tests/test_io_video.py)
     focal_known = {k: _focal_from_exif(inputs, rec, k) for k in range(len(meta["camera_ids"]))}
+    self_cal, lt_note = _low_texture_self_calibration(project, meta["camera_ids"], self_cal, focal_known)
+    notes += [lt_note] if lt_note else []
     for ci, images in enumerate(comps):
         if len(images) == 0:
             continue
@@ -1625,7 +1790,8 @@ def survey_steps(inp: SurveyInput, opt: SurveyOptions, progress: Callable | None
         Step("inputs", lambda p: step_inputs(p, inp, opt, prog("inputs")), "decode inputs to frames/"),
         Step("features", lambda p: step_features(p, opt, prog("features")), "tie-point features per image"),
         Step("matching", lambda p: step_matching(p, opt, cam, prog("matching"), rig=inp.rig), "pairs, matching, geometric verification"),
-        Step("orient", lambda p: step_orient(p, opt, cam, prog("orient"), rgb_camera=getattr(inp.rig, "rgb_camera", None)),
+        Step("orient", lambda p: step_orient_low_texture(p, opt, cam, prog("orient"), rgb_camera=getattr(inp.rig, "rgb_camera", None),
+                                                         rig=inp.rig),
              "tracks and incremental orientation"),
         Step("georef", lambda p: step_georef(p, inp, opt, cam, prog("georef")), "georeferencing, final adjustment, exports"),
     ]
