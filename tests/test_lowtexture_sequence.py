@@ -146,3 +146,36 @@ def test_pose_errors_under_a_similarity(walk):
     assert e["rot_err_deg"][3] == pytest.approx(2.0, abs=0.3)
     assert np.delete(e["rot_err_deg"], 3).max() < 0.3
     assert e["center_rms_rel"] < 0.005
+
+
+def test_survey_orients_the_walk_in_one_block(tmp_path):
+    """``survey`` with ``low_texture="auto"`` on the 30-frame walk (seed 0, 0.15 K): pycolmap builds no model and
+    ``off`` orients nothing (benchmarks/survey_lowtexture.py --synthetic); ``auto`` tracks the sequence.
+
+    Measured: 30/30 in one block, rotations 0.87 deg RMS (max 1.51) after the block's mean rotation, centres 0.30 % of
+    the block's 19.4 m after a similarity. Bounds: >= 80 % of the frames in one block (issue 10), rotation RMS < 2 deg
+    and centres < 1 % (about twice and three times the measured; seed 2 of the same scene gives 3.4 deg / 0.87 %, so
+    the bounds hold for this seed only -- a regression guard, not a claim about every wall).
+    """
+    from thermogrammetry.pipeline import FolderProject
+    from thermogrammetry.pipeline.survey import SurveyInput, SurveyOptions, run_survey
+    from thermogrammetry.synthetic.lowtexture_facade import write_lowtexture_facade
+
+    sc = make_lowtexture_facade(LowTextureFacadeConfig())
+    write_lowtexture_facade(FolderProject(tmp_path / "scene"), sc)
+    project = FolderProject(tmp_path / "out")
+    run_survey(project, SurveyInput(images=[str(tmp_path / "scene" / "frames")]),
+               SurveyOptions(low_texture="auto", gnss="none"))
+    s = project.read_json("survey.json")
+    assert s["components"] and s["components"][0] >= 0.8 * s["images_total"], s["components"]
+    assert project.read_json("work/pairs.json")["features"]["low_texture"]["sequence"] is True
+    block = {im["name"]: im.get("block") for im in s["images"]}
+    cams = project.read_json("cameras.json")["images"]
+    first = max(set(block.values()) - {None}, key=lambda b: sum(v == b for v in block.values()))
+    est = {im["name"]: (np.array(im["cam_from_world"]["R"]), np.array(im["cam_from_world"]["t"])) for im in cams
+           if block.get(im["name"]) == first}
+    e = pose_errors({n: (p.R, p.t) for n, p in zip(sc.names, sc.poses)}, est)
+    rot = float(np.sqrt(np.mean(e["rot_err_deg"] ** 2)))
+    print(f"{e['n']}/{len(sc.names)} in one block, rotations {rot:.2f} deg RMS, centres {100 * e['center_rms_rel']:.2f} %")
+    assert e["n"] >= 24
+    assert rot < 2.0 and e["center_rms_rel"] < 0.01

@@ -15,6 +15,7 @@ terrain    DSM with buildings, temperature and emissivity fields, heightfield ra
 survey     UAV survey: flight lines, thermal frames / video, GNSS, GCPs, ground truth in a project.
 stereo     rectified thermal pairs with a known disparity field (dense-matching tests, benchmarks).
 facade     facade mesh (OBJ) with a temperature field, thermal + RGB cameras on a rig.
+lowtexture_facade  a hand-held thermal walk along a plain wall (weak smooth contrast, fixed pattern, NETD), truth.
 """
 
 from __future__ import annotations
