@@ -129,9 +129,10 @@ class SurveyOptions:
         pattern's fine part removed, phase correlation + Lucas-Kanade, forward-backward, coherence, NCC and
         essential-matrix checks); such a block is oriented with a bundle adjustment after every added image and
         self-calibrates only k1, k2 (and fx, fy without an EXIF focal length). Measured
-        (``benchmarks/survey_lowtexture.py --synthetic``; plain wall, 0.15-0.3 K smooth contrast, 0.08 K pattern,
-        0.04 K NETD, 30 frames, pycolmap 0 models, ``off`` 0/30): 30/30 in one block at seeds 0-3, rotations
-        0.4-4.2 deg RMS, centres 0.1-1 % of the block's length; at 0.1 K contrast nothing. Off by default, because
+        (``benchmarks/survey_lowtexture.py --synthetic``; plain wall, 0.15 K smooth contrast, 0.08 K pattern, 0.04 K
+        NETD, 30 frames; pycolmap 0 models, ``off`` 0/30): 30/30 in one block, rotations 0.87 / 3.41 deg RMS (seeds
+        0 / 2), centres 0.30 / 0.87 % of the block's length; at 0.1 K contrast nothing (development run). Off by
+        default, because
         it is not yet safe:
 
         - synthetic facade of ``synthetic.facade`` (15 windows with glass reflecting the sky, 14 stations at 12 m):
