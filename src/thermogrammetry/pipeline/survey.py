@@ -45,6 +45,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .._memory import release_free_heap
 from ..enums import StrChoice
 from ..errors import ConfigError, DataFileError, ThermogrammetryError, UnsupportedFormatError
 from ..sfm.features import FeatureOptions
@@ -807,6 +808,7 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
         pc[(i, j)] = len(idx)
     tracks = build_tracks([int(counts[n]) for n in names], pairs)
     del pairs  # the matches (8 B per match) are in the tracks now: not held through the reconstruction
+    release_free_heap()
     refinement = None
     if refine and len(tracks.track):
         from ..sfm.lsm import refine_tracks
@@ -820,6 +822,7 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
     if camera is not None:
         ropt = replace(ropt, free_intrinsics=())
     rec = reconstruct([cams[c] for c in cam_list], image_camera, xy, tracks, pc, ropt, on_progress=progress)
+    release_free_heap()
     _save_npz(project, "work/reconstruction.npz", R=rec.R, t=rec.t, registered=rec.registered, component=rec.component,
               points=rec.points, track=tracks.track, image=tracks.image, feature=tracks.feature, obs_valid=rec.obs_valid,
               image_camera=image_camera)
@@ -921,6 +924,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     t0 = time.perf_counter()
     inputs = project.read_json("work/inputs.json")
     names = [im["name"] for im in inputs["images"]]
+    release_free_heap()  # (what the steps before left in the heap)
     rec, meta = _load_reconstruction(project)
     xy = [_tie_xy(project, n) for n in names]
     gnss, gsig, crs, notes = _gnss_xyz(inputs, opt, opt.crs)
@@ -1016,6 +1020,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                                                     tie_sigma_px=opt.tie_sigma_px,
                                                     max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
                                                     compute_covariance=len(images) <= 2500, manual_ties=t_obs or None)
+        release_free_heap()
         notes += [f"block {ci + 1}: {x}" for x in fa.notes]
         notes += [f"block {ci + 1}: {x}" for x in cal_steps]
         if cal_steps and cal_steps[-1].startswith("with the camera held fixed"):
@@ -1173,6 +1178,7 @@ def _gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | None, li
         # within the rejection threshold (seen: focal length -8 %, the GNSS offset 4.8 m off in Z)
         fa0 = final_adjustment(rec, xy, images, weak, self_calibrate=(), compute_covariance=False, **kw)
         bad = {(int(i), gid) for i, gid, _e in fa0.gcp_rejected}
+        fa0 = None  # (its problem and residuals) not held through the next adjustment
         _restore(rec, snap)
         if bad:
             weak = dc_replace(weak, gcp_obs=[o for o in weak.gcp_obs if (int(o[0]), ctrl.gcp_ids[o[1]]) not in bad])

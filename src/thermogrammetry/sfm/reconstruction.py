@@ -35,6 +35,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._memory import release_free_heap
 from ..errors import ConfigError
 from ..results import HasOutcome, Outcome, Termination
 from .tracks import Tracks
@@ -448,6 +449,7 @@ class _Builder:
         # intermediate adjustments only need to keep the block consistent: loose stopping rule
         res = bundle_adjust(self.rec, self.xy, images, free_intrinsics=free, max_iterations=30 if full else 12,
                             function_tolerance=1e-6 if full else 1e-4)
+        release_free_heap()  # the adjustment's freed temporaries: pages back before the block grows further
         if res is not None and not res.success:
             self.log(f"bundle adjustment with {len(images)} images stopped: {res.reason}")
         if free:
