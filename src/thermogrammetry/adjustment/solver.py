@@ -432,8 +432,8 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool, sel=Non
     m = data.m - 2 * data.K + 2 * K if extra else 2 * K
     r = np.empty(m)
     rows, cols, vals = [], [], []
-    jp = np.zeros((m, 3))
-    pslot = np.full(m, -1, dtype=np.int64)
+    jp = np.zeros((m, 3)) if want_jac else None  # (residuals only: no per-row Jacobian arrays)
+    pslot = np.full(m, -1, dtype=np.int64) if want_jac else None
     idx = np.int32 if max(m, lay.nc) < 2**31 - 1 else np.int64
 
     def trip(row0, ncomp, J, start, valid):

@@ -1526,6 +1526,28 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
     return {"images_oriented": summary["images_oriented"], "components": summary["components"], "rms_px": rms, "crs": crs}
 
 
+def _write_lines(project: ProjectStore, key: str, lines) -> None:
+    """Write an iterable of text lines (without their newline) as ``key``: ``"\n".join(lines) + "\n"``.
+
+    Folder projects get the lines streamed to a temporary file renamed into place (atomic, as ``write_bytes``;
+    the text of a large block's COLMAP model is never held whole); other stores get the joined text.
+    """
+    path = project.local_path(key)
+    if path is None:
+        project.write_text(key, "".join(line + "\n" for line in lines))
+        return
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
+            for line in lines:
+                f.write(line)
+                f.write("\n")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
 def _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, values):
     from ..io.colmap import ColmapImage, ColmapPoints3D, colmap_camera_line
     from ..geometry.rotations import quaternion_from_matrix
@@ -1544,21 +1566,29 @@ def _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, value
     pid = np.full(len(rec.points), -1, np.int64)
     pid[pts_ok] = np.arange(1, int(pts_ok.sum()) + 1)
     name_to_idx = {n: i for i, n in enumerate(names)}
-    img_lines = ["# Image list with two lines of data per image:", "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
-                 "#   POINTS2D[] as (X, Y, POINT3D_ID)"]
-    track_elems: dict[int, list] = {}
-    # COLMAP text models hold coordinates as written: large CRS coordinates keep their precision in %.17g
-    for k, o in enumerate(oc.images):
-        i = name_to_idx[o.name]
-        q = quaternion_from_matrix(o.R)
-        sel = np.nonzero(obs_mask & (tr.image == i) & pts_ok[tr.track])[0]
-        xy = _tie_xy(project, names[i])[tr.feature[sel]]
-        img_lines.append(" ".join([str(k + 1)] + [repr(float(v)) for v in q] + [repr(float(v)) for v in o.t]
-                                  + [str(cam_keys.index(o.camera_id) + 1), f"{o.name}.tif"]))
-        img_lines.append(" ".join(f"{x + 0.5!r} {y + 0.5!r} {int(pid[t])}" for (x, y), t in zip(xy.tolist(), tr.track[sel].tolist())))
-        for n2d, t in enumerate(tr.track[sel].tolist()):
-            track_elems.setdefault(int(pid[t]), []).append(f"{k + 1} {n2d}")
-    project.write_text("colmap/images.txt", "\n".join(img_lines) + "\n")
+    # the tracks of points3D.txt as arrays (point id, image id, index in the image's POINTS2D), in the order the
+    # images are written (12 B per observation instead of a string each)
+    t_pid, t_img, t_n2d = [], [], []
+
+    def image_lines():
+        yield "# Image list with two lines of data per image:"
+        yield "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME"
+        yield "#   POINTS2D[] as (X, Y, POINT3D_ID)"
+        # COLMAP text models hold coordinates as written: large CRS coordinates keep their precision in %.17g
+        for k, o in enumerate(oc.images):
+            i = name_to_idx[o.name]
+            q = quaternion_from_matrix(o.R)
+            sel = np.nonzero(obs_mask & (tr.image == i) & pts_ok[tr.track])[0]
+            xy = _tie_xy(project, names[i])[tr.feature[sel]]
+            yield " ".join([str(k + 1)] + [repr(float(v)) for v in q] + [repr(float(v)) for v in o.t]
+                           + [str(cam_keys.index(o.camera_id) + 1), f"{o.name}.tif"])
+            ps = pid[tr.track[sel]]
+            yield " ".join(f"{x + 0.5!r} {y + 0.5!r} {int(t)}" for (x, y), t in zip(xy.tolist(), ps.tolist()))
+            t_pid.append(ps.astype(np.int32))
+            t_img.append(np.full(len(sel), k + 1, np.int32))
+            t_n2d.append(np.arange(len(sel), dtype=np.int32))
+
+    _write_lines(project, "colmap/images.txt", image_lines())
     P = rec.points[pts_ok]
     if values is not None:
         v = values[pts_ok]
@@ -1566,10 +1596,22 @@ def _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, value
         g = np.clip((np.nan_to_num(v, nan=lo) - lo) / max(hi - lo, 1e-9) * 255, 0, 255).astype(int)
     else:
         g = np.full(len(P), 128)
-    pl = ["# 3D point list with one line of data per point:", "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"]
-    for k in range(len(P)):
-        pl.append(f"{k + 1} {float(P[k, 0])!r} {float(P[k, 1])!r} {float(P[k, 2])!r} {int(g[k])} {int(g[k])} {int(g[k])} 0 " + " ".join(track_elems.get(k + 1, [])))
-    project.write_text("colmap/points3D.txt", "\n".join(pl) + "\n")
+    cat = (lambda a: np.concatenate(a) if a else np.zeros(0, np.int32))  # noqa: E731
+    t_pid, t_img, t_n2d = cat(t_pid), cat(t_img), cat(t_n2d)
+    order = np.argsort(t_pid, kind="stable")  # per point, its elements in the order they were written
+    t_img, t_n2d = t_img[order], t_n2d[order]
+    bounds = np.searchsorted(t_pid[order], np.arange(1, len(P) + 2))
+    del order, t_pid
+
+    def point_lines():
+        yield "# 3D point list with one line of data per point:"
+        yield "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"
+        for k in range(len(P)):
+            a, b = bounds[k], bounds[k + 1]
+            yield (f"{k + 1} {float(P[k, 0])!r} {float(P[k, 1])!r} {float(P[k, 2])!r} {int(g[k])} {int(g[k])} {int(g[k])} 0 "
+                   + " ".join(f"{im} {n2d}" for im, n2d in zip(t_img[a:b].tolist(), t_n2d[a:b].tolist())))
+
+    _write_lines(project, "colmap/points3D.txt", point_lines())
 
 
 def _write_clouds(project, P, values, unit, mult, crs):
