@@ -50,3 +50,27 @@ def test_run_steps_times_and_stops_at_failure():
     rep = json.loads(store.read_text("reports/first.json"))
     assert rep["summary"] == {"n": 1} and rep["seconds"] >= 0.0
     assert store.exists("reports/second.json") and not store.exists("reports/third.json")
+
+
+def test_staging_folder_writes_skip_fsync_and_are_flushed_once(tmp_path, monkeypatch):
+    """A non-durable FolderProject (the survey's staging folder) writes atomically without one fsync per file;
+    sync_folder flushes the folder once; a missing folder is an error naming it."""
+    import os
+
+    from thermogrammetry._atomic import sync_folder
+    from thermogrammetry.errors import DataFileError
+
+    calls = []
+    real = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (calls.append(fd), real(fd))[1])
+    stage = FolderProject(tmp_path / "stage", durable=False)
+    for k in range(5):
+        stage.write_bytes(f"matches/{k}.npz", bytes([k]) * 10)
+    assert calls == []
+    assert [stage.read_bytes(f"matches/{k}.npz") for k in range(5)] == [bytes([k]) * 10 for k in range(5)]
+    assert not [p for p in (tmp_path / "stage").rglob("*.tmp")]
+    FolderProject(tmp_path / "out").write_bytes("a.json", b"{}")
+    assert len(calls) == 1  # the default store stays durable: one fsync per file
+    sync_folder(tmp_path / "stage")
+    with pytest.raises(DataFileError, match="missing"):
+        sync_folder(tmp_path / "missing")

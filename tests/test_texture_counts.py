@@ -293,3 +293,89 @@ def test_mesh_facing_away_is_reversed_and_said(tmp_path):
     assert d["flipped"]["mesh_winding"]["reversed"] is True and "reversed" in d["flipped"]["mesh_winding"]["reason"]
     assert d["flipped"]["faces_textured"] == d["mesh"]["faces_textured"] == 96
     assert d["flipped"]["texels_textured"] == d["mesh"]["texels_textured"]
+
+
+def _write_rig(folder, *, kelvin_first=False):
+    """Rig mode: RGB images oriented (cameras.json), thermal frames in a rig file. The thermal camera sits 8 cm to
+    the right of the RGB camera, turned 1° about its y axis; its frames (uint16 counts) are rendered at the poses the
+    rig gives (seed 002 eq. 4-5). ``kelvin_first``: the first frame is a float32 TIFF (kelvin) instead."""
+    import tifffile
+
+    from thermogrammetry.geometry import Pose
+    from thermogrammetry.geometry.rotations import matrix_from_axis_angle
+    from thermogrammetry.io.oriented import OrientedCameras, OrientedImage
+    from thermogrammetry.products.texture import thermal_poses_from_rig
+
+    (folder / "thermal").mkdir(parents=True)
+    cam = _camera()
+    R_rel = matrix_from_axis_angle(np.array([0.0, np.radians(1.0), 0.0]))
+    rel = Pose(R_rel, -R_rel @ np.array([0.08, 0.0, 0.0]))
+    rgb_poses = [Pose.look_at((x, -5.0, 1.5), (x, 0.0, 1.5)) for x in (1.1, 1.9, 2.7)]
+    rgb = [OrientedImage(f"rgb{k}", "rgb", p.R, p.t, frame=f"rgb{k}.jpg", unit="dn") for k, p in enumerate(rgb_poses)]
+    OrientedCameras({"rgb": cam}, rgb).save(folder / "cameras.json")
+    frames = {}
+    for k, pose in enumerate(thermal_poses_from_rig(rgb_poses, rel)):
+        img = _render_counts(cam, pose)
+        if kelvin_first and k == 0:
+            img = img.astype(np.float32) / 100.0
+        tifffile.imwrite(folder / "thermal" / f"t{k}.tif", img)
+        frames[f"rgb{k}"] = f"thermal/t{k}.tif"
+    rig = {"format": "thermogrammetry/rig", "cam_thermal_from_cam_rgb": {"R": rel.R.tolist(), "t": rel.t.tolist()},
+           "thermal_camera": cam.to_dict(), "frames": frames}
+    (folder / "rig.json").write_text(json.dumps(rig))
+    V, F = _wall_mesh()
+    (folder / "mesh.obj").write_text("\n".join([f"v {x} {y} {z}" for x, y, z in V]
+                                               + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F]) + "\n")
+    return folder, rel, rgb_poses
+
+
+def test_rig_mode_reads_count_frames_as_counts(tmp_path):
+    """Rig mode with uint16 frames: the texture holds counts labelled as counts (it took them as kelvin before),
+    each texel the bilinear sample of its frame at its projection through the rig's thermal pose."""
+    import tifffile
+
+    from thermogrammetry.cli.main import main
+    from thermogrammetry.io.oriented import OrientedCameras
+    from thermogrammetry.pipeline.texture import load_rig_views, read_mesh
+    from thermogrammetry.products.texture import TextureConfig, texture_mesh, thermal_poses_from_rig
+
+    folder, rel, rgb_poses = _write_rig(tmp_path / "rig")
+    views, skipped, unit = load_rig_views(OrientedCameras.load(folder), json.loads((folder / "rig.json").read_text()))
+    assert unit == "counts" and skipped == [] and len(views) == 3
+    for v, p in zip(views, thermal_poses_from_rig(rgb_poses, rel)):
+        np.testing.assert_allclose(v.pose.R, p.R, atol=1e-12)
+        np.testing.assert_allclose(v.pose.t, p.t, atol=1e-12)
+    V, F = read_mesh(folder / "mesh.obj")
+    res = texture_mesh(V, F, views, TextureConfig(texel_size_m=0.02))
+    sel, tx = res.texel_selection, res.texels
+    ok = np.flatnonzero(sel.source >= 0)
+    assert len(ok) > 20_000
+    for k, v in enumerate(views):
+        idx = ok[sel.source[ok] == k]
+        xy = v.camera.project(tx.points[idx] @ v.pose.R.T + v.pose.t)
+        expect, _ = _bilinear64(tifffile.imread(folder / "thermal" / f"t{k}.tif"), xy)
+        assert np.max(np.abs(res.temperature_k[tx.rc[idx, 0], tx.rc[idx, 1]] - expect)) <= 0.004
+    out = tmp_path / "out"
+    assert main(["texture", str(folder), "--mesh", str(folder / "mesh.obj"), "-o", str(out), "--rig",
+                 str(folder / "rig.json"), "--texel-size", "0.02"]) == 0
+    d = json.loads((out / "texture.json").read_text())
+    assert d["unit"] == "counts" and d["quantity"] == "raw_counts"
+    t = tifffile.imread(out / "temperature_texture.tif")
+    fin = t[np.isfinite(t)]
+    assert 19_300 <= fin.min() and fin.max() <= PATCH  # counts, not kelvin
+    assert "°C" not in (out / "report.html").read_text()
+    assert main(["texture", str(folder), "--mesh", str(folder / "mesh.obj"), "-o", str(tmp_path / "outC"), "--rig",
+                 str(folder / "rig.json"), "--unit", "C"]) == 2  # no temperature unit for counts
+
+
+def test_rig_mode_never_mixes_kelvin_and_count_frames(tmp_path):
+    """One float32 frame (kelvin, as the rig schema documents for float TIFFs without a unit) and two uint16
+    frames: the kelvin frame is used, the count frames are listed as skipped with the reason."""
+    from thermogrammetry.io.oriented import OrientedCameras
+    from thermogrammetry.pipeline.texture import load_rig_views
+
+    folder, _, _ = _write_rig(tmp_path / "rig", kelvin_first=True)
+    views, skipped, unit = load_rig_views(OrientedCameras.load(folder), json.loads((folder / "rig.json").read_text()))
+    assert unit == "K" and [v.name for v in views] == ["rgb0:thermal"]
+    assert [n for n, _ in skipped] == ["rgb1", "rgb2"] and all("never mixes" in r for _, r in skipped)
+    assert 193.0 <= float(np.nanmin(views[0].image_k)) and float(np.nanmax(views[0].image_k)) <= PATCH / 100.0

@@ -111,6 +111,7 @@ def survey(
 
     from ..camera import Camera
     from ..errors import ThermogrammetryError
+    from .._atomic import sync_folder
     from ..pipeline.project import FolderProject
     from ..pipeline.survey import SurveyInput, SurveyOptions, run_survey
 
@@ -188,7 +189,8 @@ def survey(
     t0 = time.perf_counter()
     ok = False
     try:
-        project = FolderProject(stage)
+        # files are flushed once before the staging folder is published, not one by one (several hundred)
+        project = FolderProject(stage, durable=False)
         with _Progress(console) as prog:
             reports = run_survey(project, inp, opt, progress=prog)
         failed = [r for r in reports if not r.ok]
@@ -199,6 +201,7 @@ def survey(
                 fail(first.split(": ", 1)[-1] if first.startswith(("DataFileError", "UnsupportedFormatError")) else first)
             fail(f"step {r.name} failed: {first}", code=1)
         s = project.read_json("survey.json")
+        sync_folder(stage)
         _publish(stage, out)
         ok = True
     except typer.Exit:

@@ -97,16 +97,20 @@ class ProjectStore(ABC):
 
 
 class FolderProject(ProjectStore):
-    """Keys are files under ``root``; writes are atomic."""
+    """Keys are files under ``root``; writes are atomic.
 
-    def __init__(self, root: str | os.PathLike):
+    ``durable=False``: files are not fsync'ed one by one (a staging folder that the caller flushes once with
+    :func:`thermogrammetry._atomic.sync_folder` before publishing it)."""
+
+    def __init__(self, root: str | os.PathLike, *, durable: bool = True):
         self.root = Path(root)
+        self.durable = bool(durable)
 
     def _path(self, key: str) -> Path:
         return self.root / _check_key(key)
 
     def write_bytes(self, key: str, data: bytes) -> None:
-        write_atomic(self._path(key), data)
+        write_atomic(self._path(key), data, durable=getattr(self, "durable", True))
 
     def read_bytes(self, key: str) -> bytes:
         p = self._path(key)

@@ -598,7 +598,7 @@ def _initial_cameras(inputs: dict, camera=None, rgb_camera=None) -> tuple[dict, 
 
 def step_features(project: ProjectStore, opt: SurveyOptions, progress=None) -> dict:
     inputs = project.read_json("work/inputs.json")
-    store = project if not isinstance(project, FolderProject) else FolderProject(project.root)
+    store = project if not isinstance(project, FolderProject) else FolderProject(project.root, durable=project.durable)
     res = _run_tasks(feature_task, [(store, im["name"], opt.features) for im in inputs["images"]], opt, progress, "features")
     counts = {name: n for name, n in res}
     project.write_json("work/features.json", counts)
@@ -713,7 +713,7 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
         master, _, _ = pair_rig_images(rig, inputs["images"])
         rig_pairs = {(min(a, b), max(a, b)) for a, b in master.items()}
         pairs = sorted(set(pairs) | rig_pairs)
-    store = project if not isinstance(project, FolderProject) else FolderProject(project.root)
+    store = project if not isinstance(project, FolderProject) else FolderProject(project.root, durable=project.durable)
 
     def match(pre, mopt=None, pair_list=None):
         mopt = mopt or opt.matching

@@ -24,7 +24,9 @@ offset 0, code 0 = no texel); ``vertices.ply`` has ``raw_counts`` instead of ``t
 unit (``unit="K"``/``"C"``) and ``correct`` are refused for counts (no documented conversion);
 ``levelling="offsets"`` works and its offsets are in counts. RGB images and display numbers (``dn``)
 are listed as skipped. Rig mode (``rig``): thermal poses derived from the oriented RGB images through
-the rig's relative orientation (seed 002 eq. 4–5); its frames are taken as kelvin.
+the rig's relative orientation (seed 002 eq. 4–5); its frames are read by the io layer (kelvin where the
+format documents a conversion, float TIFFs without a unit tag as kelvin, else raw counts, with the same
+counts outputs as above).
 
 Mesh winding: the texture needs each triangle's normal (right-hand rule) towards the images. When no face
 faces any image but the reversed mesh does (a plane fitted to a sparse cloud has an arbitrary normal sign),
@@ -38,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataFileError, InvalidInputError, UnsupportedFormatError
+from ..errors import DataFileError, InvalidInputError, ThermogrammetryError, UnsupportedFormatError
 
 __all__ = ["read_mesh", "frames_unit", "load_views", "check_views_unit", "load_rig_views", "run_texture", "texture_report_html"]
 
@@ -136,20 +138,31 @@ def load_rig_views(cameras, rig: dict, *, source: str = "rig.json"):
         {"format": "thermogrammetry/rig", "cam_thermal_from_cam_rgb": {"R": 3x3, "t": [3]},
          "thermal_camera": <camera JSON>, "frames": {"<rgb image name>": "thermal/frame.tif", ...}}
 
-    Frame paths are relative to the cameras file's folder; frames are float32 kelvin TIFFs.
-    """
-    import tifffile
+    Frame paths are relative to the cameras file's folder. Frames are read by the io layer
+    (:func:`thermogrammetry.io.read_thermal`): radiometric files (R-JPEG, FLIR/Workswell TIFF, ...) give kelvin where
+    their format documents the conversion, else their raw counts; float TIFFs without a unit tag are taken as kelvin,
+    16-bit TIFFs without a calibration as raw counts. One texture never mixes the two: kelvin when any frame is in
+    kelvin (count frames skipped with the reason), else counts.
 
+    Returns
+    -------
+    views : list of TextureView
+    skipped : list of (name, reason)
+    unit : "K" | "counts" | None
+        What the views hold (None when there is none).
+    """
     from ..geometry import Pose
+    from ..io import read_thermal
     from ..products.texture import TextureView, thermal_poses_from_rig
     from ..sfm.rig import parse_rig
+    from .survey import frame_values
 
     # one rig schema for texture and survey (thermogrammetry.sfm.rig); texture needs R, t, the camera and frames
     rf = parse_rig(rig, source=source, require_relative=True, require_camera=True, require_frames=True)
     rel = Pose(rf.R, rf.t)
     cam = rf.thermal_camera
     frames = rf.frames
-    views, skipped = [], []
+    found, skipped = [], []
     for name, rel_path in frames.items():
         try:
             im = cameras.image(name)
@@ -159,13 +172,29 @@ def load_rig_views(cameras, rig: dict, *, source: str = "rig.json"):
         pose = thermal_poses_from_rig([im.pose], rel)[0]
         p = Path(rel_path)
         p = p if p.is_absolute() or cameras.root is None else cameras.root / p
-        try:
-            img = tifffile.imread(p)
-        except FileNotFoundError:
+        if not p.exists():
             skipped.append((name, f"{p}: thermal frame missing"))
             continue
-        views.append(TextureView(f"{name}:thermal", cam, pose, img))
-    return views, skipped
+        try:
+            _, img, unit = frame_values(read_thermal(p, unit="K"), p, counts_dtype=np.float32)
+        except ThermogrammetryError as exc:
+            skipped.append((name, f"{p}: {exc}" if str(p) not in str(exc) else str(exc)))
+            continue
+        w, h = cam.image_size
+        if img.shape != (h, w):
+            skipped.append((name, f"{p}: frame shape {img.shape}; the rig's thermal camera expects ({h}, {w})"))
+            continue
+        found.append((name, unit, TextureView(f"{name}:thermal", cam, pose, img)))
+    units = {u for _, u, _ in found}
+    unit = next((u for u in TEXTURE_UNITS if u in units), None)
+    views = []
+    for name, u, v in found:
+        if u == unit:
+            views.append(v)
+        else:
+            skipped.append((name, "frame in raw counts while other rig frames are in kelvin: one texture never mixes "
+                                  "temperatures and counts; the kelvin frames are used"))
+    return views, skipped, unit
 
 
 def _fig_png(fig) -> str:
@@ -343,8 +372,7 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
             raise DataFileError(f"{rig_path}: rig file not found") from None
         except json.JSONDecodeError as exc:
             raise UnsupportedFormatError(f"{rig_path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
-        views, skipped = load_rig_views(cameras, rig, source=str(rig_path))
-        frame_unit = "K"
+        views, skipped, frame_unit = load_rig_views(cameras, rig, source=str(rig_path))
     else:
         frame_unit = frames_unit(cameras)
         views, skipped = load_views(cameras, unit=frame_unit or "K")
