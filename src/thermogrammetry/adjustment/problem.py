@@ -262,9 +262,16 @@ class BundleProblem:
         xy = as_points(xy_px, "xy_px", 2)
         if len(xy) != len(idx):
             raise ShapeError(f"xy_px: {len(xy)} rows for {len(idx)} point indices; expected equal counts")
-        sig = _sigma(sigma_px, len(idx), 2, "sigma_px")
         k = len(idx)
-        self._img.append(_ImageObs(np.full(k, camera), np.full(k, view), idx, xy, sig))
+        s0 = np.asarray(sigma_px, dtype=float)
+        if s0.ndim == 0 and np.isfinite(s0) and s0 > 0:
+            # one sigma for the call: a read-only broadcast (no 16 B per observation; nothing writes to it)
+            sig = np.broadcast_to(s0, (k, 2))
+        else:
+            sig = _sigma(sigma_px, k, 2, "sigma_px")
+        # camera and view are constant per call: read-only broadcasts too (the solver concatenates)
+        self._img.append(_ImageObs(np.broadcast_to(np.int64(camera), (k,)), np.broadcast_to(np.int64(view), (k,)), idx,
+                                   xy, sig))
 
     def add_control(self, points, xyz, sigma_m) -> None:
         """Weighted control: observed coordinates (K, 3) of points with sigma (m, scalar/(K,)/(3,)/(K,3)).

@@ -52,6 +52,7 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.stats
 
+from .._memory import release_free_heap
 from ..enums import StrChoice
 from ..errors import ConfigError, InvalidInputError
 from ..results import Termination
@@ -387,6 +388,7 @@ class _Data:
         a = np.nonzero(active)[0]
         self.img_idx = a
         if len(a) == len(active):  # all active: the concatenated arrays themselves (no second copy)
+            self.img_idx = slice(None)  # (the same rows as ``a``, without 8 B per observation)
             self.cam, self.view, self.pt, self.xy, self.sig = img.camera, img.view, img.point, img.xy, img.sigma
         else:
             self.cam = img.camera[a]
@@ -398,11 +400,15 @@ class _Data:
         # (int32: 8 B per observation less than int64; pose and rig counts are far below 2^31)
         self.vpose = np.asarray(pb.view_pose, dtype=np.int32)[self.view] if len(a) else np.zeros(0, np.int32)
         self.vrig = np.asarray(pb.view_rig, dtype=np.int32)[self.view] if len(a) else np.zeros(0, np.int32)
+        # the view is only needed for vpose/vrig; the camera block is compared per chunk: int32 (12 B less per obs)
+        self.view = None
+        self.cam = self.cam.astype(np.int32)
+        self.K = len(a)
+        del a
         self.c_pt, self.c_xyz, self.c_sig = pb.control_observations()
         self.g_pose, self.g_xyz, self.g_sig, self.g_lever = pb.gnss_observations()
         self.d_a, self.d_b, self.d_len, self.d_sig = pb.distance_observations()
         self.pl_k, self.pl_pt, self.pl_sig = pb.plane_observations()
-        self.K = len(a)
         self.m = 2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose) + len(self.d_a) + len(self.pl_k)
 
 
@@ -426,8 +432,8 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool, sel=Non
     m = data.m - 2 * data.K + 2 * K if extra else 2 * K
     r = np.empty(m)
     rows, cols, vals = [], [], []
-    jp = np.zeros((m, 3))
-    pslot = np.full(m, -1, dtype=np.int64)
+    jp = np.zeros((m, 3)) if want_jac else None  # (residuals only: no per-row Jacobian arrays)
+    pslot = np.full(m, -1, dtype=np.int64) if want_jac else None
     idx = np.int32 if max(m, lay.nc) < 2**31 - 1 else np.int64
 
     def trip(row0, ncomp, J, start, valid):
@@ -845,6 +851,9 @@ def _factor_solve(cf, b):
 #: image observations per chunk of :class:`_ChunkedNormal` (bounds the temporaries of a chunk's Jacobian, sparse
 #: products and Schur contribution: ~3 KB per observation)
 _SCHUR_CHUNK = 8192
+#: the chunked passes return the heap's free pages to the system every this many chunks
+#: (:func:`thermogrammetry._memory.release_free_heap`)
+_TRIM_EVERY = 8
 
 
 def _point_chunks(lay: _Layout, data: _Data):
@@ -962,7 +971,9 @@ class _ChunkedNormal:
         acc = _SparseSum(nc)  # accumulates W V^-1 W^T (sparse), turned into U - W V^-1 W^T at the end
         rhs = np.zeros(nc)
         ok = True
-        for o0, o1, p0, p1 in self.chunks:
+        for ci, (o0, o1, p0, p1) in enumerate(self.chunks):
+            if ci % _TRIM_EVERY == _TRIM_EVERY - 1:
+                release_free_heap()  # the chunks' freed temporaries lie between live blocks: pages back
             if o1 > o0:
                 Jc, Jp, jpl, rw = self._chunk(o0, o1, p0, p1)
                 if build and nc:
@@ -1043,7 +1054,9 @@ class _ChunkedNormal:
         dp = np.zeros((npf, 3))
         ye = (self.Be.T @ dc).reshape(npf, 3) if nc else np.zeros((npf, 3))
         Wdp = np.zeros(nc)
-        for o0, o1, p0, p1 in self.chunks:
+        for ci, (o0, o1, p0, p1) in enumerate(self.chunks):
+            if ci % _TRIM_EVERY == _TRIM_EVERY - 1:
+                release_free_heap()
             if p0 < 0:
                 continue
             n = p1 - p0
@@ -1228,6 +1241,7 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
             # the previous linearisation (and the factor of its reduced matrix) is released before the next is built
             ne = cf = Vinv = rhs = None
             if chunked:
+                release_free_heap()  # (the previous linearisation's pages)
                 # r, w, cost: of the current state (from the start or the accepted trial step)
                 ne = _ChunkedNormal(pb, lay, st, data, r, w, 1.0 / radius)
             else:
@@ -1585,6 +1599,7 @@ def _precision(pb, lay, st, data, opt, active, warnings):
                 Termination.RANK_DEFICIENT,
                 f"datum or parameters undetermined (condition {cond:.3g}); null direction involves {involved}",
             )
+        release_free_heap()  # (the passes' freed temporaries) before the one dense nc x nc
         Sd = Sn.toarray(order="F")  # the inverse is dense: the one nc x nc matrix of the precision step
         del Sn
         Q = _spd_inverse_inplace(Sd)

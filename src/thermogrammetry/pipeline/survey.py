@@ -45,6 +45,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .._memory import release_free_heap
 from ..enums import StrChoice
 from ..errors import ConfigError, DataFileError, ThermogrammetryError, UnsupportedFormatError
 from ..sfm.features import FeatureOptions
@@ -880,6 +881,7 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
         pc[(i, j)] = len(idx)
     tracks = build_tracks([int(counts[n]) for n in names], pairs)
     del pairs  # the matches (8 B per match) are in the tracks now: not held through the reconstruction
+    release_free_heap()
     refinement = None
     if refine and len(tracks.track):
         from ..sfm.lsm import refine_tracks
@@ -893,6 +895,7 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
     if camera is not None:
         ropt = replace(ropt, free_intrinsics=())
     rec = reconstruct([cams[c] for c in cam_list], image_camera, xy, tracks, pc, ropt, on_progress=progress)
+    release_free_heap()
     _save_npz(project, "work/reconstruction.npz", R=rec.R, t=rec.t, registered=rec.registered, component=rec.component,
               points=rec.points, track=tracks.track, image=tracks.image, feature=tracks.feature, obs_valid=rec.obs_valid,
               image_camera=image_camera)
@@ -1092,6 +1095,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     t0 = time.perf_counter()
     inputs = project.read_json("work/inputs.json")
     names = [im["name"] for im in inputs["images"]]
+    release_free_heap()  # (what the steps before left in the heap)
     rec, meta = _load_reconstruction(project)
     xy = [_tie_xy(project, n) for n in names]
     gnss, gsig, crs, notes = _gnss_xyz(inputs, opt, opt.crs)
@@ -1189,6 +1193,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                                                     tie_sigma_px=opt.tie_sigma_px,
                                                     max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
                                                     compute_covariance=len(images) <= 2500, manual_ties=t_obs or None)
+        release_free_heap()
         notes += [f"block {ci + 1}: {x}" for x in fa.notes]
         notes += [f"block {ci + 1}: {x}" for x in cal_steps]
         if cal_steps and cal_steps[-1].startswith("with the camera held fixed"):
@@ -1346,6 +1351,7 @@ def _gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | None, li
         # within the rejection threshold (seen: focal length -8 %, the GNSS offset 4.8 m off in Z)
         fa0 = final_adjustment(rec, xy, images, weak, self_calibrate=(), compute_covariance=False, **kw)
         bad = {(int(i), gid) for i, gid, _e in fa0.gcp_rejected}
+        fa0 = None  # (its problem and residuals) not held through the next adjustment
         _restore(rec, snap)
         if bad:
             weak = dc_replace(weak, gcp_obs=[o for o in weak.gcp_obs if (int(o[0]), ctrl.gcp_ids[o[1]]) not in bad])
@@ -1693,6 +1699,28 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
     return {"images_oriented": summary["images_oriented"], "components": summary["components"], "rms_px": rms, "crs": crs}
 
 
+def _write_lines(project: ProjectStore, key: str, lines) -> None:
+    """Write an iterable of text lines (without their newline) as ``key``: ``"\n".join(lines) + "\n"``.
+
+    Folder projects get the lines streamed to a temporary file renamed into place (atomic, as ``write_bytes``;
+    the text of a large block's COLMAP model is never held whole); other stores get the joined text.
+    """
+    path = project.local_path(key)
+    if path is None:
+        project.write_text(key, "".join(line + "\n" for line in lines))
+        return
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
+            for line in lines:
+                f.write(line)
+                f.write("\n")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
 def _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, values):
     from ..io.colmap import ColmapImage, ColmapPoints3D, colmap_camera_line
     from ..geometry.rotations import quaternion_from_matrix
@@ -1711,21 +1739,29 @@ def _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, value
     pid = np.full(len(rec.points), -1, np.int64)
     pid[pts_ok] = np.arange(1, int(pts_ok.sum()) + 1)
     name_to_idx = {n: i for i, n in enumerate(names)}
-    img_lines = ["# Image list with two lines of data per image:", "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
-                 "#   POINTS2D[] as (X, Y, POINT3D_ID)"]
-    track_elems: dict[int, list] = {}
-    # COLMAP text models hold coordinates as written: large CRS coordinates keep their precision in %.17g
-    for k, o in enumerate(oc.images):
-        i = name_to_idx[o.name]
-        q = quaternion_from_matrix(o.R)
-        sel = np.nonzero(obs_mask & (tr.image == i) & pts_ok[tr.track])[0]
-        xy = _tie_xy(project, names[i])[tr.feature[sel]]
-        img_lines.append(" ".join([str(k + 1)] + [repr(float(v)) for v in q] + [repr(float(v)) for v in o.t]
-                                  + [str(cam_keys.index(o.camera_id) + 1), f"{o.name}.tif"]))
-        img_lines.append(" ".join(f"{x + 0.5!r} {y + 0.5!r} {int(pid[t])}" for (x, y), t in zip(xy.tolist(), tr.track[sel].tolist())))
-        for n2d, t in enumerate(tr.track[sel].tolist()):
-            track_elems.setdefault(int(pid[t]), []).append(f"{k + 1} {n2d}")
-    project.write_text("colmap/images.txt", "\n".join(img_lines) + "\n")
+    # the tracks of points3D.txt as arrays (point id, image id, index in the image's POINTS2D), in the order the
+    # images are written (12 B per observation instead of a string each)
+    t_pid, t_img, t_n2d = [], [], []
+
+    def image_lines():
+        yield "# Image list with two lines of data per image:"
+        yield "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME"
+        yield "#   POINTS2D[] as (X, Y, POINT3D_ID)"
+        # COLMAP text models hold coordinates as written: large CRS coordinates keep their precision in %.17g
+        for k, o in enumerate(oc.images):
+            i = name_to_idx[o.name]
+            q = quaternion_from_matrix(o.R)
+            sel = np.nonzero(obs_mask & (tr.image == i) & pts_ok[tr.track])[0]
+            xy = _tie_xy(project, names[i])[tr.feature[sel]]
+            yield " ".join([str(k + 1)] + [repr(float(v)) for v in q] + [repr(float(v)) for v in o.t]
+                           + [str(cam_keys.index(o.camera_id) + 1), f"{o.name}.tif"])
+            ps = pid[tr.track[sel]]
+            yield " ".join(f"{x + 0.5!r} {y + 0.5!r} {int(t)}" for (x, y), t in zip(xy.tolist(), ps.tolist()))
+            t_pid.append(ps.astype(np.int32))
+            t_img.append(np.full(len(sel), k + 1, np.int32))
+            t_n2d.append(np.arange(len(sel), dtype=np.int32))
+
+    _write_lines(project, "colmap/images.txt", image_lines())
     P = rec.points[pts_ok]
     if values is not None:
         v = values[pts_ok]
@@ -1733,10 +1769,22 @@ def _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, value
         g = np.clip((np.nan_to_num(v, nan=lo) - lo) / max(hi - lo, 1e-9) * 255, 0, 255).astype(int)
     else:
         g = np.full(len(P), 128)
-    pl = ["# 3D point list with one line of data per point:", "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"]
-    for k in range(len(P)):
-        pl.append(f"{k + 1} {float(P[k, 0])!r} {float(P[k, 1])!r} {float(P[k, 2])!r} {int(g[k])} {int(g[k])} {int(g[k])} 0 " + " ".join(track_elems.get(k + 1, [])))
-    project.write_text("colmap/points3D.txt", "\n".join(pl) + "\n")
+    cat = (lambda a: np.concatenate(a) if a else np.zeros(0, np.int32))  # noqa: E731
+    t_pid, t_img, t_n2d = cat(t_pid), cat(t_img), cat(t_n2d)
+    order = np.argsort(t_pid, kind="stable")  # per point, its elements in the order they were written
+    t_img, t_n2d = t_img[order], t_n2d[order]
+    bounds = np.searchsorted(t_pid[order], np.arange(1, len(P) + 2))
+    del order, t_pid
+
+    def point_lines():
+        yield "# 3D point list with one line of data per point:"
+        yield "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"
+        for k in range(len(P)):
+            a, b = bounds[k], bounds[k + 1]
+            yield (f"{k + 1} {float(P[k, 0])!r} {float(P[k, 1])!r} {float(P[k, 2])!r} {int(g[k])} {int(g[k])} {int(g[k])} 0 "
+                   + " ".join(f"{im} {n2d}" for im, n2d in zip(t_img[a:b].tolist(), t_n2d[a:b].tolist())))
+
+    _write_lines(project, "colmap/points3D.txt", point_lines())
 
 
 def _write_clouds(project, P, values, unit, mult, crs):

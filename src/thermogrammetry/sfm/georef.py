@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._memory import release_free_heap
 from ..geometry.rotations import matrix_from_axis_angle
 
 __all__ = ["GnssOffset", "gnss_offset", "ControlInputs", "FinalAdjustment", "similarity_start", "apply_similarity", "final_adjustment",
@@ -362,6 +363,9 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
     gnss_screened = False
     start = _state(rec, rig)
     for round_ in range(5):
+        # the previous round's result (its problem, residuals) is released before the next problem is built
+        res = p = v_img = pb = None
+        release_free_heap()
         obs = rec.obs_valid & in_block[tr.image] & np.isfinite(rec.points[tr.track]).all(1)
         cnt = np.bincount(tr.track[obs], minlength=len(rec.points))
         obs &= cnt[tr.track] >= 2

@@ -35,6 +35,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._memory import release_free_heap
 from ..errors import ConfigError
 from ..results import HasOutcome, Outcome, Termination
 from .tracks import Tracks
@@ -448,6 +449,7 @@ class _Builder:
         # intermediate adjustments only need to keep the block consistent: loose stopping rule
         res = bundle_adjust(self.rec, self.xy, images, free_intrinsics=free, max_iterations=30 if full else 12,
                             function_tolerance=1e-6 if full else 1e-4)
+        release_free_heap()  # the adjustment's freed temporaries: pages back before the block grows further
         if res is not None and not res.success:
             self.log(f"bundle adjustment with {len(images)} images stopped: {res.reason}")
         if free:
@@ -462,10 +464,15 @@ class _Builder:
                          & np.isfinite(rec.points[tr.track]).all(1))[0]
         if len(obs) == 0:
             return
-        im = tr.image[obs]
-        err, depth = _reproj_error(rec.cameras, rec.image_camera[im], rec.R[im], rec.t[im], rec.points[tr.track[obs]],
-                                   _gather(self.xy, im, tr.feature[obs]))
-        bad = (err > self.opt.max_error_px) | (depth <= 0)
+        # in chunks of observations: the per-observation poses (72 B each for R alone) and projections of a
+        # large block are never held whole (the same values: each observation is computed on its own)
+        bad = np.zeros(len(obs), bool)
+        for a in range(0, len(obs), _FILTER_CHUNK):
+            o = obs[a:a + _FILTER_CHUNK]
+            im = tr.image[o]
+            err, depth = _reproj_error(rec.cameras, rec.image_camera[im], rec.R[im], rec.t[im], rec.points[tr.track[o]],
+                                       _gather(self.xy, im, tr.feature[o]))
+            bad[a:a + len(o)] = (err > self.opt.max_error_px) | (depth <= 0)
         rec.obs_valid[obs[bad]] = False
         # points with fewer than 2 valid registered observations lose their coordinates
         valid = rec.obs_valid & rec.registered[tr.image] & (rec.component[tr.image] == comp)
@@ -506,6 +513,10 @@ class _Builder:
             if not added:
                 break
         self.ba(comp, full=True)
+
+
+#: observations per chunk of :meth:`_Builder.filter` (bounds its temporaries, ~0.3 KB per observation)
+_FILTER_CHUNK = 65536
 
 
 def _gather(xy_by_image, im, feat):
