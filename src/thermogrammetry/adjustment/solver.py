@@ -634,10 +634,8 @@ class _Normal:
         prow = np.nonzero(has)[0]
         npf = lay.npf
         self.Jc = Jcw
-        # J_c^T once in CSR: both products below are then CSR x CSR (no format conversion of J_c, J_p or B)
-        JcT = Jcw.T.tocsr() if lay.nc else None
-        self.U = (JcT @ Jcw).toarray() if lay.nc else np.zeros((0, 0))
-        self.gc = JcT @ rw if lay.nc else np.zeros(0)
+        self.U = (Jcw.T @ Jcw).toarray() if lay.nc else np.zeros((0, 0))
+        self.gc = Jcw.T @ rw if lay.nc else np.zeros(0)
         # point side
         ps = pslot[prow]
         jpp = jpw[prow]
@@ -652,8 +650,7 @@ class _Normal:
         colsp = (3 * ps[:, None] + np.arange(3)).ravel()
         rowsp = np.repeat(prow, 3)
         self.Jp = sp.csr_matrix((jpp.ravel(), (rowsp, colsp)), shape=(m, 3 * npf))
-        self.B = (JcT @ self.Jp).tocsr() if lay.nc else sp.csr_matrix((0, 3 * npf))
-        del JcT
+        self.B = (Jcw.T @ self.Jp).tocsr() if lay.nc else sp.csr_matrix((0, 3 * npf))
         self.dU = np.clip(np.diag(self.U), 1e-6, 1e32) if lay.nc else np.zeros(0)
         self.dV = np.clip(np.diagonal(self.V, axis1=1, axis2=2), 1e-6, 1e32)
         self._Bc = None
@@ -715,7 +712,7 @@ class _Normal:
                 # observations of a point instead of index work per element (2-4x faster than CSR products)
                 perm, Bb, BbT = self._block_rows()
                 # H = B V^-1 has B's block pattern: each (6, 3) block times its point's V^-1
-                Hb = sp.bsr_matrix((Bb.data @ Vinv[Bb.indices], Bb.indices, Bb.indptr),
+                Hb = sp.bsr_matrix((np.einsum("bij,bjk->bik", Bb.data, Vinv[Bb.indices]), Bb.indices, Bb.indptr),
                                    shape=Bb.shape)
                 HB = Hb @ BbT  # (padded) nc x nc in the permuted order, BSR of 6 x 6 blocks
                 inv = np.empty(nc, dtype=np.int64)
