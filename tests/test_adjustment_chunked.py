@@ -239,37 +239,3 @@ def test_sparse_rank_test_against_the_eigenvalues():
     assert out is not None
     assert out[0] == pytest.approx(1e14, rel=1e-2)  # (rounding of the dense matrix: 1e-16 absolute on 1e-14)
     assert S._sparse_rank_test(N, 1e-15) is None
-
-
-def test_full_path_block_sparse_schur_equals_a_dense_computation(monkeypatch):
-    """The full path's block-sparse W V^-1 W^T (B's rows permuted into (6, 3) blocks of the free poses; rig, plane,
-    scale-bar point and intrinsic columns in the remaining blocks) equals U - B V^-1 B^T computed with dense
-    matrices, and the dense-slab route; H = B V^-1 (the covariance step's) too. Rounding only: 1e-12 of the
-    largest entry."""
-    pb, _ = build_block(rig=True, seed=13)
-    opt = SolverOptions(loss="huber")
-    pb = pb.copy()
-    lay = S._Layout(pb)
-    assert lay.nc % 6 != 0  # the block rows are padded
-    st = S._State(pb)
-    data = S._Data(pb, np.ones(sum(len(o.point) for o in pb._img), dtype=bool))
-    r, *jac, pslot = S._evaluate(pb, lay, st, data, True)
-    w, _ = S._robust(r, data.K, opt)
-    ne = S._Normal(r, jac, pslot, lay, w)
-    B = ne.B.toarray()
-    for lam in (0.0, 1e-2):
-        Vd = ne.V.copy()
-        Vd[:, [0, 1, 2], [0, 1, 2]] += lam * ne.dV
-        Vinv = np.linalg.inv(Vd)
-        Hd = np.einsum("cpi,pij->cpj", B.reshape(lay.nc, lay.npf, 3), Vinv).reshape(lay.nc, -1)
-        Sref = ne.U + lam * np.diag(ne.dU) - Hd @ B.T
-        rref = -ne.gc + Hd @ ne.gp.ravel()
-        monkeypatch.setattr(ne, "sparse_flops", 0.0)  # block-sparse route
-        Ss, rs, _, H = ne.schur(lam, want_H=True)
-        monkeypatch.setattr(ne, "sparse_flops", 1e30)  # dense slabs of points
-        Sd, rd, _, _ = ne.schur(lam)
-        big = np.max(np.abs(Sref))
-        for Sx, rx in ((Ss, rs), (Sd, rd)):
-            np.testing.assert_allclose(Sx, Sref, rtol=0, atol=1e-12 * big)
-            np.testing.assert_allclose(rx, rref, rtol=0, atol=1e-12 * np.max(np.abs(rref)))
-        np.testing.assert_allclose(H.toarray(), Hd, rtol=0, atol=1e-12 * np.max(np.abs(Hd)))
