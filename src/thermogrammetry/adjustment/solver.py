@@ -654,31 +654,12 @@ class _Normal:
         self.dU = np.clip(np.diag(self.U), 1e-6, 1e32) if lay.nc else np.zeros(0)
         self.dV = np.clip(np.diagonal(self.V, axis1=1, axis2=2), 1e-6, 1e32)
         self._Bc = None
-        self._bsr = None
         # work of the sparse Schur product W V^-1 W^T (sum over point columns of their non-zeros squared);
         # the dense slab product costs nc^2 * 3 npf: sparse wins when each point touches few parameters
         # (survey blocks: ~4 of 32 poses per point)
         col_nnz = np.bincount(self.B.indices, minlength=3 * npf) if lay.nc and npf else np.zeros(0)
         self.sparse_flops = float(np.sum(col_nnz.astype(float) ** 2))
         self.grad_max = max(float(np.max(np.abs(self.gc))) if lay.nc else 0.0, float(np.max(np.abs(gp))) if npf else 0.0)
-
-    def _block_rows(self):
-        """``(perm, Bb, Bb^T)``: B with its rows in the order ``perm`` (every free pose's six columns first, then
-        the other camera-side columns, zero rows up to a multiple of 6) as a BSR matrix of (6, 3) blocks, and its
-        transpose; built once per linearisation (the damping only changes V)."""
-        if self._bsr is None:
-            lay = self.lay
-            nc = lay.nc
-            pc = lay.pose_col[lay.pose_col >= 0]
-            pose_rows = (pc[:, None] + np.arange(6)).ravel()
-            perm = np.concatenate([pose_rows, np.setdiff1d(np.arange(nc), pose_rows)])
-            Bp = self.B[perm]
-            pad = -nc % 6
-            if pad:
-                Bp = sp.vstack([Bp, sp.csr_matrix((pad, Bp.shape[1]))], format="csr")
-            Bb = Bp.tobsr(blocksize=(6, 3))
-            self._bsr = (perm, Bb, Bb.transpose())
-        return self._bsr
 
     def schur(self, lam, want_H=False):
         """Reduced matrix, its rhs and V^-1 blocks for damping lam (0 = undamped); the sparse
@@ -707,25 +688,15 @@ class _Normal:
         H = None
         if nc and npf:
             if want_H or nc * nc * 3 * npf > 5e9 or nc * nc * 3 * npf > 10.0 * self.sparse_flops:
-                # block-sparse product: B's rows permuted so that each free pose's six columns are one block row of
-                # (6, 3) blocks (a point's block column); W V^-1 W^T then costs one 6x3x6 product per pair of
-                # observations of a point instead of index work per element (2-4x faster than CSR products)
-                perm, Bb, BbT = self._block_rows()
-                # H = B V^-1 has B's block pattern: each (6, 3) block times its point's V^-1
-                Hb = sp.bsr_matrix((np.einsum("bij,bjk->bik", Bb.data, Vinv[Bb.indices]), Bb.indices, Bb.indptr),
-                                   shape=Bb.shape)
-                HB = Hb @ BbT  # (padded) nc x nc in the permuted order, BSR of 6 x 6 blocks
-                inv = np.empty(nc, dtype=np.int64)
-                inv[perm] = np.arange(nc)
-                HBc = HB.tocsr()
-                del HB
+                Vsp = sp.bsr_matrix((Vinv, np.arange(npf), np.arange(npf + 1)), shape=(3 * npf, 3 * npf)).tocsr()
+                H = (self.B @ Vsp).tocsr()
+                HB = (H @ self.B.T).tocsr()
                 # subtracted in row blocks: no second dense nc x nc matrix (same values as one subtraction)
                 step = max(1, int(4e6 // max(nc, 1)))
                 for a in range(0, nc, step):
-                    S[a : a + step] -= HBc[inv[a : a + step]].toarray()[:, inv]
-                del HBc
-                H = Hb.tocsr()[inv] if want_H else None
-                rhs += (Hb @ self.gp.ravel())[inv]
+                    S[a : a + step] -= HB[a : a + step].toarray()
+                del HB
+                rhs += H @ self.gp.ravel()
             else:
                 # dense slabs of points: S -= (B_k V_k^-1) B_k^T with BLAS (small reduced systems)
                 if self._Bc is None:
