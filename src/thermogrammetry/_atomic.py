@@ -28,6 +28,7 @@ import tempfile
 import threading
 from pathlib import Path
 
+from ._libc import libc_function
 from .errors import DataFileError
 
 __all__ = ["write_atomic", "write_atomic_text", "sync_folder", "file_mode", "dir_mode", "check_output_folder", "clean_stale_temporaries", "make_temp", "OutputSet"]
@@ -38,19 +39,8 @@ _LOCK = threading.Lock()
 def _load_exchange():
     """``renameat2(..., RENAME_EXCHANGE)`` from the C library, or None (not Linux, old glibc)."""
     import ctypes
-    import ctypes.util
-    import sys
 
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        fn = libc.renameat2
-    except (OSError, AttributeError):
-        return None
-    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
-    fn.restype = ctypes.c_int
-    return fn
+    return libc_function("renameat2", (ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint))
 
 
 _RENAMEAT2 = _load_exchange()
@@ -245,14 +235,9 @@ def sync_folder(folder: str | os.PathLike) -> None:
 def _syncfs(fd: int) -> bool:
     """``syncfs(fd)`` from the C library (Linux); False where it is not available or fails."""
     import ctypes
-    import ctypes.util
 
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        fn = libc.syncfs
-    except (OSError, AttributeError):
-        return False
-    return fn(fd) == 0
+    fn = libc_function("syncfs", (ctypes.c_int,))
+    return fn is not None and fn(fd) == 0
 
 
 def write_atomic_text(path: str | os.PathLike, text: str) -> Path:

@@ -18,9 +18,10 @@ glibc it does nothing.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import os
 import sys
+
+from ._libc import libc_function
 
 __all__ = ["bound_heap_growth", "release_free_heap", "MMAP_THRESHOLD"]
 
@@ -36,7 +37,6 @@ TRIM_THRESHOLD = 16 * 1024 * 1024
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
 _done = False
-_trim = None  # libc's malloc_trim once looked up (False where there is none)
 
 
 def bound_heap_growth() -> bool:
@@ -48,12 +48,9 @@ def bound_heap_growth() -> bool:
         return False
     os.environ.setdefault("MALLOC_MMAP_THRESHOLD_", str(MMAP_THRESHOLD))
     os.environ.setdefault("MALLOC_TRIM_THRESHOLD_", str(TRIM_THRESHOLD))
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
+    mallopt = libc_function("mallopt", (ctypes.c_int, ctypes.c_int))
+    if mallopt is None:
         return False
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     ok = bool(mallopt(_M_MMAP_THRESHOLD, int(os.environ["MALLOC_MMAP_THRESHOLD_"])))
     ok &= bool(mallopt(_M_TRIM_THRESHOLD, int(os.environ["MALLOC_TRIM_THRESHOLD_"])))
     _done = ok
@@ -70,17 +67,6 @@ def release_free_heap() -> None:
     a covariance step against 417 MiB after ``malloc_trim``. Called between chunks of the large adjustments and between survey
     steps (a few milliseconds each); results are unchanged (only which pages stay resident).
     """
-    global _trim
-    if _trim is None:
-        _trim = False
-        if sys.platform.startswith("linux"):
-            try:
-                libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-                f = libc.malloc_trim
-                f.argtypes = [ctypes.c_size_t]
-                f.restype = ctypes.c_int
-                _trim = f
-            except (OSError, AttributeError):
-                _trim = False
-    if _trim:
-        _trim(0)
+    trim = libc_function("malloc_trim", (ctypes.c_size_t,))
+    if trim is not None:
+        trim(0)

@@ -110,7 +110,7 @@ class FolderProject(ProjectStore):
         return self.root / _check_key(key)
 
     def write_bytes(self, key: str, data: bytes) -> None:
-        write_atomic(self._path(key), data, durable=getattr(self, "durable", True))
+        write_atomic(self._path(key), data, durable=self.durable)
 
     def read_bytes(self, key: str) -> bytes:
         p = self._path(key)

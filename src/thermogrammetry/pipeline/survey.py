@@ -817,7 +817,6 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
                          max_features=max(opt.features.max_features, 4000))
             counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key) for nm in th_names],
                                         opt, None, "features"))
-        if have_pos:
             res_lt = match("lowtexture/", mopt_lt, pairs_lt)
             how = "sift/clahe on pattern-corrected thermal frames, guided matching"
         else:
