@@ -103,6 +103,51 @@ class _ImageObs:
     point: np.ndarray  # (K,) point index
     xy: np.ndarray  # (K, 2) px
     sigma: np.ndarray  # (K, 2) px
+    compact: bool = False  # the concatenated form of :meth:`BundleProblem.image_observations`
+
+
+def _uniform(parts, field):
+    """The common value of ``field`` when every part holds it as a broadcast of one value (stride 0), else None."""
+    val = None
+    for o in parts:
+        a = getattr(o, field)
+        if len(a) == 0:
+            continue
+        if any(s != 0 for s in a.strides):
+            return None
+        v = a.reshape(-1)[:1] if a.ndim == 1 else a[0]
+        if val is None:
+            val = v
+        elif not np.array_equal(v, val):
+            return None
+    return val
+
+
+def _concat_obs(parts: list, index_dtype) -> _ImageObs:
+    """One :class:`_ImageObs` from the per-call ones, in their order (values unchanged): indices in
+    ``index_dtype``, and camera block / sigma as read-only broadcasts when one value holds for every
+    observation (a single camera, one sigma for all: 0 B per observation instead of 4 and 16)."""
+    K = sum(len(o.point) for o in parts)
+    cam0, sig0 = _uniform(parts, "camera"), _uniform(parts, "sigma")
+    camera = np.broadcast_to(np.asarray(cam0, dtype=index_dtype).reshape(()), (K,)) if cam0 is not None and K else None
+    sigma = np.broadcast_to(np.asarray(sig0, dtype=float).reshape(2), (K, 2)) if sig0 is not None and K else None
+    out = {f: np.empty(K, index_dtype) for f in ("camera", "view", "point") if not (f == "camera" and camera is not None)}
+    out["xy"] = np.empty((K, 2))
+    if sigma is None:
+        out["sigma"] = np.empty((K, 2))
+    a = 0
+    for o in parts:
+        b = a + len(o.point)
+        for f, arr in out.items():
+            arr[a:b] = getattr(o, f)
+        a = b
+    for arr in out.values():
+        arr.flags.writeable = False  # (shared with the solver's working copy and its data: never written)
+    if camera is not None:
+        out["camera"] = camera
+    if sigma is not None:
+        out["sigma"] = sigma
+    return _ImageObs(out["camera"], out["view"], out["point"], out["xy"], out["sigma"], compact=True)
 
 
 class BundleProblem:
@@ -389,11 +434,19 @@ class BundleProblem:
         return a.astype(np.int64)
 
     def image_observations(self) -> _ImageObs:
-        """All image observations concatenated in the order they were added."""
+        """All image observations concatenated in the order they were added (read-only arrays).
+
+        The concatenation becomes the problem's own storage (the per-call arrays are dropped, later calls
+        of :meth:`add_image_points` append to it): the solver shares it instead of holding a second copy.
+        Camera, view and point indices are int32 when the blocks fit (int64 otherwise); the camera block and
+        sigma are read-only broadcasts when a single value holds for every observation."""
         if not self._img:
             z = np.zeros(0, dtype=np.int64)
             return _ImageObs(z, z, z, np.zeros((0, 2)), np.zeros((0, 2)))
-        return _ImageObs(*(np.concatenate([getattr(o, f) for o in self._img]) for f in ("camera", "view", "point", "xy", "sigma")))
+        if len(self._img) > 1 or not self._img[0].compact:
+            big = max(len(self.cameras), len(self.view_pose), len(self.points)) >= 2**31 - 1
+            self._img = [_concat_obs(self._img, np.int64 if big else np.int32)]
+        return self._img[0]
 
     def control_observations(self):
         if not self._ctrl:

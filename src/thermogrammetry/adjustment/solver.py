@@ -384,25 +384,37 @@ class _Data:
     """Observations (with the active mask for image points) in flat arrays."""
 
     def __init__(self, pb: BundleProblem, active: np.ndarray):
-        img = pb.image_observations()
+        img = pb.image_observations()  # (the problem's own concatenated arrays: shared, never written)
         a = np.nonzero(active)[0]
         self.img_idx = a
-        if len(a) == len(active):  # all active: the concatenated arrays themselves (no second copy)
+        uniform_sig = len(a) and not any(img.sigma.strides)  # one sigma for every observation (a broadcast)
+        uniform_cam = len(a) and not any(img.camera.strides)
+        if len(a) == len(active):  # all active: the problem's arrays themselves (no second copy)
             self.img_idx = slice(None)  # (the same rows as ``a``, without 8 B per observation)
             self.cam, self.view, self.pt, self.xy, self.sig = img.camera, img.view, img.point, img.xy, img.sigma
         else:
-            self.cam = img.camera[a]
+            self.cam = np.broadcast_to(img.camera[:1], (len(a),)) if uniform_cam else img.camera[a]
             self.view = img.view[a]
             self.pt = img.point[a]
             self.xy = img.xy[a]
-            self.sig = img.sigma[a]
+            self.sig = np.broadcast_to(img.sigma[:1], (len(a), 2)) if uniform_sig else img.sigma[a]
         del img
-        # (int32: 8 B per observation less than int64; pose and rig counts are far below 2^31)
-        self.vpose = np.asarray(pb.view_pose, dtype=np.int32)[self.view] if len(a) else np.zeros(0, np.int32)
-        self.vrig = np.asarray(pb.view_rig, dtype=np.int32)[self.view] if len(a) else np.zeros(0, np.int32)
-        # the view is only needed for vpose/vrig; the camera block is compared per chunk: int32 (12 B less per obs)
+        # int32 (pose and rig counts are far below 2^31); without rig views the pose of a view is the view itself
+        # when views and poses are numbered alike, and no view has a rig: no array per observation then
+        vp = np.asarray(pb.view_pose, dtype=np.int32)
+        vr = np.asarray(pb.view_rig, dtype=np.int32)
+        if not len(a):
+            self.vpose = self.vrig = np.zeros(0, np.int32)
+        else:
+            if np.array_equal(vp, np.arange(len(vp))):
+                self.vpose = self.view
+            else:
+                self.vpose = vp[self.view]
+            self.vrig = np.broadcast_to(np.int32(-1), (len(a),)) if np.all(vr == -1) else vr[self.view]
+        # the view is only needed for vpose/vrig; the camera block is compared per chunk (int32)
         self.view = None
-        self.cam = self.cam.astype(np.int32)
+        if not uniform_cam:
+            self.cam = self.cam.astype(np.int32, copy=False)
         self.K = len(a)
         del a
         self.c_pt, self.c_xyz, self.c_sig = pb.control_observations()
@@ -592,24 +604,34 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool, sel=Non
     return r, Jc, jp, pslot
 
 
+#: image observations per piece of :func:`_robust` (its temporaries: ~80 B per observation of a piece)
+_ROBUST_CHUNK = 65536
+
+
 def _robust(r, K, opt: SolverOptions, weights: bool = True):
     """Per-row sqrt weights and the robust cost 1/2 sum rho (weights None when not ``weights``: a trial
-    step needs only the cost)."""
+    step needs only the cost).
+
+    The per-observation terms are computed in pieces of ``_ROBUST_CHUNK`` observations (element by element:
+    the same values as over the whole block) into one array, summed once as before."""
     w = np.ones_like(r) if weights else None
     if opt.loss is Loss.TRIVIAL or K == 0:
         return w, 0.5 * float(r @ r)
-    s = r[: 2 * K].reshape(K, 2)
-    s = np.sum(s * s, axis=1)
     c2 = opt.loss_scale**2
-    if opt.loss is Loss.HUBER:
-        big = s > c2
-        rho = np.where(big, 2.0 * np.sqrt(c2 * s) - c2, s)
-        d1 = np.where(big, np.sqrt(c2 / np.maximum(s, 1e-300)), 1.0)
-    else:
-        rho = c2 * np.log1p(s / c2)
-        d1 = 1.0 / (1.0 + s / c2)
-    if weights:
-        w[: 2 * K] = np.repeat(np.sqrt(d1), 2)
+    rho = np.empty(K)
+    for a in range(0, K, _ROBUST_CHUNK):
+        b = min(K, a + _ROBUST_CHUNK)
+        s = r[2 * a : 2 * b].reshape(b - a, 2)
+        s = np.sum(s * s, axis=1)
+        if opt.loss is Loss.HUBER:
+            big = s > c2
+            rho[a:b] = np.where(big, 2.0 * np.sqrt(c2 * s) - c2, s)
+            d1 = np.where(big, np.sqrt(c2 / np.maximum(s, 1e-300)), 1.0)
+        else:
+            rho[a:b] = c2 * np.log1p(s / c2)
+            d1 = 1.0 / (1.0 + s / c2)
+        if weights:
+            w[2 * a : 2 * b] = np.repeat(np.sqrt(d1), 2)
     rest = r[2 * K :]
     return w, 0.5 * (float(np.sum(rho)) + float(rest @ rest))
 
@@ -1274,6 +1296,11 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
             st, cost = st_new, cost_new
             r = r_new
             del r_new
+            if chunked:
+                # the accepted step's linearisation is rebuilt below: the old one (its residuals, weights, point
+                # blocks) and the factor are released before the new weights are computed
+                ne = cf = Vinv = rhs = sch = None
+                d = dc = dp = st_new = None
             # the chunked path linearises at these residuals; the full path re-evaluates them with the Jacobian
             w = _robust(r, data.K, opt)[0] if chunked else None
             radius = min(1e16, radius / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
@@ -1380,7 +1407,9 @@ def _shift_world(pb: BundleProblem, s: np.ndarray) -> None:
 def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
     t0 = time.perf_counter()
     # the working copy (returned as result.problem) shares the image observations' arrays with the input:
-    # nothing modifies them and the copy would cost ~56 B per observation
+    # nothing modifies them and the copy would cost ~24-56 B per observation. They are concatenated first (the
+    # problem's own storage from then on): the solver's data uses the same arrays
+    problem.image_observations()
     memo = {id(a): a for o in problem._img for a in (o.camera, o.view, o.point, o.xy, o.sigma)}
     pb = copy.deepcopy(problem, memo)
     origin = _world_offset(pb)
@@ -1534,7 +1563,7 @@ def _precision(pb, lay, st, data, opt, active, warnings):
         # redundancy numbers: released before the nc x nc work (eigenvalues, inverse, covariance, correlation)
         ne = None
         if not opt.compute_point_covariance:
-            H = None
+            H = Vinv = None  # (V^-1: 72 B per free point, used only for the point covariances)
     nc = lay.nc
     if pb.gauge is Gauge.INNER:
         if n > opt.max_dense_inner:
@@ -1648,8 +1677,9 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     out["pose_std"] = pose_std
     # warnings: correlations and insignificant additional parameters
     if nc > 1:
-        # strict upper triangle, row by row (as np.triu_indices), in row blocks (no nc^2 temporaries)
-        step = max(1, int(4e6 // nc))
+        # strict upper triangle, row by row (as np.triu_indices), in row blocks of ~1e6 entries (8 MB per
+        # temporary: no nc^2 ones; the warnings come in the same order whatever the block size)
+        step = max(1, int(1e6 // nc))
         for a0 in range(0, nc, step):
             with np.errstate(invalid="ignore", divide="ignore"):
                 corr = cov[a0 : a0 + step] / std[a0 : a0 + step, None]

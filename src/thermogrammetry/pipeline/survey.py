@@ -36,6 +36,7 @@ from __future__ import annotations
 import contextlib
 
 import io
+import itertools
 import json
 import os
 import time
@@ -550,6 +551,10 @@ def match_task(args) -> tuple[int, int, int, int, str]:
     return i, j, len(m), len(inl), reason
 
 
+#: tasks submitted to the cluster and not yet collected, at most (:func:`_run_tasks`)
+_TASKS_IN_FLIGHT = 64
+
+
 def _run_tasks(fn, tasks, opt: SurveyOptions, progress: Callable | None, what: str):
     """Run tasks in-process, on a local dask cluster (``workers``) or on ``scheduler``; results in task order."""
     n = len(tasks)
@@ -567,11 +572,26 @@ def _run_tasks(fn, tasks, opt: SurveyOptions, progress: Callable | None, what: s
     with _local_cluster(opt) as run_opt:  # a cluster of its own only when the caller did not start one
         client = Client(run_opt.scheduler)
         try:
-            futs = client.map(fn, tasks, pure=False)
-            pos = {f.key: k for k, f in enumerate(futs)}
+            # at most _TASKS_IN_FLIGHT tasks submitted and not yet collected: the scheduler's and the workers'
+            # state per task (its arguments, its result) does not grow with the block; tasks are submitted in
+            # their order and each result is released as soon as it is collected
+            pending = iter(enumerate(tasks))
+            pos = {}
+            ac = as_completed()
+
+            def submit(count):
+                for k, t in itertools.islice(pending, count):
+                    f = client.submit(fn, t, pure=False)
+                    pos[f.key] = k
+                    ac.add(f)
+
+            submit(_TASKS_IN_FLIGHT)
             out = [None] * n
-            for done, fut in enumerate(as_completed(futs), 1):
-                out[pos[fut.key]] = fut.result()
+            for done, fut in enumerate(ac, 1):
+                out[pos.pop(fut.key)] = fut.result()
+                fut.release()
+                del fut
+                submit(1)
                 if progress:
                     progress(done, n)
             return out
@@ -1852,6 +1872,20 @@ def survey_steps(inp: SurveyInput, opt: SurveyOptions, progress: Callable | None
     ]
 
 
+#: the survey's steps that run tasks on the local cluster (:func:`run_survey`), in their order
+_TASK_STEPS = ("inputs", "features", "matching")
+
+
+def _release_task_state() -> None:
+    """After the steps that run tasks: this process's feature cache, the cluster's and the tasks' freed objects
+    (``gc``), and the heap's free pages (:func:`thermogrammetry._memory.release_free_heap`)."""
+    import gc
+
+    _NPZ_CACHE.clear()
+    gc.collect()
+    release_free_heap()
+
+
 @contextlib.contextmanager
 def _local_cluster(opt: SurveyOptions):
     """One local dask cluster for every step that runs tasks (started once, not per step: ~2-4 s each).
@@ -1880,8 +1914,16 @@ def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | Non
 
     opt = opt or SurveyOptions()
     t0 = time.perf_counter()
+    # the steps that run tasks share one local cluster; it is closed before the orientation, whose memory then
+    # starts without the cluster's state and what the earlier steps left in the process (a later step that runs
+    # tasks again, e.g. the low-texture fallback of ``orient``, starts a cluster of its own)
+    plain = survey_steps(inp, opt, progress)
+    n_tasks = next((k for k, s in enumerate(plain) if s.name not in _TASK_STEPS), len(plain))
     with _local_cluster(opt) as opt_run:
-        reports = run_steps(project, survey_steps(inp, opt_run, progress), on_step=on_step)
+        reports = run_steps(project, survey_steps(inp, opt_run, progress)[:n_tasks], on_step=on_step)
+    _release_task_state()
+    if all(r.ok for r in reports) and n_tasks < len(plain):
+        reports += run_steps(project, plain[n_tasks:], on_step=on_step)
     if project.exists("survey.json"):
         s = project.read_json("survey.json")
         s["seconds"] = time.perf_counter() - t0
