@@ -558,3 +558,57 @@ def test_w_test_flags_a_wrong_control_coordinate(rng):
     # redundancy numbers lie in [0, 1]; all rows together sum to the redundancy
     total = np.nansum(res.image_redundancy) + np.nansum(res.control_redundancy)
     assert total == pytest.approx(res.redundancy, abs=5e-11)  # measured 0 (4.6e-13 in the test above)
+
+
+def test_image_observations_stored_once_compact_and_unchanged(rng):
+    """The concatenated observations become the problem's storage: same values in the order added, int32
+    indices, camera block and sigma as zero-byte broadcasts when uniform (full arrays otherwise), read-only;
+    observations added afterwards are appended; the solver's data shares the arrays (no copy)."""
+    from thermogrammetry.adjustment import solver as S
+
+    cam, poses, X, xy = _truth()
+    pb = BundleProblem()
+    ic = pb.add_camera(cam, fixed=True)
+    pts = pb.add_points(X)
+    views = [pb.add_pose(p) for p in poses]
+    for v, x in zip(views[:4], xy[:4]):
+        pb.add_image_points(ic, v, pts, x, sigma_px=0.5)
+    img = pb.image_observations()
+    n = 4 * len(X)
+    np.testing.assert_array_equal(img.point, np.tile(pts, 4))
+    np.testing.assert_array_equal(img.view, np.repeat(views[:4], len(X)))
+    np.testing.assert_array_equal(img.xy, np.concatenate(xy[:4]))
+    assert img.point.dtype == np.int32 and img.view.dtype == np.int32
+    assert img.sigma.shape == (n, 2) and img.sigma.strides == (0, 0) and np.all(img.sigma == 0.5)
+    assert img.camera.shape == (n,) and img.camera.strides == (0,) and np.all(img.camera == ic)
+    assert not img.xy.flags.writeable and not img.point.flags.writeable
+    assert pb.image_observations() is img  # concatenated once
+    data = S._Data(pb, np.ones(n, bool))
+    assert data.pt is img.point and data.xy is img.xy and data.vpose is img.view  # shared, not copied
+    # a per-observation sigma and a second camera: full arrays, values unchanged
+    ic2 = pb.add_camera(cam.replace(fx=610), fixed=True)
+    sig = rng.uniform(0.3, 0.9, len(X))
+    pb.add_image_points(ic2, views[4], pts, xy[4], sigma_px=sig)
+    img2 = pb.image_observations()
+    assert len(img2.point) == n + len(X) and img2.sigma.strides != (0, 0) and img2.camera.strides != (0,)
+    np.testing.assert_array_equal(img2.sigma[:n], 0.5)
+    np.testing.assert_array_equal(img2.sigma[n:], np.c_[sig, sig])
+    np.testing.assert_array_equal(img2.camera, np.r_[np.full(n, ic), np.full(len(X), ic2)])
+    np.testing.assert_array_equal(img2.xy[n:], xy[4])
+
+
+def test_robust_cost_and_weights_in_pieces_equal_the_whole(monkeypatch, rng):
+    """_robust in pieces of observations gives exactly the values of one piece (element-wise terms, one sum)."""
+    from thermogrammetry.adjustment import solver as S
+
+    r = rng.normal(0, 3, 2 * 1001 + 7)
+    for loss in ("huber", "cauchy"):
+        opt = SolverOptions(loss=loss, loss_scale=2.0)
+        w1, c1 = S._robust(r, 1001, opt)
+        monkeypatch.setattr(S, "_ROBUST_CHUNK", 64)
+        w2, c2 = S._robust(r, 1001, opt)
+        _, c3 = S._robust(r, 1001, opt, weights=False)
+        monkeypatch.setattr(S, "_ROBUST_CHUNK", 65536)
+        assert c1 == c2 == c3
+        np.testing.assert_array_equal(w1, w2)
+        assert np.all(w1[2 * 1001:] == 1.0) and np.any(w1 < 1.0)
