@@ -1513,10 +1513,10 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     chunked = data.K >= opt.chunked_min_observations and not (
         opt.compute_covariance and (pb.gauge is Gauge.INNER or opt.compute_redundancy or opt.compute_point_covariance))
     if chunked:
+        release_free_heap()  # (the LM's freed temporaries)
         r = _evaluate(pb, lay, st, data, False)
         w, cost = _robust(r, data.K, opt)
-        if opt.compute_covariance:
-            ne = _ChunkedNormal(pb, lay, st, data, r, w, 0.0)
+        # the normal equations (for the covariance) are built after the residual outputs below
     else:
         r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
         w, cost = _robust(r, data.K, opt)
@@ -1528,7 +1528,9 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     n = lay.nc + 3 * lay.npf
     defect = (6 if _scale_observed(pb) else 7) if pb.gauge is Gauge.INNER else 0
     red = data.m - n + defect
-    vtpv = float(np.sum((r * w) ** 2))
+    rw = r * w
+    vtpv = float(np.sum(np.square(rw, out=rw)))  # (the same values as (r w)^2, one temporary)
+    del rw
     sigma0 = float(np.sqrt(vtpv / red)) if red > 0 else float("nan")
     out: dict = {"sigma0": sigma0, "redundancy": int(red)}
     if red <= 0:
@@ -1552,6 +1554,11 @@ def _precision(pb, lay, st, data, opt, active, warnings):
         out["chi2"] = dict(statistic=stat, dof=int(red), lower=float(lo), upper=float(hi), passed=bool(lo <= stat <= hi))
     if not opt.compute_covariance:
         return out
+    if chunked:
+        # (the chunked path never computes redundancy numbers: r and w are needed only by ne, which holds them
+        # until it is released below)
+        ne = _ChunkedNormal(pb, lay, st, data, r, w, 0.0)
+        r = w = None
     sch = ne.schur(0.0, want_H=not chunked)
     if sch is None:
         return (Termination.RANK_DEFICIENT, "a free point's normal block is singular (too few or parallel rays)")
