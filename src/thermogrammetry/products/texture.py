@@ -68,7 +68,7 @@ from .correction import CorrectionConfig
 
 __all__ = ["Levelling", "TextureConfig", "TextureView", "TextureResult", "face_view_scores",
            "build_atlas", "rasterize_atlas", "PixelSurface", "pixel_surfaces", "usable_in_view", "select_and_sample",
-           "estimate_offsets", "texture_mesh", "thermal_poses_from_rig"]
+           "estimate_offsets", "texture_mesh", "thermal_poses_from_rig", "local_origin", "view_in_frame"]
 
 
 class Levelling(StrChoice):
@@ -143,6 +143,30 @@ class TextureView:
         if img.shape != (h, w):
             raise ShapeError(f"view {self.name!r}: image shape {img.shape}; expected (H, W) = ({h}, {w}) from its camera")
         self.image_k = img.astype(np.float32, copy=False)
+
+
+def local_origin(vertices) -> np.ndarray:
+    """A float64 origin near a mesh for the libraries that compute in float32 (Embree's ray casting, xatlas).
+
+    Coordinates in a projected CRS are large (EPSG:2056 eastings ~2.6e6 m, UTM northings ~5e6 m): their float32
+    spacing is 0.25-0.5 m, so rays cast against such a mesh hit the wrong triangle or miss and charts are built
+    from vertices rounded by decimetres. Every computation of this module runs on ``vertices - origin`` with the
+    poses moved accordingly (:func:`view_in_frame`); results are returned in the input's coordinates.
+
+    Returns
+    -------
+    (3,) float64: the centre of the vertices' bounding box, rounded to whole metres
+    """
+    V = np.asarray(vertices, dtype=np.float64)
+    return np.round(0.5 * (V.min(axis=0) + V.max(axis=0)))
+
+
+def view_in_frame(view: "TextureView", origin) -> "TextureView":
+    """The same view with its pose expressed for points ``X - origin``: ``t' = t + R·origin`` (same ``R``)."""
+    from ..geometry import Pose
+
+    o = np.asarray(origin, dtype=np.float64)
+    return TextureView(view.name, view.camera, Pose(view.pose.R, view.pose.t + view.pose.R @ o), view.image_k)
 
 
 def _check_mesh(vertices, faces):
@@ -240,10 +264,11 @@ def build_atlas(vertices, faces, texel_size_m: float, *, max_texture_px: int = 4
     import xatlas
 
     V, F = _check_mesh(vertices, faces)
+    V32 = (V - local_origin(V)).astype(np.float32)  # xatlas works in float32: charts from local coordinates
     ts = float(texel_size_m)
     for _ in range(12):
         atlas = xatlas.Atlas()
-        atlas.add_mesh(V.astype(np.float32), F.astype(np.uint32))
+        atlas.add_mesh(V32, F.astype(np.uint32))
         po = xatlas.PackOptions()
         po.texels_per_unit = 1.0 / ts
         po.padding = int(padding)
@@ -670,10 +695,14 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     :class:`TextureResult`
     """
     cfg = config or TextureConfig()
-    V, F = _check_mesh(vertices, faces)
+    V_in, F = _check_mesh(vertices, faces)
     views = list(views)
     if not views:
         raise InvalidInputError("texture_mesh: no oriented images given; expected at least one view")
+    # everything below runs in a local frame (Embree and xatlas compute in float32: local_origin)
+    origin = local_origin(V_in)
+    V = V_in - origin
+    views = [view_in_frame(v, origin) for v in views]
     normals, area, cen = _face_geometry(V, F)
     scores = face_view_scores(V, F, views, max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
     ts = cfg.texel_size_m
@@ -739,7 +768,8 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
         has = cnt.sum(axis=1) > 0
         face_source[has] = np.argmax(cnt[has], axis=1)
     occluded = sel.occluded_in.sum(axis=0)
-    return TextureResult(V, F, atlas, temp, src, angle, vtemp, cov, (scores > 0).sum(axis=1), face_source,
+    texels.points += origin  # back to the input's coordinates
+    return TextureResult(V_in, F, atlas, temp, src, angle, vtemp, cov, (scores > 0).sum(axis=1), face_source,
                          [v.name for v in views], offsets, fixed, rms, occluded, texels, sel, cfg)
 
 
