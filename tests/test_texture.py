@@ -326,6 +326,19 @@ def test_cli_texture_bad_input(cli_out, tmp_path, capsys):
     assert main(["texture", str(tmp_path), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o")]) == 2
     assert "cameras.json" in capsys.readouterr().err
     assert main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o"), "--levelling", "blend"]) == 2
+    capsys.readouterr()
+    # a mesh in another coordinate system (here: LV95 coordinates against a local survey) meets no image: exit 2
+    import trimesh
+
+    m = trimesh.load(survey / "mesh.obj", process=False)
+    m.vertices += [2_600_000.0, 1_200_000.0, 0.0]
+    far = tmp_path / "far.obj"
+    m.export(far)
+    assert main(["texture", str(survey), "--mesh", str(far), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "far.obj" in err and "no face of the mesh" in err and "camera centres" in err and "Traceback" not in err
+    assert "2600" in err  # the mesh extent in the message
+    assert not (tmp_path / "o").exists()
 
 
 # ------------------------------------------------------------------------------------------- browser
