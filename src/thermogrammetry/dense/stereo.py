@@ -221,8 +221,11 @@ def matching_codes(left, right, *, window_px: int = 15, clip_sigma: float = 3.0,
     # all-valid (fast) paths below
     Lf = L if all_l else _fill_nearest_value(L, vl)
     Rf = R if all_r else _fill_nearest_value(R, vr)
-    tl, _ = _local_levels(Lf, window_px, clip_sigma, gain=1.0 - w)
-    tr, _ = _local_levels(Rf, window_px, clip_sigma, gain=1.0 - w)
+    if w < 1.0:
+        tl, _ = _local_levels(Lf, window_px, clip_sigma, gain=1.0 - w)
+        tr, _ = _local_levels(Rf, window_px, clip_sigma, gain=1.0 - w)
+    else:  # the local part has weight 0: not computed
+        tl, tr = np.zeros(L.shape, np.float32), np.zeros(R.shape, np.float32)
     if w > 0.0:
         el, er = _equalised_levels(Lf, Rf, None if all_l else vl, None if all_r else vr, gain=w)
         tl += el
