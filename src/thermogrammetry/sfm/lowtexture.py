@@ -499,16 +499,20 @@ class PlaneParallax:
         RMS reprojection residual (length of the residual vector) of the block's valid observations.
     ratio : float
         ``median_parallax_px / residual_rms_px`` (NaN when either is undefined).
+    planar_share : float
+        Mean over the pairs of the share of their common 3D points within ``depth_band`` x the median depth of one
+        plane (RANSAC, fixed seed); NaN without a usable pair.
     """
 
     pairs: list
     median_parallax_px: float
     residual_rms_px: float
     ratio: float
+    planar_share: float = float("nan")
 
 
 def plane_parallax(cameras, image_camera, R, t, points, track, image, feature, obs_valid, xy, images, *,
-                   tol_px: float = 2.0, min_points: int = 30, seed: int = 0) -> PlaneParallax:
+                   tol_px: float = 2.0, min_points: int = 30, depth_band: float = 0.01, seed: int = 0) -> PlaneParallax:
     """Plane parallax of image-coplanar points: do the block's 3D points lie flat where its frames say they are flat?
 
     For each pair of consecutive oriented frames (i, j) of the block (in index order, i.e. acquisition order of a
@@ -531,6 +535,7 @@ def plane_parallax(cameras, image_camera, R, t, points, track, image, feature, o
     images : sequence of int, the block's oriented images
     tol_px : float, homography inlier threshold
     min_points : int, fewer common points: the pair is skipped
+    depth_band : float, half-width of the plane band of ``planar_share`` as a share of the pair's median depth
 
     Returns
     -------
@@ -557,11 +562,22 @@ def plane_parallax(cameras, image_camera, R, t, points, track, image, feature, o
         res2.append(np.sum(v ** 2, axis=1)[np.isfinite(v).all(axis=1)])
         obs[k] = dict(zip(tk[m].tolist(), x))
     rms = float(np.sqrt(np.mean(np.concatenate(res2)))) if res2 and sum(map(len, res2)) else float("nan")
-    pairs = []
+    pairs, shares = [], []
+    rng = np.random.default_rng(seed)
     for i, j in zip(images[:-1], images[1:]):
         common = sorted(set(obs.get(i, {})) & set(obs.get(j, {})))
         if len(common) < min_points:
             continue
+        Y = P[np.asarray(common)]
+        band = depth_band * float(np.median(np.linalg.norm(Y + np.asarray(R[i]).T @ np.asarray(t[i]), axis=1)))
+        best = 0
+        for _ in range(200):
+            a = Y[rng.choice(len(Y), 3, replace=False)]
+            nv = np.cross(a[1] - a[0], a[2] - a[0])
+            ln = np.linalg.norm(nv)
+            if ln > 0:
+                best = max(best, int(np.sum(np.abs((Y - a[0]) @ (nv / ln)) <= band)))
+        shares.append(best / len(Y))
         xa = np.array([obs[i][c] for c in common])
         xb = np.array([obs[j][c] for c in common])
         cv2.setRNGSeed(int(seed))
@@ -591,4 +607,4 @@ def plane_parallax(cameras, image_camera, R, t, points, track, image, feature, o
             pairs.append((i, j, len(common), float(hin.mean()), float(np.median(par))))
     med = float(np.median([p[4] for p in pairs])) if pairs else float("nan")
     ratio = med / rms if np.isfinite(med) and rms > 0 else float("nan")
-    return PlaneParallax(pairs, med, rms, float(ratio))
+    return PlaneParallax(pairs, med, rms, float(ratio), float(np.mean(shares)) if shares else float("nan"))
