@@ -146,8 +146,9 @@ class SurveyOptions:
 
         Guard (why ``auto`` is the default): every block of a tracked sequence must reconstruct flat what its frames
         show flat -- the points of each consecutive pair that agree with one homography must lie on a plane in 3D
-        within a share of the block's reprojection RMS (:data:`LOW_TEXTURE_MAX_PLANE_PARALLAX`,
-        :func:`~thermogrammetry.sfm.lowtexture.plane_parallax`); a refused block is reported in survey.json
+        within a share of the block's reprojection RMS (:data:`LOW_TEXTURE_MAX_PLANE_PARALLAX`), and on average
+        :data:`LOW_TEXTURE_MIN_PLANAR_SHARE` of the points of consecutive frames must lie within 1 % of their depth
+        of one plane (:func:`~thermogrammetry.sfm.lowtexture.plane_parallax`); a refused block is reported in survey.json
         (``low_texture``, the notes and every frame's reason) and its frames are not oriented (or the primary result
         is kept when the fallback ran after it). In the final adjustment, a tracked block whose limited
         self-calibration is refused by the plausibility checks is rejected as well. The fallback only runs when fewer
@@ -156,7 +157,10 @@ class SurveyOptions:
         0.08 K pattern, 0.04 K NETD, 30 frames; pycolmap 0 models, ``off`` 0/30): see benchmarks/README.md; the
         windowed facade of ``synthetic.facade`` (15 windows with glass reflecting the sky, 14 stations at 12 m, no
         EXIF focal length; ``off`` orients nothing) gave ``auto`` a 14/14 block 25 deg off before the guard, which now
-        refuses it (plane parallax 1.28 x the RMS; right blocks 0.42-0.58).
+        refuses it (plane parallax 1.28 x the RMS, planar share 0.29; right walk blocks 0.42-0.58 and 0.76-0.85);
+        so are the wrong blocks of the same facade with 10 and 20 stations and with the true camera, and of the
+        plain wall at 320x256 px without ground (a single plane, 20/20 frames 36 deg off). Walk seed 4 stops with a
+        numerical error in the PRIMARY orientation (``off`` alike).
     tie_refinement : LsmOptions or None
         Least-squares matching of every tie observation against its track's reference patch before the
         orientation (:func:`~thermogrammetry.sfm.lsm.refine_tracks`); None (default) keeps the keypoint
@@ -980,10 +984,12 @@ def _low_texture_self_calibration(project: ProjectStore, camera_ids: list, self_
 
 
 def _low_texture_check(project: ProjectStore) -> dict:
-    """The plane-parallax check of every block of a tracked low-texture sequence (:data:`LOW_TEXTURE_MAX_PLANE_PARALLAX`).
+    """The checks of every block of a tracked low-texture sequence: plane parallax of image-coplanar points
+    (:data:`LOW_TEXTURE_MAX_PLANE_PARALLAX`) and planar share (:data:`LOW_TEXTURE_MIN_PLANAR_SHARE`).
 
     Returns ``{"blocks": [{"images", "thermal", "pairs", "median_plane_parallax_px", "residual_rms_px", "ratio",
-    "refused"}], "refused_images": [...], "why": {image index: reason}}``; the reconstruction is not changed.
+    "planar_share", "refused"}], "refused_images": [...], "why": {image index: reason}}``; the reconstruction is not
+    changed.
     """
     from ..sfm.lowtexture import plane_parallax
 

@@ -525,6 +525,12 @@ def plane_parallax(cameras, image_camera, R, t, points, track, image, feature, o
     inconsistent tracks (the windowed facade, glass reflections, focal length a guess 40 % short) puts the same
     points off their plane: 0.93 px for 0.72 px RMS, ratio 1.29.
 
+    The *planar share* asks the same of all common points with a fixed band: the share within ``depth_band`` of the
+    median depth of one plane (RANSAC, 200 samples). Right walk blocks 0.76-0.85 (the ground in view is the rest);
+    wrong blocks, which explain a walk as a turn with short baselines so that their depths scatter, 0.25-0.40 (also
+    where the parallax ratio does not see them: a single plane at 320x256 px, ratio 0.60-0.63). It measures the
+    triangulation's strength as well: a right block with depth noise above about ``depth_band`` scores low too.
+
     Parameters
     ----------
     cameras : list of Camera ; image_camera : (N_images,) int
