@@ -140,6 +140,26 @@ def test_ortho_of_raw_counts_is_labelled_counts_never_celsius(tmp_path):
     assert not (tmp_path / "c" / "ortho.tif").exists()
 
 
+def test_ortho_refuses_a_dsm_of_another_crs_or_place(ortho_run, tmp_path, capsys):
+    """A DSM in another CRS than cameras.json, or one that no camera sees, exits 2 naming both; nothing written."""
+    sc, sv, root = ortho_run
+    with rasterio.open(root / "dsm.tif") as s:
+        z, prof = s.read(1), s.profile
+    cases = {"crs": dict(crs="EPSG:32632"),  # the neighbouring UTM zone: same numbers, another CRS
+             "far": dict(transform=rasterio.Affine(prof["transform"].a, 0.0, prof["transform"].c + 50_000.0, 0.0,
+                                                   prof["transform"].e, prof["transform"].f))}
+    words = {"crs": ["EPSG:32632", "EPSG:32633", "reproject"], "far": ["no camera", "camera centres"]}
+    for name, change in cases.items():
+        p = tmp_path / f"dsm_{name}.tif"
+        with rasterio.open(p, "w", **{**prof, **change}) as d:
+            d.write(z, 1)
+        out = tmp_path / f"o_{name}"
+        assert main(["ortho", str(sv), "--dsm", str(p), "-o", str(out), "--workers", "0"]) == 2
+        err = capsys.readouterr().err
+        assert str(p.name) in err and all(w in err for w in words[name]) and "Traceback" not in err, err
+        assert not out.exists()
+
+
 def test_ortho_correct_raises_temperatures_of_low_emissivity_views(ortho_run, tmp_path):
     sc, sv, root = ortho_run
     assert main(["ortho", str(sv), "--dsm", str(root / "dsm.tif"), "-o", str(tmp_path / "k"), "--correct",

@@ -95,6 +95,29 @@ def test_no_texel_from_a_view_where_it_is_occluded(scene, views, result):
     assert not_occ.all()
 
 
+def test_selection_in_chunks_equals_one_call(scene, views):
+    """Chunks of texels (memory bounded by chunk x images) give exactly the one-call selection."""
+    from thermogrammetry.products.texture import (_intersector, build_atlas, pixel_surfaces, rasterize_atlas,
+                                                  select_and_sample, select_in_chunks)
+
+    V, F = scene.vertices, scene.faces
+    cfg = TextureConfig(texel_size_m=0.2)
+    tx = rasterize_atlas(build_atlas(V, F, 0.2), V, F)
+    inter = _intersector(V, F)
+    surf = [pixel_surfaces(inter, V, F, v) for v in views]
+    sc = face_view_scores(V, F, views)
+    one = select_and_sample(inter, V, F, views, surf, sc, tx.points, tx.face, cfg)
+    sample = np.zeros(len(tx.points), bool)
+    sample[::7] = True
+    sel, occ, ak = select_in_chunks(inter, V, F, views, surf, sc, tx.points, tx.face, cfg, sample=sample,
+                                    chunk_point_views=len(views) * 997)
+    assert len(tx.points) > 5 * 997 and sel.occluded_in is None and sel.all_k is None
+    assert np.array_equal(sel.source, one.source) and np.array_equal(sel.n_usable, one.n_usable)
+    assert np.array_equal(sel.temperature_k, one.temperature_k, equal_nan=True)
+    assert np.array_equal(occ, one.occluded_in.sum(axis=0)) and occ.sum() > 0
+    assert np.array_equal(ak, one.all_k[sample], equal_nan=True)
+
+
 def test_coverage_of_visible_faces(scene, result):
     s = result.summary()
     seen = result.face_views > 0
@@ -303,6 +326,19 @@ def test_cli_texture_bad_input(cli_out, tmp_path, capsys):
     assert main(["texture", str(tmp_path), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o")]) == 2
     assert "cameras.json" in capsys.readouterr().err
     assert main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o"), "--levelling", "blend"]) == 2
+    capsys.readouterr()
+    # a mesh in another coordinate system (here: LV95 coordinates against a local survey) meets no image: exit 2
+    import trimesh
+
+    m = trimesh.load(survey / "mesh.obj", process=False)
+    m.vertices += [2_600_000.0, 1_200_000.0, 0.0]
+    far = tmp_path / "far.obj"
+    m.export(far)
+    assert main(["texture", str(survey), "--mesh", str(far), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "far.obj" in err and "no face of the mesh" in err and "camera centres" in err and "Traceback" not in err
+    assert "2600" in err  # the mesh extent in the message
+    assert not (tmp_path / "o").exists()
 
 
 # ------------------------------------------------------------------------------------------- browser

@@ -31,11 +31,13 @@ def evaluate(
     try:
         if reference is None and checkpoints is None:
             raise ConfigError("nothing to evaluate against: give --reference REF.tif and/or --checkpoints cp.csv")
+        from ..products.raster import same_horizontal_crs
+
         z, g, crs, _ = read_raster(dsm)
         rep: dict = {"dsm": str(dsm), "crs": crs, "dsm_vs_reference": None, "checkpoints": None}
         if reference is not None:
             zr, gr, crs_r, _ = read_raster(reference)
-            if crs and crs_r and crs != crs_r:
+            if not same_horizontal_crs(crs, crs_r):
                 raise DataFileError(f"{reference}: CRS {crs_r} differs from the DSM's {crs}; expected the same CRS")
             diff = dsm_difference(z, g, zr, gr)
             rep["dsm_vs_reference"] = difference_stats(diff)

@@ -325,6 +325,35 @@ def clean_radius_from_poses(cfg, cameras, views, *, n_sigma: float = 3.0, max_px
                                              "texels within that distance of a silhouette are not taken")
 
 
+def check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, crs, *, textured: int | None = None) -> None:
+    """Raise :class:`InvalidInputError` when no face of the mesh (either winding) is in front of any image, or
+    (``textured=0``, after texturing) when not one texel could be taken from any image.
+
+    The usual cause is a mesh in another coordinate system than ``cameras.json`` (a local model against a
+    georeferenced survey, or another CRS): a building kilometres away may still project into some image, but
+    far below a pixel, so that no pixel sees its surface. The message gives both extents.
+    """
+    from ..products.texture import face_view_scores
+
+    if textured is None:
+        kw = dict(max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
+        if np.any(face_view_scores(V, F, views, **kw) > 0) or np.any(face_view_scores(V, F[:, ::-1], views, **kw) > 0):
+            return
+        what = "is in front of"
+    else:
+        what = "could be textured (no image pixel sees its surface) from"
+    C = np.array([v.pose.center for v in views])
+
+    def box(a):
+        lo, hi = a.min(axis=0), a.max(axis=0)
+        return "[" + ", ".join(f"{x:.2f}..{y:.2f}" for x, y in zip(lo, hi)) + "]"
+
+    raise InvalidInputError(
+        f"{mesh_path}: no face of the mesh ({len(F)} faces) {what} any of the {len(views)} images of {survey_dir}: "
+        f"mesh X, Y, Z {box(V)} m; camera centres {box(C)} m (cameras.json crs {crs or 'local frame'}); expected the "
+        "mesh in the same coordinate system as cameras.json and within the images' view")
+
+
 def orient_mesh_to_views(V, F, views, cfg):
     """Reverse the triangles' winding when no face faces any image but the reversed mesh does.
 
@@ -388,7 +417,10 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     cfg = replace(cfg, correct=bool(correct), levelling=levelling)
     cfg, clean_note = clean_radius_from_poses(cfg, cameras, views)  # only ever widens the configured radius
     F, winding_note = orient_mesh_to_views(V, F, views, cfg)
+    check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs)
     result = texture_mesh(V, F, views, cfg)
+    if not np.any(result.faces_textured):
+        check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs, textured=0)
     store = FolderProject(out_dir)
     # result.temperature_k holds kelvin for temperature frames and the frames' raw counts for count frames
     t_unit = result.temperature_k.astype(np.float32) if counts else from_kelvin(result.temperature_k, u).astype(np.float32)

@@ -482,7 +482,7 @@ def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None,
     estimated from a sample of at most ``LEVELLING_SAMPLE_CELLS`` cells; they alter the values).
     The cells are selected and sampled ``chunk_cells`` at a time (each image's value is held for one chunk only).
     """
-    from .texture import Levelling, TextureConfig, pixel_surfaces, select_and_sample, _intersector
+    from .texture import Levelling, TextureConfig, _intersector, local_origin, pixel_surfaces, select_and_sample, view_in_frame
 
     lev_mode = Levelling(levelling)
 
@@ -515,6 +515,11 @@ def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None,
     face = np.where(lower, tile, tile + nta * ntb)
     P = plane.points(A.ravel(), B.ravel())
     from .texture import face_view_scores
+
+    # a local frame for Embree's float32 ray casting (texture.local_origin); distances and angles do not change
+    origin = local_origin(V)
+    V, P = V - origin, P - origin
+    views = [view_in_frame(v, origin) for v in views]
 
     scores = face_view_scores(V, F, views, max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
     inter = _intersector(V, F)

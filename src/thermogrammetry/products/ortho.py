@@ -313,6 +313,32 @@ def _dsm_meta(path):
     return _DSM_META[key]
 
 
+def check_dsm_matches_survey(meta: dict, sv, dsm_path, survey_dir) -> None:
+    """Raise :class:`~thermogrammetry.errors.ConfigError` when the DSM cannot belong to the survey: another
+    horizontal CRS than ``cameras.json``'s, or an extent that no camera can see (the ground within
+    ``max(200 m, 5 × flying height above the DSM)`` of a camera centre, i.e. up to ~79° off nadir)."""
+    from ..errors import ConfigError
+    from .raster import same_horizontal_crs
+
+    a, b = meta.get("crs"), sv.crs
+    if not same_horizontal_crs(a, b):
+        raise ConfigError(f"{dsm_path}: the DSM is in {a}, the survey {survey_dir} in {b}; expected the DSM in the "
+                          f"survey's CRS (reproject it first, e.g. gdalwarp -t_srs {b})")
+    g = meta["grid"]
+    dx0, dx1 = g.x0, g.x0 + g.width * g.gsd
+    dy0, dy1 = g.y0 - g.height * g.gsd, g.y0
+    C = np.array([im.center for im in sv.images])
+    height = max(0.0, float(np.max(C[:, 2])) - float(meta["zmin"]))
+    reach = max(200.0, 5.0 * height)
+    cx0, cy0 = C[:, :2].min(axis=0) - reach
+    cx1, cy1 = C[:, :2].max(axis=0) + reach
+    if dx1 < cx0 or dx0 > cx1 or dy1 < cy0 or dy0 > cy1:
+        raise ConfigError(f"{dsm_path}: the DSM covers X {dx0:.2f}..{dx1:.2f}, Y {dy0:.2f}..{dy1:.2f} m, which no camera of "
+                          f"{survey_dir} sees (camera centres X {C[:, 0].min():.2f}..{C[:, 0].max():.2f}, Y "
+                          f"{C[:, 1].min():.2f}..{C[:, 1].max():.2f} m, crs {b or 'local frame'}); expected a DSM of the "
+                          "surveyed area in the survey's coordinates")
+
+
 def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: str | None = None,
               sampling: str = "nearest", correct: bool = False, correction=None, workers: int = 1,
               scheduler: str | None = None, tile: int = 512, config: OrthoConfig | None = None) -> dict:
@@ -330,13 +356,13 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
 
     t0 = time.perf_counter()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     sv = SurveyFrames(survey_dir)
     if not Path(dsm_path).exists():
         from ..errors import DataFileError
 
         raise DataFileError(f"{dsm_path}: no such DSM; expected the dsm.tif written by 'thermogrammetry dense'")
     meta = _dsm_meta(str(Path(dsm_path).resolve()))
+    check_dsm_matches_survey(meta, sv, dsm_path, survey_dir)
     cfg = config or OrthoConfig(sampling=sampling)
     notes = []
     if sv.unit == "K":
@@ -367,6 +393,7 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
     dg = meta["grid"]
     grid = Grid(dg.x0, dg.y0, float(g), int(np.ceil(dg.width * dg.gsd / g)), int(np.ceil(dg.height * dg.gsd / g)), tile)
     margin_m = min(50.0, (meta["zmax"] - meta["zmin"]) * np.tan(np.radians(cfg.max_angle_deg)))
+    out.mkdir(parents=True, exist_ok=True)
     client = open_client(workers, scheduler)
     spath = str(Path(survey_dir).resolve())
     dpath = str(Path(dsm_path).resolve())

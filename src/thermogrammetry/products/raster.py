@@ -23,6 +23,24 @@ from ..errors import DataFileError
 __all__ = ["Grid", "RasterSpec", "write_cog", "write_cogs", "read_raster", "read_window"]
 
 
+def same_horizontal_crs(a: str | None, b: str | None) -> bool:
+    """Whether two CRS descriptions (EPSG codes, WKT, PROJ strings) have the same horizontal CRS.
+
+    Compound CRSs are compared by their horizontal part (``EPSG:2056+5728`` and ``EPSG:2056`` agree); axis
+    order is ignored. A missing CRS or one pyproj cannot read is not judged (True)."""
+    if not a or not b:
+        return True
+    try:
+        from pyproj import CRS
+
+        ca, cb = CRS.from_user_input(a), CRS.from_user_input(b)
+    except Exception:  # noqa: BLE001
+        return True
+    ha = ca.sub_crs_list[0] if ca.is_compound else ca
+    hb = cb.sub_crs_list[0] if cb.is_compound else cb
+    return bool(ha.equals(hb, ignore_axis_order=True))
+
+
 @dataclass(frozen=True)
 class Grid:
     """North-up grid: top-left corner ``(x0, y0)`` (m), cell ``gsd`` (m), ``width`` × ``height`` cells, tiles of

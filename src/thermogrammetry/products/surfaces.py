@@ -61,9 +61,13 @@ def mesh_rasters(C, rays, axis, vertices, faces) -> PlaneRaster:
         raise InvalidInputError(f"mesh: expected vertices (V, 3) and faces (F ≥ 1, 3), got {V.shape} and {Fc.shape}")
     rays = np.asarray(rays, float)
     h, w, _ = rays.shape
+    # Embree casts in float32: the mesh is moved so that the camera is at the origin (projected-CRS coordinates
+    # such as EPSG:2056 or UTM have a float32 spacing of 0.25-0.5 m); distances and angles do not change
+    C = np.asarray(C, float)
+    V = V - C
     mesh = trimesh.Trimesh(vertices=V, faces=Fc, process=False)
     d = rays.reshape(-1, 3)
-    o = np.broadcast_to(np.asarray(C, float), d.shape)
+    o = np.zeros_like(d)
     tri = mesh.ray.intersects_first(ray_origins=o, ray_directions=d)
     hit = tri >= 0
     n = np.zeros_like(d)

@@ -68,7 +68,7 @@ from .correction import CorrectionConfig
 
 __all__ = ["Levelling", "TextureConfig", "TextureView", "TextureResult", "face_view_scores",
            "build_atlas", "rasterize_atlas", "PixelSurface", "pixel_surfaces", "usable_in_view", "select_and_sample",
-           "estimate_offsets", "texture_mesh", "thermal_poses_from_rig"]
+           "select_in_chunks", "estimate_offsets", "texture_mesh", "thermal_poses_from_rig", "local_origin", "view_in_frame"]
 
 
 class Levelling(StrChoice):
@@ -143,6 +143,30 @@ class TextureView:
         if img.shape != (h, w):
             raise ShapeError(f"view {self.name!r}: image shape {img.shape}; expected (H, W) = ({h}, {w}) from its camera")
         self.image_k = img.astype(np.float32, copy=False)
+
+
+def local_origin(vertices) -> np.ndarray:
+    """A float64 origin near a mesh for the libraries that compute in float32 (Embree's ray casting, xatlas).
+
+    Coordinates in a projected CRS are large (EPSG:2056 eastings ~2.6e6 m, UTM northings ~5e6 m): their float32
+    spacing is 0.25-0.5 m, so rays cast against such a mesh hit the wrong triangle or miss and charts are built
+    from vertices rounded by decimetres. Every computation of this module runs on ``vertices - origin`` with the
+    poses moved accordingly (:func:`view_in_frame`); results are returned in the input's coordinates.
+
+    Returns
+    -------
+    (3,) float64: the centre of the vertices' bounding box, rounded to whole metres
+    """
+    V = np.asarray(vertices, dtype=np.float64)
+    return np.round(0.5 * (V.min(axis=0) + V.max(axis=0)))
+
+
+def view_in_frame(view: "TextureView", origin) -> "TextureView":
+    """The same view with its pose expressed for points ``X - origin``: ``t' = t + R·origin`` (same ``R``)."""
+    from ..geometry import Pose
+
+    o = np.asarray(origin, dtype=np.float64)
+    return TextureView(view.name, view.camera, Pose(view.pose.R, view.pose.t + view.pose.R @ o), view.image_k)
 
 
 def _check_mesh(vertices, faces):
@@ -240,10 +264,11 @@ def build_atlas(vertices, faces, texel_size_m: float, *, max_texture_px: int = 4
     import xatlas
 
     V, F = _check_mesh(vertices, faces)
+    V32 = (V - local_origin(V)).astype(np.float32)  # xatlas works in float32: charts from local coordinates
     ts = float(texel_size_m)
     for _ in range(12):
         atlas = xatlas.Atlas()
-        atlas.add_mesh(V.astype(np.float32), F.astype(np.uint32))
+        atlas.add_mesh(V32, F.astype(np.uint32))
         po = xatlas.PackOptions()
         po.texels_per_unit = 1.0 / ts
         po.padding = int(padding)
@@ -328,10 +353,20 @@ def rasterize_atlas(atlas: Atlas, vertices, faces, *, chunk: int = 2_000_000) ->
 # ---------------------------------------------------------------------------------------------- visibility
 @dataclass
 class PixelSurface:
-    """Per-pixel ray casting of one image: ``points`` (H, W, 3) first surface hit (NaN = none), ``face`` (H, W)."""
+    """Per-pixel ray casting of one image: the first surface hit of every pixel's ray.
 
-    points: np.ndarray
+    ``offsets`` (H, W, 3) float32: hit point minus ``center`` (NaN = none), ``center`` (3,) float64 the
+    camera centre, ``face`` (H, W) int32 (−1 = none). Offsets from the camera keep float32's relative
+    precision (6e-5 m at 1 km) at half the memory of float64 points (a texture holds one per image).
+    """
+
+    offsets: np.ndarray
+    center: np.ndarray
     face: np.ndarray
+
+    def points_at(self, rows, cols) -> np.ndarray:
+        """(N, 3) float64 hit points of pixels ``(rows, cols)`` (NaN where the ray hits nothing)."""
+        return self.center + self.offsets[rows, cols].astype(np.float64)
 
 
 def _ray_first(intersector, V, F, origins, dirs):
@@ -370,8 +405,8 @@ def pixel_surfaces(intersector, vertices, faces, view: TextureView) -> PixelSurf
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     o = np.broadcast_to(view.pose.center, d.shape).copy()
     tri, dist = _ray_first(intersector, V, F, o, d)
-    pts = o + dist[:, None] * d
-    return PixelSurface(pts.reshape(h, w, 3), tri.reshape(h, w))
+    off = (dist[:, None] * d).astype(np.float32)
+    return PixelSurface(off.reshape(h, w, 3), np.asarray(view.pose.center, np.float64), tri.astype(np.int32).reshape(h, w))
 
 
 def usable_in_view(intersector, vertices, faces, view: TextureView, surface: PixelSurface, points, face_index,
@@ -423,7 +458,7 @@ def usable_in_view(intersector, vertices, faces, view: TextureView, surface: Pix
             for dx in range(-r, 2 + r):
                 yy = np.clip(y0 + dy, 0, h - 1)
                 xx = np.clip(x0 + dx, 0, w - 1)
-                p = surface.points[yy, xx]
+                p = surface.points_at(yy, xx)
                 pf = surface.face[yy, xx]
                 off = np.abs(np.einsum("ij,ij->i", n[idx], p) - d0)
                 agree = np.einsum("ij,ij->i", n[idx], normals[np.maximum(pf, 0)]) >= cmin
@@ -448,15 +483,18 @@ def _bilinear(img, xy):
 class Selection:
     """Per point: ``source`` (N,) view index or −1, ``temperature_k`` (N,), ``angle_deg`` (N,),
     ``distance_m`` (N,), ``n_usable`` (N,) number of usable views, ``occluded_in`` (N, K) bool, and the
-    values of every usable view ``all_k`` (N, K) (NaN where unusable), for levelling."""
+    values of every usable view ``all_k`` (N, K) (NaN where unusable), for levelling.
+
+    The two (N, K) arrays grow with points × images: :func:`select_in_chunks` holds them for one chunk of
+    points at a time and returns None for them (with per-view occlusion counts and a levelling sample)."""
 
     source: np.ndarray
     temperature_k: np.ndarray
     angle_deg: np.ndarray
     distance_m: np.ndarray
     n_usable: np.ndarray
-    occluded_in: np.ndarray
-    all_k: np.ndarray
+    occluded_in: np.ndarray | None
+    all_k: np.ndarray | None
 
 
 def select_and_sample(intersector, vertices, faces, views, surfaces, scores, points, face_index,
@@ -494,6 +532,58 @@ def select_and_sample(intersector, vertices, faces, views, surfaces, scores, poi
         ang[b] = np.degrees(np.arccos(np.clip(cs[better], -1, 1)))
         dist[b] = ds[better]
     return Selection(src, T, ang, dist, n_ok, occl, all_k)
+
+
+#: points × images per chunk of :func:`select_in_chunks` (the chunk's (N, K) float32 values and bool occlusion
+#: flags: ~250 MB at this size)
+CHUNK_POINT_VIEWS = 50_000_000
+
+
+def select_in_chunks(intersector, vertices, faces, views, surfaces, scores, points, face_index, cfg: TextureConfig, *,
+                     sample=None, chunk_point_views: int = CHUNK_POINT_VIEWS):
+    """:func:`select_and_sample` over chunks of points, so that memory does not grow with points × images.
+
+    Parameters
+    ----------
+    sample : optional (N,) bool, the points whose values in every usable view are kept (for levelling)
+    chunk_point_views : points per chunk × number of views
+
+    Returns
+    -------
+    selection : :class:`Selection` with ``occluded_in`` and ``all_k`` None (same per-point results as one call)
+    occluded_per_view : (K,) int, points inside view k, facing it, hidden by other geometry
+    sample_all_k : (S, K) float32 values of the ``sample`` points (in point order), or None
+    """
+    N, K = len(points), len(views)
+    step = max(1, int(chunk_point_views) // max(K, 1))
+    src = np.full(N, -1, np.int64)
+    T = np.full(N, np.nan)
+    ang = np.full(N, np.nan)
+    dist = np.full(N, np.nan)
+    n_ok = np.zeros(N, np.int64)
+    occluded = np.zeros(K, np.int64)
+    kept = []
+    fi = np.asarray(face_index, np.int64)
+    for i0 in range(0, N, step):
+        sl = slice(i0, min(N, i0 + step))
+        s = select_and_sample(intersector, vertices, faces, views, surfaces, scores, points[sl], fi[sl], cfg)
+        src[sl], T[sl], ang[sl], dist[sl], n_ok[sl] = s.source, s.temperature_k, s.angle_deg, s.distance_m, s.n_usable
+        occluded += s.occluded_in.sum(axis=0)
+        if sample is not None:
+            kept.append(s.all_k[np.asarray(sample[sl], bool)])
+        del s
+    all_k = (np.concatenate(kept) if kept else np.zeros((0, K), np.float32)) if sample is not None else None
+    return Selection(src, T, ang, dist, n_ok, None, None), occluded, all_k
+
+
+def _levelling_sample(n: int, size: int, seed: int = 0) -> np.ndarray:
+    """(n,) bool: ``size`` points drawn without replacement (all of them when n <= size), seeded."""
+    m = np.zeros(n, bool)
+    if n <= size:
+        m[:] = True
+    else:
+        m[np.random.default_rng(seed).choice(n, size, replace=False)] = True
+    return m
 
 
 def estimate_offsets(selection: Selection, n_views: int, *, max_pairs: int = 200_000, seed: int = 0,
@@ -644,7 +734,7 @@ def _vertex_temperatures(intersector, V, F, views, surfaces, scores, cfg):
     corners = V[F] * (1 - 1e-3) + 1e-3 * cen[:, None, :]
     pts = corners.reshape(-1, 3)
     fi = np.repeat(np.arange(len(F)), 3)
-    sel = select_and_sample(intersector, V, F, views, surfaces, scores, pts, fi, cfg)
+    sel, _, _ = select_in_chunks(intersector, V, F, views, surfaces, scores, pts, fi, cfg)
     vid = F.reshape(-1)
     ok = np.isfinite(sel.temperature_k)
     s = np.bincount(vid[ok], weights=sel.temperature_k[ok], minlength=len(V))
@@ -670,10 +760,14 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     :class:`TextureResult`
     """
     cfg = config or TextureConfig()
-    V, F = _check_mesh(vertices, faces)
+    V_in, F = _check_mesh(vertices, faces)
     views = list(views)
     if not views:
         raise InvalidInputError("texture_mesh: no oriented images given; expected at least one view")
+    # everything below runs in a local frame (Embree and xatlas compute in float32: local_origin)
+    origin = local_origin(V_in)
+    V = V_in - origin
+    views = [view_in_frame(v, origin) for v in views]
     normals, area, cen = _face_geometry(V, F)
     scores = face_view_scores(V, F, views, max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
     ts = cfg.texel_size_m
@@ -691,14 +785,22 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     texels = rasterize_atlas(atlas, V, F)
     inter = _intersector(V, F)
     surfaces = [pixel_surfaces(inter, V, F, v) for v in views]
-    sel = select_and_sample(inter, V, F, views, surfaces, scores, texels.points, texels.face, cfg)
-    vtemp, vsel = _vertex_temperatures(inter, V, F, views, surfaces, scores, cfg)
     K = len(views)
+    levelling = cfg.levelling is Levelling.OFFSETS
+    # levelling needs every usable view's value: kept for a seeded sample of texels only (2 per wanted pair)
+    sample = _levelling_sample(len(texels.points), 2 * int(cfg.offsets_max_pairs)) if levelling else None
+    sel, occluded, sample_k = select_in_chunks(inter, V, F, views, surfaces, scores, texels.points, texels.face, cfg,
+                                               sample=sample)
+    vtemp, vsel = _vertex_temperatures(inter, V, F, views, surfaces, scores, cfg)
+    del surfaces
     offsets = np.zeros(K)
     fixed = None
     rms = None
-    if cfg.levelling is Levelling.OFFSETS:
-        offsets, fixed, _, rb, ra = estimate_offsets(sel, K, max_pairs=cfg.offsets_max_pairs)
+    if levelling:
+        sub = Selection(sel.source[sample], sel.temperature_k[sample], sel.angle_deg[sample], sel.distance_m[sample],
+                        sel.n_usable[sample], None, sample_k)
+        held = int(np.argmax(np.bincount(sel.source[sel.source >= 0], minlength=K)))  # most texels of ALL of them
+        offsets, fixed, _, rb, ra = estimate_offsets(sub, K, max_pairs=cfg.offsets_max_pairs, fixed=held)
         rms = (rb, ra)
         ok = sel.source >= 0
         sel.temperature_k[ok] += offsets[sel.source[ok]]
@@ -738,8 +840,8 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
         cnt = np.bincount(pair, minlength=len(F) * (K + 1)).reshape(len(F), K + 1)
         has = cnt.sum(axis=1) > 0
         face_source[has] = np.argmax(cnt[has], axis=1)
-    occluded = sel.occluded_in.sum(axis=0)
-    return TextureResult(V, F, atlas, temp, src, angle, vtemp, cov, (scores > 0).sum(axis=1), face_source,
+    texels.points += origin  # back to the input's coordinates
+    return TextureResult(V_in, F, atlas, temp, src, angle, vtemp, cov, (scores > 0).sum(axis=1), face_source,
                          [v.name for v in views], offsets, fixed, rms, occluded, texels, sel, cfg)
 
 

@@ -100,8 +100,13 @@ def glb_bytes(result, preview, extras: dict | None = None) -> bytes:
     import trimesh
     from PIL import Image
 
+    from .texture import local_origin
+
     at = result.atlas
-    V = result.vertices[at.vmapping]
+    # glTF positions are float32: 0.25-0.5 m steps at projected-CRS coordinates (EPSG:2056, UTM). They are
+    # stored relative to the mesh's local origin and the node's translation (a JSON double) adds it back.
+    origin = local_origin(result.vertices)
+    V = result.vertices[at.vmapping] - origin
     uv = at.uv.copy()
     uv[:, 1] = 1.0 - uv[:, 1]  # trimesh takes OpenGL uv (origin bottom-left) and flips for glTF
     mat = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(preview), metallicFactor=0.0,
@@ -109,7 +114,11 @@ def glb_bytes(result, preview, extras: dict | None = None) -> bytes:
     mesh = trimesh.Trimesh(V, at.faces, visual=trimesh.visual.TextureVisuals(uv=uv, material=mat), process=False)
     if extras:
         mesh.metadata["thermogrammetry_palette"] = dict(extras)
-    return mesh.export(file_type="glb")
+    T = np.eye(4)
+    T[:3, 3] = origin
+    scene = trimesh.Scene()
+    scene.add_geometry(mesh, node_name="textured", geom_name="textured", transform=T)
+    return scene.export(file_type="glb")
 
 
 def obj_text(result, mtl_name: str = "textured.mtl", *, quantity: str = "temperatures") -> str:
@@ -193,6 +202,7 @@ def render_view(result, center, target, *, size=(480, 360), focal_px=None, up=(0
     import trimesh
 
     from ..geometry import Pose
+    from .texture import local_origin
 
     w, h = size
     f = focal_px or 0.9 * w
@@ -200,20 +210,21 @@ def render_view(result, center, target, *, size=(480, 360), focal_px=None, up=(0
     gy, gx = np.mgrid[0:h, 0:w].astype(float)
     d = np.stack([(gx - (w - 1) / 2) / f, (gy - (h - 1) / 2) / f, np.ones_like(gx)], -1).reshape(-1, 3) @ pose.R
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    mesh = trimesh.Trimesh(result.vertices, result.faces, process=False)
+    origin = local_origin(result.vertices)  # Embree casts in float32: a local frame (texture.local_origin)
+    V = result.vertices - origin
+    mesh = trimesh.Trimesh(V, result.faces, process=False)
     try:
         from trimesh.ray.ray_pyembree import RayMeshIntersector
 
         ray = RayMeshIntersector(mesh)
     except Exception:  # pragma: no cover
         ray = mesh.ray
-    o = np.broadcast_to(pose.center, d.shape).copy()
+    o = np.broadcast_to(pose.center - origin, d.shape).copy()
     tri = np.asarray(ray.intersects_first(ray_origins=o, ray_directions=d), np.int64)
     out = np.full(len(d), np.nan)
     hit = np.flatnonzero(tri >= 0)
     if len(hit):
         F = result.faces[tri[hit]]
-        V = result.vertices
         n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
         t = np.einsum("ij,ij->i", V[F[:, 0]] - o[hit], n) / np.einsum("ij,ij->i", d[hit], n)
         P = o[hit] + t[:, None] * d[hit]
