@@ -851,6 +851,19 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
                                "trigger": ("orientation: < 80 % of the thermal frames in one block" if low_texture_only
                                            else "matching: < 80 % of the thermal frames with a verified pair")}
         if connected_thermal(res_lt) > (1 if low_texture_only else connected_thermal(res)):
+            if not low_texture_only:
+                # the primary matching, put aside: the orientation step puts it back when the fallback's blocks are
+                # refused (_low_texture_check), so that ``auto`` is never worse than ``off`` there
+                prim = [f"features/{nm}.npz" for nm in th_names]
+                prim += [f"matches/{i}_{j}.npz" for i, j, npu, nv, reason in res if not reason]
+                for k in prim:
+                    if project.exists(k):
+                        project.write_bytes(f"lowtexture/primary/{k}", project.read_bytes(k))
+                project.write_json("lowtexture/primary/work/features.json", project.read_json("work/features.json"))
+                project.write_json("lowtexture/primary/work/pairs.json",
+                                   {"pairs": [[i, j, npu, nv, reason] for i, j, npu, nv, reason in res],
+                                    "features": {k: v for k, v in info.items() if k != "low_texture"}})
+                info["primary_kept"] = [k for k in prim if project.exists(k)]
             for nm in th_names:
                 project.write_bytes(f"features/{nm}.npz", project.read_bytes(f"lowtexture/features/{nm}.npz"))
             for i, j, npu, nv, reason in res_lt:
@@ -1062,9 +1075,10 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
     its result is kept only when its largest block holds more thermal frames, else everything is put back as it was.
 
     Every block of a tracked sequence (from either trigger) must pass :func:`_low_texture_check` (its coplanar points
-    lie flat); a refused block's thermal frames are not oriented (their reason says why), or, when the fallback ran
-    after the orientation, the primary result is put back. The outcome goes to ``work/low_texture.json`` and
-    survey.json's ``low_texture``.
+    lie flat, most points of consecutive frames on one plane); a refused block's thermal frames are not oriented
+    (their reason says why) and the primary matching's orientation is put back when its largest thermal block is at
+    least as large as what is left of the fallback's: with a refused block ``auto`` gives what ``off`` gives. The
+    outcome goes to ``work/low_texture.json`` and survey.json's ``low_texture``.
     """
     out = step_orient(project, _low_texture_orient_options(project, opt), camera, progress, rgb_camera)
     if opt.low_texture != "auto":
@@ -1073,12 +1087,42 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
         if not _low_texture_sequence_used(project):
             return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": True})
         chk = _low_texture_check(project)
-        if chk["refused_images"]:
+        if not chk["refused_images"]:
+            return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": True, "check": chk["blocks"]})
+        why = sorted(set(chk["why"].values()))[0]
+        prim = project.read_json("work/pairs.json")["features"].get("primary_kept")
+        if prim is not None and project.exists("lowtexture/primary/work/pairs.json"):
+            # a block refused: the primary matching is oriented instead (what ``off`` gives); the refused block's
+            # frames are not oriented in the fallback's result, so the primary one is kept unless the fallback's
+            # remaining blocks hold more thermal frames
             _low_texture_unregister(project, chk["why"])
+            _, best_rest = _largest_thermal_block(project)
+            saved = {k: project.read_bytes(k) for k in ["work/pairs.json", "work/features.json", "work/reconstruction.json",
+                                                        "work/reconstruction.npz"]}
+            saved_ties = {k: project.read_bytes(k) for k in (f"work/tie_xy/{im['name']}.npz"
+                                                             for im in project.read_json("work/inputs.json")["images"])
+                          if project.exists(k)}
+            lt_files = {k: project.read_bytes(k) for k in prim if project.exists(k)}
+            for k in prim:
+                project.write_bytes(k, project.read_bytes(f"lowtexture/primary/{k}"))
+            project.write_json("work/features.json", project.read_json("lowtexture/primary/work/features.json"))
+            project.write_json("work/pairs.json", project.read_json("lowtexture/primary/work/pairs.json"))
+            out_p = step_orient(project, opt, camera, progress, rgb_camera)
+            _, best_p = _largest_thermal_block(project)
+            if best_p >= best_rest:
+                names = [im["name"] for im in project.read_json("work/inputs.json")["images"]]
+                return _low_texture_verdict(project, out_p, {"ran": True, "trigger": "matching", "kept": False,
+                                                             "check": chk["blocks"], "why": why, "primary_block": best_p,
+                                                             "refused_images": [names[i] for i in chk["refused_images"]]})
+            for k, v in {**lt_files, **saved, **saved_ties}.items():  # the fallback's remaining blocks are larger
+                project.write_bytes(k, v)
             out["oriented"] -= len(chk["refused_images"])
-        return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": not chk["refused_images"],
-                                                   "check": chk["blocks"],
-                                                   **({"why": sorted(set(chk["why"].values()))[0]} if chk["why"] else {})})
+            return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": True, "check": chk["blocks"],
+                                                       "why": why, "primary_block": best_p})
+        _low_texture_unregister(project, chk["why"])
+        out["oriented"] -= len(chk["refused_images"])
+        return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": False,
+                                                   "check": chk["blocks"], "why": why})
     nt, best = _largest_thermal_block(project)
     if nt < 2 or best >= LOW_TEXTURE_SHARE * nt:
         return _low_texture_verdict(project, out, {"ran": False})
@@ -1249,8 +1293,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     lt_seq = _low_texture_sequence_used(project)
     lt_verdict = project.read_json("work/low_texture.json") if project.exists("work/low_texture.json") else {}
     if lt_verdict.get("why"):
-        notes.append(f"{lt_verdict['why']}; " + ("its frames are not oriented" if lt_verdict.get("trigger") == "matching"
-                                                 else "the primary orientation is kept"))
+        notes.append(f"{lt_verdict['why']}; " + ("its frames are not oriented" if lt_verdict.get("kept") else
+                                                 "the primary matching's orientation is kept (what --low-texture off gives)"))
     for ci, images in enumerate(comps):
         if len(images) == 0:
             continue
@@ -1415,6 +1459,10 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         extra["manual_ties"] = {"ids": len(t_ids), "used": tie_out}
     if lt_verdict:
         extra["low_texture"] = lt_verdict
+        for nm in lt_verdict.get("refused_images", []):  # frames the primary orientation left out: both reasons
+            i = names.index(nm)
+            if not oriented[i] and lt_verdict["why"] not in rec.status[i].reason:
+                rec.status[i].reason = f"{rec.status[i].reason or 'not oriented'}; {lt_verdict['why']}"
     out = _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results,
                          extra=extra, rig_only={k: w for k, w in rig_only.items() if oriented[k]})
     out["seconds_georef"] = time.perf_counter() - t0
