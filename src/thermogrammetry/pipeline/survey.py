@@ -1085,7 +1085,10 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
         return _low_texture_verdict(project, out, {"ran": False})
     if "low_texture" in project.read_json("work/pairs.json").get("features", {}):
         if not _low_texture_sequence_used(project):
-            return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": True})
+            lt_info = project.read_json("work/pairs.json")["features"]["low_texture"]
+            return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": "used" in
+                                                       project.read_json("work/pairs.json")["features"],
+                                                       **({"why": lt_info["refused"]} if lt_info.get("refused") else {})})
         chk = _low_texture_check(project)
         if not chk["refused_images"]:
             return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": True, "check": chk["blocks"]})
@@ -1106,7 +1109,10 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
             for k in prim:
                 project.write_bytes(k, project.read_bytes(f"lowtexture/primary/{k}"))
             project.write_json("work/features.json", project.read_json("lowtexture/primary/work/features.json"))
-            project.write_json("work/pairs.json", project.read_json("lowtexture/primary/work/pairs.json"))
+            pp = project.read_json("lowtexture/primary/work/pairs.json")
+            # what the fallback did stays on record (without "used": its ties are not the ones in use)
+            pp["features"]["low_texture"] = {**json.loads(saved["work/pairs.json"])["features"]["low_texture"], "refused": why}
+            project.write_json("work/pairs.json", pp)
             out_p = step_orient(project, opt, camera, progress, rgb_camera)
             _, best_p = _largest_thermal_block(project)
             if best_p >= best_rest:
