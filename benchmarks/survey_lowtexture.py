@@ -213,13 +213,15 @@ def synthetic(args) -> int:
                     else:
                         rows.append((tag, "pycolmap CPU (8-bit PNG)", n, (col["registered"], f"{col['models']} model(s)", None),
                                      col["wall"], ""))
-        print(f"\nSynthetic low-texture facade walk (plain wall, 30 frames 640x512, 0.08 K pattern, 0.04 K NETD), "
-              f"{os.cpu_count()} cores")
-        print(f"{'scene':<14}{'run':<28}{'oriented':>9}{'blocks':>12}{'in block':>9}{'rot RMS/max deg':>17}"
+        what = {"walk": "plain wall, 30 frames 640x512, 0.08 K pattern, 0.04 K NETD",
+                "wall320": "plain wall without ground, 20 frames 320x256 (34 um), 2 m, 0.08 K pattern, 0.04 K NETD",
+                "facade": f"synthetic.facade, {args.stations} stations 320x240, windows reflecting the sky, no EXIF focal"}
+        print(f"\nSynthetic low-texture scene ({what[args.scene]}), {os.cpu_count()} cores")
+        print(f"{'scene':<20}{'run':<28}{'oriented':>9}{'blocks':>12}{'in block':>9}{'rot RMS/max deg':>17}"
               f"{'centre RMS/len':>15}{'time s':>8}  note")
         for tag, label, n, r, wall, note in rows:
             if r is None:
-                print(f"{tag:<14}{label:<28}{'FAILED':>9}{'':>12}{'':>9}{'':>17}{'':>15}{wall:>8.0f}  {note}")
+                print(f"{tag:<20}{label:<28}{'FAILED':>9}{'':>12}{'':>9}{'':>17}{'':>15}{wall:>8.0f}  {note}")
                 continue
             oriented, comps, e = r
             if e and e.get("n", 0) >= 3:
@@ -229,7 +231,7 @@ def synthetic(args) -> int:
                 cs = f"{100 * e['center_rms_rel']:.2f} %"
             else:
                 share, rs, cs = ("0%" if not oriented else "-"), "-", "-"
-            print(f"{tag:<14}{label:<28}{oriented:>6}/{n:<2}{str(comps):>12}{share:>9}{rs:>17}{cs:>15}{wall:>8.0f}  {note}")
+            print(f"{tag:<20}{label:<28}{oriented:>6}/{n:<2}{str(comps):>12}{share:>9}{rs:>17}{cs:>15}{wall:>8.0f}  {note}")
         print("\nin block = share of the frames in the largest block; rot = angle between true and estimated rotation "
               "after the block's mean rotation; centre = RMS centre error after a similarity / largest distance "
               "between the block's true centres.")
