@@ -326,6 +326,11 @@ class _Builder:
                 continue
             ri = self.rays[i][self.tr.feature[oi]]
             rj = self.rays[j][self.tr.feature[oj]]
+            fin = np.isfinite(ri).all(axis=1) & np.isfinite(rj).all(axis=1)  # rays that could not be undistorted
+            if not fin.all():
+                common, oi, oj, ri, rj = common[fin], oi[fin], oj[fin], ri[fin], rj[fin]
+                if len(common) < self.opt.min_init_points:
+                    continue
             f = float(np.mean(np.diag(self.rec.cameras[self.rec.image_camera[i]].K)[:2]))
             cv2.setRNGSeed(self.opt.seed)
             E, mask = cv2.findEssentialMat(ri, rj, np.eye(3), method=cv2.USAC_MAGSAC, prob=0.9999, threshold=1.5 / f)
@@ -427,7 +432,7 @@ class _Builder:
 
         tr = self.tr
         o = self.obs_of_image[i]
-        o = o[np.isfinite(self.rec.points[tr.track[o]]).all(1)]
+        o = o[np.isfinite(self.rec.points[tr.track[o]]).all(1) & np.isfinite(self.rays[i][tr.feature[o]]).all(1)]
         if len(o) < self.opt.min_pnp_points:
             return False, f"sees {len(o)} oriented points < {self.opt.min_pnp_points}"
         X = self.rec.points[tr.track[o]]
