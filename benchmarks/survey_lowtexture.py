@@ -22,6 +22,10 @@ pycolmap (SIFT, exhaustive matching, incremental mapping on the CPU) gets the sa
 PNGs stretched per frame between the 0.5 and 99.5 percentiles (what a user would feed it; COLMAP reduces
 16-bit TIFFs to their high byte, a flat image).
 
+``--scene wall320``: the same wall at 320x256 px (34 um pitch, same footprint per pixel) 2 m away, 20 frames: no ground
+in view, a single plane. ``--scene facade [--stations 14]``: ``synthetic.facade`` (15 windows whose glass reflects the
+sky, 320x240, no EXIF focal length) -- the guard's cases: a wrong block must not come out.
+
 ``--synthetic``: the synthetic low-texture facade walk instead (``thermogrammetry.synthetic.lowtexture_facade``: a
 plain wall with a smooth thermal field of ``--contrast`` K, 0.08 K fixed pattern, 0.04 K NETD, 30 float32-K frames
 640x512 at 80 % forward overlap, hand-held jitter, EXIF focal length, no GNSS), with exact truth: our survey with
@@ -33,6 +37,7 @@ Usage::
 
     python benchmarks/survey_lowtexture.py [--data ../shared/data] [--no-colmap] [--keep DIR]
     python benchmarks/survey_lowtexture.py --synthetic [--seed 0 1] [--contrast 0.15 0.25] [--no-colmap]
+    python benchmarks/survey_lowtexture.py --synthetic --scene wall320|facade [--stations 14] --no-colmap
 
 Exit status 2 when the data is absent.
 """
@@ -171,34 +176,52 @@ def synthetic(args) -> int:
     try:
         for seed in args.seed:
             for contrast in args.contrast:
-                tag = f"seed{seed}_c{contrast:g}"
-                sc = make_lowtexture_facade(LowTextureFacadeConfig(seed=seed, contrast_k=contrast))
-                write_lowtexture_facade(FolderProject(work / tag), sc)
-                truth = {n: (p.R, p.t) for n, p in zip(sc.names, sc.poses)}
-                n = len(sc.names)
+                if args.scene == "facade":
+                    from thermogrammetry.synthetic.facade import FacadeConfig, make_facade, write_facade
+
+                    tag = f"facade{args.stations}_seed{seed}"
+                    fsc = make_facade(FacadeConfig(n_stations=args.stations, seed=seed))
+                    write_facade(FolderProject(work / tag), fsc)
+                    truth = {name: (pt.R, pt.t) for name, _, pt in fsc.stations}
+                    frames = work / tag / "facade" / "thermal"
+                else:
+                    extra = (dict(image_size=(320, 256), pixel_pitch_um=34.0, distance_m=2.0, n_frames=20)
+                             if args.scene == "wall320" else {})
+                    tag = f"{'wall320_' if extra else ''}seed{seed}_c{contrast:g}"
+                    sc = make_lowtexture_facade(LowTextureFacadeConfig(seed=seed, contrast_k=contrast, **extra))
+                    write_lowtexture_facade(FolderProject(work / tag), sc)
+                    truth = {n: (p.R, p.t) for n, p in zip(sc.names, sc.poses)}
+                    frames = work / tag / "frames"
+                n = len(truth)
                 for mode in ("off", "auto"):
-                    run = _survey(work / tag / "frames", work / tag / f"out_{mode}", "--low-texture", mode)
+                    run = _survey(frames, work / tag / f"out_{mode}", "--low-texture", mode)
                     if "error" in run:
                         rows.append((tag, f"ours --low-texture {mode}", n, None, run["wall"], run["error"][-120:]))
                         continue
                     sv = run["survey"]
                     e = _block_errors(run["out"], truth)
+                    lt = sv.get("low_texture") or {}
+                    chk = "; ".join(f"check: ratio {c['ratio']:.2f} planar {c['planar_share']:.2f}"
+                                    + (" REFUSED" if c["refused"] else "") for c in lt.get("check", [])
+                                    if c.get("ratio") is not None and c.get("planar_share") is not None)
                     rows.append((tag, f"ours --low-texture {mode}", n, (sv["images_oriented"], sv["components"], e), run["wall"],
-                                 f"exit {run['code']}"))
+                                 f"exit {run['code']}" + (f"; {chk}" if chk else "")))
                 if not args.no_colmap:
-                    col = _colmap(work / tag / "frames")
+                    col = _colmap(frames)
                     if "error" in col:
                         rows.append((tag, "pycolmap CPU (8-bit PNG)", n, None, col["wall"], col["error"][-120:]))
                     else:
                         rows.append((tag, "pycolmap CPU (8-bit PNG)", n, (col["registered"], f"{col['models']} model(s)", None),
                                      col["wall"], ""))
-        print(f"\nSynthetic low-texture facade walk (plain wall, 30 frames 640x512, 0.08 K pattern, 0.04 K NETD), "
-              f"{os.cpu_count()} cores")
-        print(f"{'scene':<14}{'run':<28}{'oriented':>9}{'blocks':>12}{'in block':>9}{'rot RMS/max deg':>17}"
+        what = {"walk": "plain wall, 30 frames 640x512, 0.08 K pattern, 0.04 K NETD",
+                "wall320": "plain wall without ground, 20 frames 320x256 (34 um), 2 m, 0.08 K pattern, 0.04 K NETD",
+                "facade": f"synthetic.facade, {args.stations} stations 320x240, windows reflecting the sky, no EXIF focal"}
+        print(f"\nSynthetic low-texture scene ({what[args.scene]}), {os.cpu_count()} cores")
+        print(f"{'scene':<20}{'run':<28}{'oriented':>9}{'blocks':>12}{'in block':>9}{'rot RMS/max deg':>17}"
               f"{'centre RMS/len':>15}{'time s':>8}  note")
         for tag, label, n, r, wall, note in rows:
             if r is None:
-                print(f"{tag:<14}{label:<28}{'FAILED':>9}{'':>12}{'':>9}{'':>17}{'':>15}{wall:>8.0f}  {note}")
+                print(f"{tag:<20}{label:<28}{'FAILED':>9}{'':>12}{'':>9}{'':>17}{'':>15}{wall:>8.0f}  {note}")
                 continue
             oriented, comps, e = r
             if e and e.get("n", 0) >= 3:
@@ -208,7 +231,7 @@ def synthetic(args) -> int:
                 cs = f"{100 * e['center_rms_rel']:.2f} %"
             else:
                 share, rs, cs = ("0%" if not oriented else "-"), "-", "-"
-            print(f"{tag:<14}{label:<28}{oriented:>6}/{n:<2}{str(comps):>12}{share:>9}{rs:>17}{cs:>15}{wall:>8.0f}  {note}")
+            print(f"{tag:<20}{label:<28}{oriented:>6}/{n:<2}{str(comps):>12}{share:>9}{rs:>17}{cs:>15}{wall:>8.0f}  {note}")
         print("\nin block = share of the frames in the largest block; rot = angle between true and estimated rotation "
               "after the block's mean rotation; centre = RMS centre error after a similarity / largest distance "
               "between the block's true centres.")
@@ -226,6 +249,10 @@ def main(argv=None) -> int:
     ap.add_argument("--synthetic", action="store_true", help="the synthetic low-texture facade walk (exact truth)")
     ap.add_argument("--seed", type=int, nargs="+", default=[0])
     ap.add_argument("--contrast", type=float, nargs="+", default=[0.15], help="K, standard deviation of the wall's field")
+    ap.add_argument("--scene", choices=("walk", "wall320", "facade"), default="walk",
+                    help="--synthetic scene: walk (640x512, 4 m, ground in view), wall320 (320x256, 34 um, 2 m, 20 frames, "
+                         "a single plane), facade (synthetic.facade: windows reflecting the sky, no EXIF focal length)")
+    ap.add_argument("--stations", type=int, default=14, help="--scene facade: stations")
     args = ap.parse_args(argv)
     if args.synthetic:
         sys.path.insert(0, str(REPO / "src"))

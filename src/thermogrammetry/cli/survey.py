@@ -95,12 +95,12 @@ def survey(
                                             "frame (x right, y down, z forward); default 0,0,0."),
     gnss_sigma: Optional[str] = typer.Option(None, "--gnss-sigma", help="σ of every GNSS position, H,V or X,Y,Z in metres "
                                              "(overrides the RTK status / CSV columns)."),
-    low_texture: str = typer.Option("off", "--low-texture", help="auto: when < 80 % of the thermal frames find a verified "
-                                    "pair or end in one block, also try low-texture tie points (sensor fixed pattern "
-                                    "estimated from the frames and removed; without GNSS the frames are tracked as a "
-                                    "sequence in input order, e.g. a walk or video along a plain wall; with GNSS "
-                                    "homography-guided SIFT). Not yet safe: a windowed facade with sky reflections "
-                                    "gave a wrong block (see SurveyOptions.low_texture)."),
+    low_texture: str = typer.Option("auto", "--low-texture", help="auto (default): when < 80 % of the thermal frames find a "
+                                    "verified pair or end in one block, also try low-texture tie points (sensor fixed "
+                                    "pattern estimated from the frames and removed; without GNSS the frames are tracked "
+                                    "as a sequence in input order, e.g. a walk or video along a plain wall; with GNSS "
+                                    "homography-guided SIFT); a tracked block whose coplanar points do not lie flat is "
+                                    "refused and reported (see SurveyOptions.low_texture). off: never."),
     refine_ties: str = typer.Option("off", "--refine-ties", help="lsm: move every tie observation onto its track's "
                                     "reference patch by affine least-squares matching before the orientation (sharper "
                                     "tie points on smooth thermal blobs; measured mixed, see sfm/lsm.py). off: keypoints."),

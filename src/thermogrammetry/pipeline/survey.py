@@ -82,6 +82,22 @@ LOW_TEXTURE_BA_GROWTH = 1.0  # tracked low-texture sequences: a bundle adjustmen
 LOW_TEXTURE_SELF_CALIBRATION = ("k1", "k2")  # ... and only radial distortion self-calibrated (+ fx, fy without EXIF focal)
 LOW_TEXTURE_PATTERN_SIGMA_PX = 8.0  # the tracker removes the sensor pattern's part finer than this blur (fixed_pattern)
 LOW_TEXTURE_GUIDED_RADIUS_PX = 10.0  # search radius of guided matching in the low-texture fallback
+#: a block of a tracked low-texture sequence is refused when the points its frames show coplanar (one homography per
+#: consecutive pair) lie off their plane by more than this share of the block's reprojection RMS (median plane
+#: parallax, :func:`~thermogrammetry.sfm.lowtexture.plane_parallax`). Measured: right blocks of the synthetic walk
+#: (0.15 K, seeds 0-3, 0.5-3.2 deg off in rotation; seed 5 at 0.2 K) 0.36-0.58; the wrong blocks of the windowed
+#: synthetic facade (6-25 deg off) 0.66-1.30, of the 320x256 wall without ground 0.60-0.71 (caught by the planar
+#: share below).
+LOW_TEXTURE_MAX_PLANE_PARALLAX = 0.85
+#: ... and when, on average over its consecutive pairs, less than this share of the points two consecutive frames
+#: share lie within 1 % of their depth of one plane (a wall seen by a walk; the ground in front of it is the rest).
+#: Wrong blocks explain the walk as a turn with short baselines and their depths scatter. Measured: right blocks of
+#: the synthetic walk (seeds 0-3 at 0.15 K, seed 5 at 0.2 K) 0.76-0.91; wrong blocks, 6-36 deg off (windowed facade
+#: with 10/14/20 stations, seeds 0-2, with the true camera; the plain wall at 320x256 without ground, seeds 0-1, with
+#: the true camera) 0.25-0.40. It is also a test of triangulation strength: a right block with depth noise above ~1 %
+#: (short baselines, low resolution) is refused too, and so may be a right block whose frames are mostly NOT one
+#: plane (half the points on a second plane: 0.59, tests/test_lowtexture_guard.py).
+LOW_TEXTURE_MIN_PLANAR_SHARE = 0.55
 
 VIDEO_SUFFIXES = {".mp4", ".mkv", ".mov", ".avi", ".ts", ".m4v", ".webm"}
 SELF_CALIBRATION = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
@@ -119,7 +135,7 @@ class SurveyOptions:
         GNSS antenna offset in the camera frame (x right, y down, z forward), metres.
     video_overlap : float
         Target forward overlap of frames extracted from a video.
-    low_texture : "off" | "auto"
+    low_texture : "auto" (default) | "off"
         ``auto``: low-texture tie points for the thermal frames when fewer than 80 % of them have a verified pair
         with the primary features (``features``), or when the orientation leaves fewer than 80 % of them in one
         block (descriptor matches on noise and on the sensor's pattern verify pairs no orientation can use); kept
@@ -130,18 +146,25 @@ class SurveyOptions:
         taken as a sequence in input order and tracked frame to frame (:mod:`thermogrammetry.sfm.lowtexture`: the
         pattern's fine part removed, phase correlation + Lucas-Kanade, forward-backward, coherence, NCC and
         essential-matrix checks); such a block is oriented with a bundle adjustment after every added image and
-        self-calibrates only k1, k2 (and fx, fy without an EXIF focal length). Measured
-        (``benchmarks/survey_lowtexture.py --synthetic``; plain wall, 0.15 K smooth contrast, 0.08 K pattern, 0.04 K
-        NETD, 30 frames; pycolmap 0 models, ``off`` 0/30): 30/30 in one block, rotations 0.87 / 3.41 deg RMS (seeds
-        0 / 2), centres 0.30 / 0.87 % of the block's length; at 0.1 K contrast nothing (development run). Off by
-        default, because
-        it is not yet safe:
+        self-calibrates only k1, k2 (and fx, fy without an EXIF focal length).
 
-        - synthetic facade of ``synthetic.facade`` (15 windows with glass reflecting the sky, 14 stations at 12 m):
-          ``off`` orients nothing, ``auto`` a 14/14 block 9-29 deg off in rotation (reflections on the glass move
-          with the view and give coherent wrong tracks; the camera's focal length is a guess there);
-        - real Thermitage fresco walls (40 Workswell frames, hand-held captures 10-50 deg apart, mostly panning): no
-          sequence to track; the earlier guided matching gave a 6/40 block, rejected by the self-calibration checks.
+        Guard (why ``auto`` is the default): every block of a tracked sequence must reconstruct flat what its frames
+        show flat -- the points of each consecutive pair that agree with one homography must lie on a plane in 3D
+        within a share of the block's reprojection RMS (:data:`LOW_TEXTURE_MAX_PLANE_PARALLAX`), and on average
+        :data:`LOW_TEXTURE_MIN_PLANAR_SHARE` of the points of consecutive frames must lie within 1 % of their depth
+        of one plane (:func:`~thermogrammetry.sfm.lowtexture.plane_parallax`); a refused block is reported in survey.json
+        (``low_texture``, the notes and every frame's reason) and its frames are not oriented (or the primary result
+        is kept when the fallback ran after it). In the final adjustment, a tracked block whose limited
+        self-calibration is refused by the plausibility checks is rejected as well. The fallback only runs when fewer
+        than 80 % of the thermal frames have a verified pair or end in one block, so normally textured surveys are
+        unchanged. Measured (``benchmarks/survey_lowtexture.py --synthetic``, plain wall, 0.15 K smooth contrast,
+        0.08 K pattern, 0.04 K NETD, 30 frames; pycolmap 0 models, ``off`` 0/30): see benchmarks/README.md; the
+        windowed facade of ``synthetic.facade`` (15 windows with glass reflecting the sky, 14 stations at 12 m, no
+        EXIF focal length; ``off`` orients nothing) gave ``auto`` a 14/14 block 25 deg off before the guard, which now
+        refuses it (plane parallax 1.28 x the RMS, planar share 0.29; right walk blocks 0.42-0.58 and 0.76-0.85);
+        so are the wrong blocks of the same facade with 10 and 20 stations and with the true camera, and of the
+        plain wall at 320x256 px without ground (a single plane, 20/20 frames 36 deg off). Walk seed 4 stops with a
+        numerical error in the PRIMARY orientation (``off`` alike).
     tie_refinement : LsmOptions or None
         Least-squares matching of every tie observation against its track's reference patch before the
         orientation (:func:`~thermogrammetry.sfm.lsm.refine_tracks`); None (default) keeps the keypoint
@@ -167,7 +190,7 @@ class SurveyOptions:
     gnss_sigma_m: tuple | None = None
     lever_arm_m: tuple = (0.0, 0.0, 0.0)
     video_overlap: float = 0.8
-    low_texture: str = "off"
+    low_texture: str = "auto"
     features: FeatureOptions = field(default_factory=FeatureOptions)
     matching: MatchOptions = field(default_factory=MatchOptions)
     reconstruction: ReconstructionOptions = field(default_factory=ReconstructionOptions)
@@ -851,6 +874,19 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
                                "trigger": ("orientation: < 80 % of the thermal frames in one block" if low_texture_only
                                            else "matching: < 80 % of the thermal frames with a verified pair")}
         if connected_thermal(res_lt) > (1 if low_texture_only else connected_thermal(res)):
+            if not low_texture_only:
+                # the primary matching, put aside: the orientation step puts it back when the fallback's blocks are
+                # refused (_low_texture_check), so that ``auto`` is never worse than ``off`` there
+                prim = [f"features/{nm}.npz" for nm in th_names]
+                prim += [f"matches/{i}_{j}.npz" for i, j, npu, nv, reason in res if not reason]
+                for k in prim:
+                    if project.exists(k):
+                        project.write_bytes(f"lowtexture/primary/{k}", project.read_bytes(k))
+                project.write_json("lowtexture/primary/work/features.json", project.read_json("work/features.json"))
+                project.write_json("lowtexture/primary/work/pairs.json",
+                                   {"pairs": [[i, j, npu, nv, reason] for i, j, npu, nv, reason in res],
+                                    "features": {k: v for k, v in info.items() if k != "low_texture"}})
+                info["primary_kept"] = [k for k in prim if project.exists(k)]
             for nm in th_names:
                 project.write_bytes(f"features/{nm}.npz", project.read_bytes(f"lowtexture/features/{nm}.npz"))
             for i, j, npu, nv, reason in res_lt:
@@ -983,6 +1019,76 @@ def _low_texture_self_calibration(project: ProjectStore, camera_ids: list, self_
     return out, note
 
 
+def _low_texture_check(project: ProjectStore) -> dict:
+    """The checks of every block of a tracked low-texture sequence: plane parallax of image-coplanar points
+    (:data:`LOW_TEXTURE_MAX_PLANE_PARALLAX`) and planar share (:data:`LOW_TEXTURE_MIN_PLANAR_SHARE`).
+
+    Returns ``{"blocks": [{"images", "thermal", "pairs", "median_plane_parallax_px", "residual_rms_px", "ratio",
+    "planar_share", "refused"}], "refused_images": [...], "why": {image index: reason}}``; the reconstruction is not
+    changed.
+    """
+    from ..sfm.lowtexture import plane_parallax
+
+    rec, meta = _load_reconstruction(project)
+    inputs = project.read_json("work/inputs.json")["images"]
+    is_th = np.array([im.get("sensor", "thermal") == "thermal" for im in inputs])
+    xy = None
+    blocks, refused, why = [], [], {}
+    for comp in rec.components():
+        th = [int(i) for i in comp if is_th[i]]
+        if len(th) < 2:
+            continue
+        if xy is None:
+            xy = [_tie_xy(project, im["name"]) for im in inputs]
+        r = plane_parallax(rec.cameras, rec.image_camera, rec.R, rec.t, rec.points, rec.tracks.track, rec.tracks.image,
+                           rec.tracks.feature, rec.obs_valid, xy, th)
+        bad_par = not (r.ratio <= LOW_TEXTURE_MAX_PLANE_PARALLAX)
+        bad_flat = not (r.planar_share >= LOW_TEXTURE_MIN_PLANAR_SHARE)
+        bad = bad_par or bad_flat
+        fin = lambda v: float(v) if np.isfinite(v) else None  # noqa: E731
+        blocks.append({"images": len(comp), "thermal": len(th), "pairs": len(r.pairs),
+                       "median_plane_parallax_px": fin(r.median_parallax_px), "residual_rms_px": fin(r.residual_rms_px),
+                       "ratio": fin(r.ratio), "planar_share": fin(r.planar_share), "refused": bad})
+        if bad:
+            head = f"low-texture fallback: its block of {len(th)} thermal frames refused: "
+            if not np.isfinite(r.ratio):
+                reason = head + "no consecutive pair with enough common points to check its geometry"
+            elif bad_par:
+                reason = head + (f"the points its consecutive frames show coplanar lie off their plane by "
+                                 f"{r.median_parallax_px:.2f} px (median plane parallax), {r.ratio:.2f} x the block's "
+                                 f"{r.residual_rms_px:.2f} px RMS (> {LOW_TEXTURE_MAX_PLANE_PARALLAX:g}): a bent or wrong "
+                                 "block (e.g. reflections on glass, a focal length far from the guess)")
+            else:
+                reason = head + (f"only {r.planar_share:.0%} of the points of consecutive frames lie within 1 % of their "
+                                 f"depth of one plane (< {LOW_TEXTURE_MIN_PLANAR_SHARE:.0%}): the block does not "
+                                 "reconstruct a wall (a walk explained as a turn, or depths too uncertain to check)")
+            refused += th
+            why.update({i: reason for i in th})
+    return {"blocks": blocks, "refused_images": refused, "why": why}
+
+
+def _low_texture_unregister(project: ProjectStore, why: dict) -> None:
+    """Mark images of ``why`` (index -> reason) as not oriented in the saved reconstruction."""
+    z = dict(_load_npz(project, "work/reconstruction.npz"))
+    meta = project.read_json("work/reconstruction.json")
+    reg = np.asarray(z["registered"]).astype(bool).copy()
+    comp = np.asarray(z["component"]).copy()
+    for i, reason in why.items():
+        reg[i] = False
+        comp[i] = -1
+        meta["status"][i] = {**meta["status"][i], "registered": False, "component": -1, "reason": reason}
+    z["registered"], z["component"] = reg, comp
+    _save_npz(project, "work/reconstruction.npz", **z)
+    project.write_json("work/reconstruction.json", meta)
+
+
+def _low_texture_verdict(project: ProjectStore, out: dict, verdict: dict) -> dict:
+    """Record the fallback's outcome for :func:`step_georef` (``work/low_texture.json`` -> survey.json) and the step."""
+    project.write_json("work/low_texture.json", verdict)
+    out["low_texture"] = {**out.get("low_texture", {}), **verdict}
+    return out
+
+
 def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None, rgb_camera=None,
                             rig=None) -> dict:
     """:func:`step_orient`, then, with ``low_texture == "auto"``, the low-texture fallback when the orientation left
@@ -990,13 +1096,65 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
     on noise and the sensor's pattern verify pairs that no orientation can use: a plain wall's frames were all
     "connected" and none oriented). The fallback's ties replace the thermal ones and the orientation is run again;
     its result is kept only when its largest block holds more thermal frames, else everything is put back as it was.
+
+    Every block of a tracked sequence (from either trigger) must pass :func:`_low_texture_check` (its coplanar points
+    lie flat, most points of consecutive frames on one plane); a refused block's thermal frames are not oriented
+    (their reason says why) and the primary matching's orientation is put back when its largest thermal block is at
+    least as large as what is left of the fallback's: with a refused block ``auto`` gives what ``off`` gives. The
+    outcome goes to ``work/low_texture.json`` and survey.json's ``low_texture``.
     """
     out = step_orient(project, _low_texture_orient_options(project, opt), camera, progress, rgb_camera)
-    if opt.low_texture != "auto" or "low_texture" in project.read_json("work/pairs.json").get("features", {}):
-        return out
+    if opt.low_texture != "auto":
+        return _low_texture_verdict(project, out, {"ran": False})
+    if "low_texture" in project.read_json("work/pairs.json").get("features", {}):
+        if not _low_texture_sequence_used(project):
+            lt_info = project.read_json("work/pairs.json")["features"]["low_texture"]
+            return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": "used" in
+                                                       project.read_json("work/pairs.json")["features"],
+                                                       **({"why": lt_info["refused"]} if lt_info.get("refused") else {})})
+        chk = _low_texture_check(project)
+        if not chk["refused_images"]:
+            return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": True, "check": chk["blocks"]})
+        why = sorted(set(chk["why"].values()))[0]
+        prim = project.read_json("work/pairs.json")["features"].get("primary_kept")
+        if prim is not None and project.exists("lowtexture/primary/work/pairs.json"):
+            # a block refused: the primary matching is oriented instead (what ``off`` gives); the refused block's
+            # frames are not oriented in the fallback's result, so the primary one is kept unless the fallback's
+            # remaining blocks hold more thermal frames
+            _low_texture_unregister(project, chk["why"])
+            _, best_rest = _largest_thermal_block(project)
+            saved = {k: project.read_bytes(k) for k in ["work/pairs.json", "work/features.json", "work/reconstruction.json",
+                                                        "work/reconstruction.npz"]}
+            saved_ties = {k: project.read_bytes(k) for k in (f"work/tie_xy/{im['name']}.npz"
+                                                             for im in project.read_json("work/inputs.json")["images"])
+                          if project.exists(k)}
+            lt_files = {k: project.read_bytes(k) for k in prim if project.exists(k)}
+            for k in prim:
+                project.write_bytes(k, project.read_bytes(f"lowtexture/primary/{k}"))
+            project.write_json("work/features.json", project.read_json("lowtexture/primary/work/features.json"))
+            pp = project.read_json("lowtexture/primary/work/pairs.json")
+            # what the fallback did stays on record (without "used": its ties are not the ones in use)
+            pp["features"]["low_texture"] = {**json.loads(saved["work/pairs.json"])["features"]["low_texture"], "refused": why}
+            project.write_json("work/pairs.json", pp)
+            out_p = step_orient(project, opt, camera, progress, rgb_camera)
+            _, best_p = _largest_thermal_block(project)
+            if best_p >= best_rest:
+                names = [im["name"] for im in project.read_json("work/inputs.json")["images"]]
+                return _low_texture_verdict(project, out_p, {"ran": True, "trigger": "matching", "kept": False,
+                                                             "check": chk["blocks"], "why": why, "primary_block": best_p,
+                                                             "refused_images": [names[i] for i in chk["refused_images"]]})
+            for k, v in {**lt_files, **saved, **saved_ties}.items():  # the fallback's remaining blocks are larger
+                project.write_bytes(k, v)
+            out["oriented"] -= len(chk["refused_images"])
+            return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": True, "check": chk["blocks"],
+                                                       "why": why, "primary_block": best_p})
+        _low_texture_unregister(project, chk["why"])
+        out["oriented"] -= len(chk["refused_images"])
+        return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": False,
+                                                   "check": chk["blocks"], "why": why})
     nt, best = _largest_thermal_block(project)
     if nt < 2 or best >= LOW_TEXTURE_SHARE * nt:
-        return out
+        return _low_texture_verdict(project, out, {"ran": False})
     inputs = project.read_json("work/inputs.json")["images"]
     keep = ["work/pairs.json", "work/features.json", "work/reconstruction.json", "work/reconstruction.npz"]
     keep += [f"work/tie_xy/{im['name']}.npz" for im in inputs]
@@ -1014,16 +1172,26 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
     lt = m["features"].get("low_texture", {})
     if "used" not in m["features"]:
         restore()
-        out["low_texture"] = {**lt, "kept": False, "why": "the fallback verified no consecutive pair"}
-        return out
+        out["low_texture"] = lt
+        return _low_texture_verdict(project, out, {"ran": True, "trigger": "orientation", "kept": False,
+                                                   "why": "the fallback verified no consecutive pair"})
     out2 = step_orient(project, _low_texture_orient_options(project, opt), camera, progress, rgb_camera)
+    chk = _low_texture_check(project) if _low_texture_sequence_used(project) else {"blocks": [], "refused_images": [], "why": {}}
+    if chk["refused_images"]:
+        _low_texture_unregister(project, chk["why"])
+        out2["oriented"] -= len(chk["refused_images"])
     _, best2 = _largest_thermal_block(project)
     if best2 > best:
-        out2["low_texture"] = {**lt, "kept": True, "largest_thermal_block_before": best, "largest_thermal_block": best2}
-        return out2
+        out2["low_texture"] = {**lt, "largest_thermal_block_before": best, "largest_thermal_block": best2}
+        return _low_texture_verdict(project, out2, {"ran": True, "trigger": "orientation", "kept": True, "check": chk["blocks"],
+                                                    **({"why": sorted(set(chk["why"].values()))[0]} if chk["why"] else {})})
+    # the primary result stands (its frames keep their own reasons)
     restore()
-    out["low_texture"] = {**lt, "kept": False, "why": f"its largest block holds {best2} thermal frames, the primary's {best}"}
-    return out
+    out["low_texture"] = lt
+    why = (sorted(set(chk["why"].values()))[0] if chk["why"] else
+           f"its largest block holds {best2} thermal frames, the primary's {best}")
+    return _low_texture_verdict(project, out, {"ran": True, "trigger": "orientation", "kept": False, "check": chk["blocks"],
+                                               "why": why})
 
 
 def _load_reconstruction(project: ProjectStore):
@@ -1151,6 +1319,11 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     focal_known = {k: _focal_from_exif(inputs, rec, k) for k in range(len(meta["camera_ids"]))}
     self_cal, lt_note = _low_texture_self_calibration(project, meta["camera_ids"], self_cal, focal_known)
     notes += [lt_note] if lt_note else []
+    lt_seq = _low_texture_sequence_used(project)
+    lt_verdict = project.read_json("work/low_texture.json") if project.exists("work/low_texture.json") else {}
+    if lt_verdict.get("why"):
+        notes.append(f"{lt_verdict['why']}; " + ("its frames are not oriented" if lt_verdict.get("kept") else
+                                                 "the primary matching's orientation is kept (what --low-texture off gives)"))
     for ci, images in enumerate(comps):
         if len(images) == 0:
             continue
@@ -1221,6 +1394,18 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                    f"orientation ({cal_steps[-1]})")
             for i in images:
                 rec.status[i].reason = why
+            results.append({"block": ci + 1, "images": len(images), "datum": how, "rejected": why,
+                            "self_calibration_steps": cal_steps})
+            continue
+        if lt_seq and cal_steps and any(str(meta["camera_ids"][int(rec.image_camera[i])]).startswith("thermal") for i in images):
+            # a tracked low-texture sequence self-calibrates only k1, k2 (+ fx, fy without an EXIF focal length); a
+            # block that cannot carry even that is in conflict with a physical camera: the windowed synthetic facade's
+            # wrong block (25 deg off) asked for fy/fx = 0.87 at every rung
+            why = (f"in block {ci + 1} ({len(images)} images) rejected: a low-texture sequence's block whose limited "
+                   f"self-calibration was refused ({cal_steps[0]})")
+            for i in images:
+                rec.status[i].reason = why
+            notes.append(f"block {ci + 1}: {why.split(' rejected: ')[1]}")
             results.append({"block": ci + 1, "images": len(images), "datum": how, "rejected": why,
                             "self_calibration_steps": cal_steps})
             continue
@@ -1301,6 +1486,12 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         extra["images_rig_only"] = len(r_only)
     if t_ids:
         extra["manual_ties"] = {"ids": len(t_ids), "used": tie_out}
+    if lt_verdict:
+        extra["low_texture"] = lt_verdict
+        for nm in lt_verdict.get("refused_images", []):  # frames the primary orientation left out: both reasons
+            i = names.index(nm)
+            if not oriented[i] and lt_verdict["why"] not in rec.status[i].reason:
+                rec.status[i].reason = f"{rec.status[i].reason or 'not oriented'}; {lt_verdict['why']}"
     out = _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results,
                          extra=extra, rig_only={k: w for k, w in rig_only.items() if oriented[k]})
     out["seconds_georef"] = time.perf_counter() - t0

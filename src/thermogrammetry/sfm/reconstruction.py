@@ -143,7 +143,15 @@ def triangulate_tracks(track_ids, obs_track, obs_R, obs_t, obs_ray):
     -------
     X : (T, 3) world points (NaN where undetermined)
     max_angle_deg : (T,) largest angle between two rays of the track
+
+    Observations with a non-finite ray or pose (a keypoint outside the domain where the distortion model can be
+    inverted, e.g. with a poorly self-calibrated k1) are left out; a track left without a usable system is NaN.
     """
+    obs_track = np.asarray(obs_track)
+    obs_R, obs_t, obs_ray = np.asarray(obs_R, float), np.asarray(obs_t, float), np.asarray(obs_ray, float)
+    fin = np.isfinite(obs_ray).all(axis=1) & np.isfinite(obs_t).all(axis=1) & np.isfinite(obs_R).all(axis=(1, 2))
+    if not fin.all():
+        obs_track, obs_R, obs_t, obs_ray = obs_track[fin], obs_R[fin], obs_t[fin], obs_ray[fin]
     uid, inv = np.unique(obs_track, return_inverse=True)
     # about a local origin: homogeneous solutions of CRS-sized coordinates (1e6 m) lose their precision
     origin = -np.einsum("kji,kj->i", obs_R, obs_t) / max(len(obs_t), 1)
@@ -157,10 +165,14 @@ def triangulate_tracks(track_ids, obs_track, obs_R, obs_t, obs_ray):
     A = np.einsum("ki,kj->kij", r1, r1) + np.einsum("ki,kj->kij", r2, r2)
     N = np.zeros((len(uid), 4, 4))
     np.add.at(N, inv, A)
+    good = np.isfinite(N).all(axis=(1, 2))  # a zero-length row (ray along the image plane) gives NaN
+    if not good.all():
+        N[~good] = np.eye(4)
     w, v = np.linalg.eigh(N)
     Xh = v[:, :, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
         X = Xh[:, :3] / Xh[:, 3:4]
+    X[~good] = np.nan
     X[~np.isfinite(X).all(axis=1)] = np.nan
     # angles: directions of rays in the world
     d = np.einsum("kji,kj->ki", obs_R, np.column_stack([obs_ray, np.ones(len(obs_ray))]))
@@ -314,6 +326,11 @@ class _Builder:
                 continue
             ri = self.rays[i][self.tr.feature[oi]]
             rj = self.rays[j][self.tr.feature[oj]]
+            fin = np.isfinite(ri).all(axis=1) & np.isfinite(rj).all(axis=1)  # rays that could not be undistorted
+            if not fin.all():
+                common, oi, oj, ri, rj = common[fin], oi[fin], oj[fin], ri[fin], rj[fin]
+                if len(common) < self.opt.min_init_points:
+                    continue
             f = float(np.mean(np.diag(self.rec.cameras[self.rec.image_camera[i]].K)[:2]))
             cv2.setRNGSeed(self.opt.seed)
             E, mask = cv2.findEssentialMat(ri, rj, np.eye(3), method=cv2.USAC_MAGSAC, prob=0.9999, threshold=1.5 / f)
@@ -415,7 +432,7 @@ class _Builder:
 
         tr = self.tr
         o = self.obs_of_image[i]
-        o = o[np.isfinite(self.rec.points[tr.track[o]]).all(1)]
+        o = o[np.isfinite(self.rec.points[tr.track[o]]).all(1) & np.isfinite(self.rays[i][tr.feature[o]]).all(1)]
         if len(o) < self.opt.min_pnp_points:
             return False, f"sees {len(o)} oriented points < {self.opt.min_pnp_points}"
         X = self.rec.points[tr.track[o]]
