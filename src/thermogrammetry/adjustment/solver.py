@@ -1011,6 +1011,7 @@ class _ChunkedNormal:
             rhs += H @ self.gp[p0:p1].ravel()
         if not ok:
             return None
+        release_free_heap()  # (the last chunks' temporaries: not yet returned by the trim every _TRIM_EVERY chunks)
         if build:
             self.U.sum_duplicates()
         S = (self.U - acc.total()).tocsc()
@@ -1062,6 +1063,7 @@ class _ChunkedNormal:
             dp[p0:p1] = dpk
             if refine_lam is not None and Jc is not None:
                 Wdp += Jc.T @ (Jp @ dpk.ravel())
+        release_free_heap()  # (the last chunks' temporaries)
         if refine_lam is None:
             return dp, None
         if nc:
@@ -1428,6 +1430,10 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
         return AdjustmentResult(term, reason, it, c0, c1, pb, warnings=warnings, time_s=time.perf_counter() - t0, **kw)
 
     data = _Data(pb, active)
+    if data.K >= opt.chunked_min_observations:
+        # the per-call observation arrays (dropped when the problem concatenated them) and what the caller freed
+        # while building the problem lie in the heap: pages back before the large adjustment's arrays
+        release_free_heap()
     red = data.m - n + defect
     if n == 0:
         return result(Termination.TOO_FEW_OBSERVATIONS, "no free parameters", 0, np.nan, np.nan)
