@@ -50,3 +50,19 @@ def test_zero_redundancy_camera_std_is_nan_not_zero(rng):
     sd = dict(zip(cam.param_names, cam.param_std))
     assert np.isnan(sd["fx"]) and np.isnan(sd["cx"])  # estimated, precision undetermined
     assert sd["fy"] == 0.0 and sd["cy"] == 0.0  # held fixed
+
+
+def test_lapack_failure_in_the_precision_step_is_a_result(rng, monkeypatch):
+    """LAPACK raising inside the precision step (seen as 'LinAlgError: Internal Error' on a weak 8-image block of a
+    40-station building ring) ends the solve with NUMERICAL_FAILURE and the reason, not an exception."""
+    import scipy.linalg
+
+    from thermogrammetry.results import Termination
+
+    def broken(*a, **k):
+        raise np.linalg.LinAlgError("Internal Error.")
+
+    monkeypatch.setattr(scipy.linalg, "eigvalsh", broken)
+    res = solve(_resection(5, rng))
+    assert res.termination is Termination.NUMERICAL_FAILURE and not res.success
+    assert "precision step failed" in res.reason and "Internal Error" in res.reason

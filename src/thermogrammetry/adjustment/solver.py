@@ -1471,7 +1471,11 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
             cost0 = c0
         if not term.success:
             return result(term, reason, total_it, cost0, cost)
-        out = _precision(pb, lay, st, data, opt, active, warnings)
+        try:
+            out = _precision(pb, lay, st, data, opt, active, warnings)
+        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
+            # LAPACK on a reduced matrix with non-finite entries (a weak block): the estimate has no precision
+            out = (Termination.NUMERICAL_FAILURE, f"precision step failed: {type(exc).__name__}: {exc}")
         if isinstance(out, tuple):  # failure
             return result(out[0], out[1], total_it, cost0, cost)
         if not (opt.data_snooping and opt.compute_redundancy) or rounds >= opt.max_snooping_rounds:
