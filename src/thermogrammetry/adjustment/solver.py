@@ -614,9 +614,10 @@ def _robust(r, K, opt: SolverOptions, weights: bool = True):
 
     The per-observation terms are computed in pieces of ``_ROBUST_CHUNK`` observations (element by element:
     the same values as over the whole block) into one array, summed once as before."""
-    w = np.ones_like(r) if weights else None
     if opt.loss is Loss.TRIVIAL or K == 0:
-        return w, 0.5 * float(r @ r)
+        # unit weights as a read-only broadcast (16 B per observation less; nothing writes into the weights)
+        return (np.broadcast_to(1.0, r.shape) if weights else None), 0.5 * float(r @ r)
+    w = np.ones_like(r) if weights else None
     c2 = opt.loss_scale**2
     rho = np.empty(K)
     for a in range(0, K, _ROBUST_CHUNK):
