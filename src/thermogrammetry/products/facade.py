@@ -149,13 +149,10 @@ class FacadeLevelling:
 
 
 def _sample_mask(n: int, n_sample: int, seed: int = 0) -> np.ndarray:
-    """(n,) bool: a deterministic random subset of ``min(n, n_sample)`` cells."""
-    m = np.zeros(n, bool)
-    if n <= n_sample:
-        m[:] = True
-    else:
-        m[np.random.default_rng(seed).choice(n, n_sample, replace=False)] = True
-    return m
+    """(n,) bool: a deterministic random subset of ``min(n, n_sample)`` cells (the texture's levelling sample)."""
+    from .texture import _levelling_sample
+
+    return _levelling_sample(n, n_sample, seed)
 
 
 def level_offsets(values, cells_per_image, *, max_pairs: int = LEVELLING_MAX_PAIRS, seed: int = 0) -> FacadeLevelling:
