@@ -163,8 +163,9 @@ class SurveyOptions:
         EXIF focal length; ``off`` orients nothing) gave ``auto`` a 14/14 block 25 deg off before the guard, which now
         refuses it (plane parallax 1.28 x the RMS, planar share 0.29; right walk blocks 0.42-0.58 and 0.76-0.85);
         so are the wrong blocks of the same facade with 10 and 20 stations and with the true camera, and of the
-        plain wall at 320x256 px without ground (a single plane, 20/20 frames 36 deg off). Walk seed 4 stops with a
-        numerical error in the PRIMARY orientation (``off`` alike).
+        plain wall at 320x256 px without ground (a single plane, 20/20 frames 36 deg off). Walk seed 4 gives nothing:
+        the PRIMARY orientation builds a 30/30 block on SIFT matches of noise, which the final adjustment rejects
+        (the fallback does not run after that).
     tie_refinement : LsmOptions or None
         Least-squares matching of every tie observation against its track's reference patch before the
         orientation (:func:`~thermogrammetry.sfm.lsm.refine_tracks`); None (default) keeps the keypoint
