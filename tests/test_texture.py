@@ -382,3 +382,17 @@ def test_textured_glb_renders_in_headless_chromium(cli_out, tmp_path):
     keep = os.environ.get("THERMOGRAMMETRY_SCREENSHOT_DIR")
     if keep:
         shutil.copy(shot, keep)
+
+
+def test_majority_source_equals_a_dense_count():
+    from thermogrammetry.products.texture import majority_source
+
+    rng = np.random.default_rng(3)
+    n_faces, K = 500, 7
+    face = rng.integers(0, n_faces - 50, 20_000)  # the last 50 faces have no texel
+    src = np.minimum(rng.integers(0, K, len(face)), rng.integers(0, K, len(face)))  # skewed: ties and majorities
+    cnt = np.zeros((n_faces, K), np.int64)
+    np.add.at(cnt, (face, src), 1)
+    want = np.where(cnt.sum(axis=1) > 0, np.argmax(cnt, axis=1), -1)  # argmax: ties to the smallest index
+    assert np.array_equal(majority_source(face, src, n_faces), want)
+    assert np.all(majority_source(np.zeros(0, int), np.zeros(0, int), 4) == -1)
