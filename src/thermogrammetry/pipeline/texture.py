@@ -333,11 +333,11 @@ def check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, crs, *, te
     georeferenced survey, or another CRS): a building kilometres away may still project into some image, but
     far below a pixel, so that no pixel sees its surface. The message gives both extents.
     """
-    from ..products.texture import face_view_scores
+    from ..products.texture import any_face_seen
 
     if textured is None:
         kw = dict(max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
-        if np.any(face_view_scores(V, F, views, **kw) > 0) or np.any(face_view_scores(V, F[:, ::-1], views, **kw) > 0):
+        if any_face_seen(V, F, views, **kw) or any_face_seen(V, F[:, ::-1], views, **kw):
             return
         what = "is in front of"
     else:
@@ -362,10 +362,10 @@ def orient_mesh_to_views(V, F, views, cfg):
     give an empty texture. Only an all-or-nothing case is changed: with at least one face seen, the mesh is used
     as given. Returns ``(faces, note or None)``.
     """
-    from ..products.texture import face_view_scores
+    from ..products.texture import any_face_seen, face_view_scores
 
     kw = dict(max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
-    if np.any(face_view_scores(V, F, views, **kw) > 0):
+    if any_face_seen(V, F, views, **kw):
         return F, None
     Fr = np.ascontiguousarray(F[:, ::-1])
     seen = int(np.sum(np.any(face_view_scores(V, Fr, views, **kw) > 0, axis=1)))

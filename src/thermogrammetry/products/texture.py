@@ -67,7 +67,7 @@ from ..errors import ConfigError, InvalidInputError, ShapeError
 from .correction import CorrectionConfig
 
 __all__ = ["Levelling", "TextureConfig", "TextureView", "TextureResult", "face_view_scores",
-           "build_atlas", "rasterize_atlas", "PixelSurface", "pixel_surfaces", "usable_in_view", "select_and_sample",
+           "any_face_seen", "build_atlas", "rasterize_atlas", "PixelSurface", "pixel_surfaces", "usable_in_view", "select_and_sample",
            "select_in_chunks", "estimate_offsets", "texture_mesh", "thermal_poses_from_rig", "local_origin", "view_in_frame"]
 
 
@@ -225,9 +225,24 @@ def face_view_scores(vertices, faces, views: Sequence[TextureView], *, max_angle
     tested per texel).
     """
     V, F = _check_mesh(vertices, faces)
+    S = np.zeros((len(F), len(views)))
+    for k, col in _score_columns(V, F, views, max_angle_deg, border_fraction):
+        S[:, k] = col
+    return S
+
+
+def any_face_seen(vertices, faces, views: Sequence[TextureView], *, max_angle_deg: float = 75.0,
+                  border_fraction: float = 0.1) -> bool:
+    """Whether some face has a positive :func:`face_view_scores` score in some image (one image at a time: no
+    (F, K) matrix; stops at the first image that sees a face)."""
+    V, F = _check_mesh(vertices, faces)
+    return any(np.any(col > 0) for _, col in _score_columns(V, F, views, max_angle_deg, border_fraction))
+
+
+def _score_columns(V, F, views, max_angle_deg, border_fraction):
+    """Yield ``(k, (F,) scores of image k)`` (see :func:`face_view_scores`)."""
     normals, _, cen = _face_geometry(V, F)
     cmax = np.cos(np.deg2rad(max_angle_deg))
-    S = np.zeros((len(F), len(views)))
     for k, v in enumerate(views):
         w, h = v.camera.image_size
         C = v.pose.center
@@ -241,8 +256,7 @@ def face_view_scores(vertices, faces, views: Sequence[TextureView], *, max_angle
         b = np.nan_to_num(np.where(z > 1e-6, np.minimum(bx, by), -np.inf), nan=-np.inf)
         ok &= b > 0
         b0 = max(1e-9, border_fraction * min(w, h))
-        S[:, k] = np.where(ok, _focal_px(v.camera) * np.clip(cos_t, 0, 1) / d * np.minimum(1.0, np.maximum(b, 0) / b0), 0.0)
-    return S
+        yield k, np.where(ok, _focal_px(v.camera) * np.clip(cos_t, 0, 1) / d * np.minimum(1.0, np.maximum(b, 0) / b0), 0.0)
 
 
 # ---------------------------------------------------------------------------------------------- atlas
