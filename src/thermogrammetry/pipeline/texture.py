@@ -326,8 +326,9 @@ def clean_radius_from_poses(cfg, cameras, views, *, n_sigma: float = 3.0, max_px
 
 
 def check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, crs, *, textured: int | None = None) -> None:
-    """Raise :class:`InvalidInputError` when no face of the mesh (either winding) is in front of any image, or
-    (``textured=0``, after texturing) when not one texel could be taken from any image.
+    """Raise :class:`InvalidInputError` when no face of the mesh is in front of any image, or (``textured=0``,
+    after texturing) when not one texel could be taken from any image. ``F`` is the winding chosen by
+    :func:`orient_mesh_to_views` (which already tried the reversed one).
 
     The usual cause is a mesh in another coordinate system than ``cameras.json`` (a local model against a
     georeferenced survey, or another CRS): a building kilometres away may still project into some image, but
@@ -337,7 +338,7 @@ def check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, crs, *, te
 
     if textured is None:
         kw = dict(max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
-        if any_face_seen(V, F, views, **kw) or any_face_seen(V, F[:, ::-1], views, **kw):
+        if any_face_seen(V, F, views, **kw):
             return
         what = "is in front of"
     else:

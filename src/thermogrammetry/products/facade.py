@@ -479,7 +479,7 @@ def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None,
     estimated from a sample of at most ``LEVELLING_SAMPLE_CELLS`` cells; they alter the values).
     The cells are selected and sampled ``chunk_cells`` at a time (each image's value is held for one chunk only).
     """
-    from .texture import Levelling, TextureConfig, _intersector, local_origin, pixel_surfaces, select_and_sample, view_in_frame
+    from .texture import Levelling, TextureConfig, _intersector, local_origin, pixel_surfaces, select_in_chunks, view_in_frame
 
     lev_mode = Levelling(levelling)
 
@@ -524,19 +524,13 @@ def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None,
     K = len(views)
     N = h * w
     fr = face.ravel()
-    T = np.full(N, np.nan, np.float32)
-    src = np.full(N, -1, np.int32)
-    ang = np.full(N, np.nan, np.float32)
-    dist = np.full(N, np.nan)
     sample = _sample_mask(N, LEVELLING_SAMPLE_CELLS) if lev_mode is Levelling.OFFSETS else None
-    samples = []
-    for i0 in range(0, N, max(1, int(chunk_cells))):
-        sl = slice(i0, min(N, i0 + max(1, int(chunk_cells))))
-        sel = select_and_sample(inter, V, F, views, surfaces, scores, P[sl], fr[sl], cfg)
-        T[sl], src[sl], ang[sl], dist[sl] = sel.temperature_k, sel.source, sel.angle_deg, sel.distance_m
-        if sample is not None:
-            samples.append(sel.all_k[sample[sl] & (sel.n_usable >= 2)])
-        del sel
+    sel, _, sample_k = select_in_chunks(inter, V, F, views, surfaces, scores, P, fr, cfg, sample=sample,
+                                        chunk_point_views=max(1, int(chunk_cells)) * max(K, 1))
+    T, src = sel.temperature_k.astype(np.float32), sel.source.astype(np.int32)
+    ang, dist = sel.angle_deg.astype(np.float32), sel.distance_m
+    n_usable_sample = sel.n_usable[sample] if sample is not None else None
+    del sel
     T, src, ang, dist = T.reshape(h, w), src.reshape(h, w), ang.reshape(h, w), dist.reshape(h, w)
     res = np.full((h, w), np.nan, np.float32)
     ok = src >= 0
@@ -544,7 +538,7 @@ def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None,
     res[ok] = (fpx[src[ok]] * np.cos(np.deg2rad(ang[ok])) / dist[ok]).astype(np.float32)
     lev = None
     if sample is not None:
-        lev = _apply_levelling(T, src, np.concatenate(samples), np.bincount(src[ok], minlength=K))
+        lev = _apply_levelling(T, src, sample_k[n_usable_sample >= 2], np.bincount(src[ok], minlength=K))
     _ = nf_plane
     notes = ("ortho on a plane with occluding geometry: occlusion and mixed-pixel tests applied" if occluders is not None else
              "ortho on a plane without occluding geometry: only the plane is known; objects in front are not excluded")

@@ -750,9 +750,9 @@ def majority_source(face, source, n_faces: int) -> np.ndarray:
     out = np.full(int(n_faces), -1, np.int64)
     if len(face) == 0:
         return out
-    key = face * (int(source.max()) + 1) + source
-    u, cnt = np.unique(key, return_counts=True)
-    uf, us = u // (int(source.max()) + 1), u % (int(source.max()) + 1)
+    base = int(source.max()) + 1
+    u, cnt = np.unique(face * base + source, return_counts=True)
+    uf, us = u // base, u % base
     order = np.lexsort((us, -cnt, uf))  # by face, then most texels, then smallest image index
     uf, us = uf[order], us[order]
     first = np.r_[True, uf[1:] != uf[:-1]]

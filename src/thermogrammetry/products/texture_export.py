@@ -202,7 +202,7 @@ def render_view(result, center, target, *, size=(480, 360), focal_px=None, up=(0
     import trimesh
 
     from ..geometry import Pose
-    from .texture import local_origin
+    from .texture import _intersector, local_origin
 
     w, h = size
     f = focal_px or 0.9 * w
@@ -212,13 +212,7 @@ def render_view(result, center, target, *, size=(480, 360), focal_px=None, up=(0
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     origin = local_origin(result.vertices)  # Embree casts in float32: a local frame (texture.local_origin)
     V = result.vertices - origin
-    mesh = trimesh.Trimesh(V, result.faces, process=False)
-    try:
-        from trimesh.ray.ray_pyembree import RayMeshIntersector
-
-        ray = RayMeshIntersector(mesh)
-    except Exception:  # pragma: no cover
-        ray = mesh.ray
+    ray = _intersector(V, result.faces)
     o = np.broadcast_to(pose.center - origin, d.shape).copy()
     tri = np.asarray(ray.intersects_first(ray_origins=o, ray_directions=d), np.int64)
     out = np.full(len(d), np.nan)
