@@ -113,6 +113,9 @@ class SolverOptions:
     max_dense_inner : int
         Largest parameter count for which the free-network (inner constraint) covariance is
         computed (dense).
+    num_threads : int
+        Threads for the largest sparse products of the normal equations on the full-Jacobian path (rows split
+        over threads; the same values, bit for bit, with any count).
     chunked_min_observations : int
         Number of (active) image observations from which the normal equations are built chunk by
         chunk of points without holding the block's Jacobian (memory independent of the number of
@@ -141,11 +144,14 @@ class SolverOptions:
     rank_tolerance: float = 1e-12
     max_dense_inner: int = 4000
     chunked_min_observations: int = 100_000
+    num_threads: int = 2
 
     def __post_init__(self):
         object.__setattr__(self, "loss", Loss(self.loss))
         if self.max_iterations < 0:
             raise ConfigError(f"max_iterations={self.max_iterations!r}; expected an integer >= 0")
+        if self.num_threads < 1:
+            raise ConfigError(f"num_threads={self.num_threads!r}; expected an integer >= 1")
         if self.chunked_min_observations < 0:
             raise ConfigError(f"chunked_min_observations={self.chunked_min_observations!r}; expected an integer >= 0")
         for name in ("loss_scale", "sigma0_prior", "snooping_alpha", "significance_alpha"):
@@ -422,6 +428,8 @@ class _Data:
         self.d_a, self.d_b, self.d_len, self.d_sig = pb.distance_observations()
         self.pl_k, self.pl_pt, self.pl_sig = pb.plane_observations()
         self.m = 2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose) + len(self.d_a) + len(self.pl_k)
+        # the LM's last full-path linearisation (state, r, w, _Normal), for the precision step at the same state
+        self.linearisation = None
 
 
 #: image observations per chunk in :func:`_evaluate` (bounds its temporaries: ~1.5 KB per observation)
@@ -640,9 +648,10 @@ def _robust(r, K, opt: SolverOptions, weights: bool = True):
 class _Normal:
     """Normal-equation pieces at one linearisation (whitened, robust-weighted)."""
 
-    def __init__(self, r, jac: list, pslot, lay: _Layout, w):
+    def __init__(self, r, jac: list, pslot, lay: _Layout, w, threads: int = 1):
         """``jac = [Jc, jp]`` of :func:`_evaluate`; the list is emptied so that the unweighted Jacobian is freed
-        as soon as its weighted copy exists (when the caller holds no other reference)."""
+        as soon as its weighted copy exists (when the caller holds no other reference). ``threads``: for the
+        products ``J_c^T J_c`` and ``H B^T`` (:func:`_csr_product`; the same values with any count)."""
         self.lay = lay
         m = len(r)
         rw = r * w
@@ -657,7 +666,8 @@ class _Normal:
         prow = np.nonzero(has)[0]
         npf = lay.npf
         self.Jc = Jcw
-        self.U = _gram(Jcw) if lay.nc else np.zeros((0, 0))
+        self.threads = threads
+        self.U = _gram(Jcw, threads) if lay.nc else np.zeros((0, 0))
         self.gc = Jcw.T @ rw if lay.nc else np.zeros(0)
         # point side
         ps = pslot[prow]
@@ -716,7 +726,7 @@ class _Normal:
                 H = (self.B @ Vsp).tocsr()
                 if self._Bt is None:
                     self._Bt = self.B.T.tocsr()  # (what ``H @ self.B.T`` converts B^T to, once per linearisation)
-                HB = _csr_product(H, self._Bt, nc * nc)
+                HB = _csr_product(H, self._Bt, nc, self.threads)
                 # subtracted in row blocks: no second dense nc x nc matrix (same values as one subtraction)
                 step = max(1, int(4e6 // max(nc, 1)))
                 for a in range(0, nc, step):
@@ -761,19 +771,28 @@ class _Normal:
 _REFINE_RTOL = 1e-6
 
 
-def _csr_product(A, B, nnz_max: int):
-    """``A @ B`` for two CSR matrices whose product has at most ``nnz_max`` entries (e.g. rows x columns of a
-    small result), by scipy's own kernel behind ``@`` (sparsetools ``csr_matmat``, Gustavson's algorithm): the
-    same entries in the same order, bit for bit, without scipy's symbolic pass that first counts the entries
-    (``csr_matmat_maxnnz``: a third of the time of ``H B^T`` on a survey block, 200 reduced parameters and 16 k
-    points). Falls back to ``A @ B`` when that kernel cannot be imported or the bound needs 64-bit indices.
+#: stored entries of the left factor from which :func:`_csr_product` splits its rows over threads
+_THREAD_MIN_NNZ = 200_000
+
+
+def _csr_product(A, B, nnz_row_max: int, threads: int = 1):
+    """``A @ B`` for two CSR matrices whose product has at most ``nnz_row_max`` entries per row (e.g. the
+    columns of a small result), by scipy's own kernel behind ``@`` (sparsetools ``csr_matmat``, Gustavson's
+    algorithm): the same entries in the same order, bit for bit, without scipy's symbolic pass that first
+    counts the entries (``csr_matmat_maxnnz``: a third of the time of ``H B^T`` on a survey block, 200 reduced
+    parameters and 16 k points). With ``threads`` > 1 and a large ``A``, row ranges of ``A`` (balanced by
+    its entries) are multiplied in threads (the kernel releases the GIL; every row of the product is computed
+    by the same loop either way, so the values do not depend on the thread count). Falls back to ``A @ B``
+    when that kernel cannot be imported or the bound needs 64-bit indices.
 
     Parameters
     ----------
     A : scipy.sparse.csr_matrix, shape (M, K)
     B : scipy.sparse.csr_matrix, shape (K, N)
-    nnz_max : int
-        Upper bound of the product's stored entries (``M * N`` always is one).
+    nnz_row_max : int
+        Upper bound of the stored entries of one row of the product (``N`` always is one).
+    threads : int
+        Threads for the row ranges (1: in the calling thread).
 
     Returns
     -------
@@ -785,23 +804,49 @@ def _csr_product(A, B, nnz_max: int):
     except ImportError:  # (a scipy that moved its private kernels)
         return (A @ B).tocsr()
     arrays = (A.indptr, A.indices, B.indptr, B.indices)
-    if not (all(a.dtype == np.int32 for a in arrays) and nnz_max < 2**31 - 1):
+    nnz_row_max = max(1, min(int(nnz_row_max), N))
+    if not (all(a.dtype == np.int32 for a in arrays) and M * nnz_row_max < 2**31 - 1):
         return (A @ B).tocsr()
-    nnz_max = max(int(nnz_max), 1)
-    indptr = np.empty(M + 1, dtype=np.int32)
-    indices = np.empty(nnz_max, dtype=np.int32)
-    data = np.empty(nnz_max, dtype=np.result_type(A.dtype, B.dtype))
-    csr_matmat(M, N, A.indptr, A.indices, A.data, B.indptr, B.indices, B.data, indptr, indices, data)
-    nnz = int(indptr[-1])
-    return sp.csr_matrix((data[:nnz], indices[:nnz], indptr), shape=(M, N))
+    dtype = np.result_type(A.dtype, B.dtype)
+
+    def rows(a, b):
+        # rows [a, b) of A @ B: (indptr from 0, indices, values)
+        p0, p1 = int(A.indptr[a]), int(A.indptr[b])
+        ip = A.indptr[a : b + 1] - np.int32(p0)
+        indptr = np.empty(b - a + 1, dtype=np.int32)
+        n = max(1, (b - a) * nnz_row_max)
+        indices = np.empty(n, dtype=np.int32)
+        data = np.empty(n, dtype=dtype)
+        csr_matmat(b - a, N, ip, A.indices[p0:p1], A.data[p0:p1], B.indptr, B.indices, B.data, indptr, indices, data)
+        k = int(indptr[-1])
+        return indptr, indices[:k], data[:k]
+
+    nt = max(1, min(int(threads), M))
+    if nt == 1 or A.nnz < _THREAD_MIN_NNZ:
+        parts = [rows(0, M)]
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        cuts = np.searchsorted(A.indptr, np.arange(1, nt) * (A.nnz / nt))
+        bounds = np.unique(np.concatenate([[0], np.clip(cuts, 0, M), [M]]))
+        with ThreadPoolExecutor(max_workers=nt) as ex:
+            parts = list(ex.map(lambda ab: rows(*ab), zip(bounds[:-1], bounds[1:])))
+    if len(parts) == 1:
+        indptr, indices, data = parts[0]
+    else:
+        offs = np.cumsum([0] + [int(p[0][-1]) for p in parts[:-1]])
+        indptr = np.concatenate([[0]] + [p[0][1:] + np.int32(o) for p, o in zip(parts, offs)]).astype(np.int32)
+        indices = np.concatenate([p[1] for p in parts])
+        data = np.concatenate([p[2] for p in parts])
+    return sp.csr_matrix((data, indices, indptr), shape=(M, N))
 
 
-def _gram(J):
+def _gram(J, threads: int = 1):
     """``(J.T @ J).toarray()`` for a CSR matrix ``J`` (m, n) with small n, bit for bit as scipy computes it (the
-    transpose converted to CSR, the product by :func:`_csr_product` with the n x n bound, transposed back as
-    scipy's CSC result is): (n, n) dense, C order."""
+    transpose converted to CSR, the product by :func:`_csr_product`, transposed back as scipy's CSC result
+    is): (n, n) dense, C order."""
     n = J.shape[1]
-    R = _csr_product(J.T.tocsr(), J, n * n)  # (scipy: J^T J in CSR arrays, read as CSC, i.e. transposed)
+    R = _csr_product(J.T.tocsr(), J, n, threads)  # (scipy: J^T J in CSR arrays, read as CSC, i.e. transposed)
     return np.ascontiguousarray(R.toarray().T)
 
 
@@ -1280,6 +1325,7 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
         if need:
             # the previous linearisation (and the factor of its reduced matrix) is released before the next is built
             ne = cf = Vinv = rhs = None
+            data.linearisation = None
             if chunked:
                 release_free_heap()  # (the previous linearisation's pages)
                 # r, w, cost: of the current state (from the start or the accepted trial step)
@@ -1287,7 +1333,8 @@ def _lm(pb, lay, st, data, opt: SolverOptions):
             else:
                 r, *jac, pslot = _evaluate(pb, lay, st, data, True)
                 w, cost = _robust(r, data.K, opt)
-                ne = _Normal(r, jac, pslot, lay, w)  # takes the Jacobian over (weighted, sparse)
+                ne = _Normal(r, jac, pslot, lay, w, opt.num_threads)  # takes the Jacobian over (weighted, sparse)
+                data.linearisation = (st, r, w, ne)
             need = False
             if ne.grad_max <= opt.gradient_tolerance:
                 return st, cost0, cost, it, Termination.CONVERGED, f"gradient tolerance reached (max|g| = {ne.grad_max:.3g})"
@@ -1570,19 +1617,25 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     # redundancy numbers, point covariances and the free-network covariance need the whole Jacobian
     chunked = data.K >= opt.chunked_min_observations and not (
         opt.compute_covariance and (pb.gauge is Gauge.INNER or opt.compute_redundancy or opt.compute_point_covariance))
+    lin, data.linearisation = data.linearisation, None
     if chunked:
         release_free_heap()  # (the LM's freed temporaries)
         r = _evaluate(pb, lay, st, data, False)
         w, cost = _robust(r, data.K, opt)
         # the normal equations (for the covariance) are built after the residual outputs below
+    elif lin is not None and lin[0] is st and not opt.compute_redundancy:
+        # the LM stopped at the state of its last linearisation (predicted decrease or step below tolerance, or
+        # the gradient): the same residuals, weights and normal equations as evaluating them again
+        _, r, w, ne = lin
     else:
         r, Jc, jp, pslot = _evaluate(pb, lay, st, data, True)
         w, cost = _robust(r, data.K, opt)
         jac = [Jc, jp]
         del Jc  # the normal equations are built only for the covariance (ne keeps the weighted Jacobian)
         if opt.compute_covariance:
-            ne = _Normal(r, jac, pslot, lay, w)
+            ne = _Normal(r, jac, pslot, lay, w, opt.num_threads)
         jac.clear()
+    del lin
     n = lay.nc + 3 * lay.npf
     defect = (6 if _scale_observed(pb) else 7) if pb.gauge is Gauge.INNER else 0
     red = data.m - n + defect
