@@ -50,7 +50,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
-import scipy.stats
+import scipy.special
 
 from .._memory import release_free_heap
 from ..enums import StrChoice
@@ -683,11 +683,17 @@ class _Normal:
         colsp = (3 * ps[:, None] + np.arange(3)).ravel()
         rowsp = np.repeat(prow, 3)
         self.Jp = sp.csr_matrix((jpp.ravel(), (rowsp, colsp)), shape=(m, 3 * npf))
-        self.B = (Jcw.T @ self.Jp).tocsr() if lay.nc else sp.csr_matrix((0, 3 * npf))
+        # B = J_c^T J_p: scipy's product is CSC, whose arrays are B^T in CSR (rows in the kernel's order); H B^T
+        # takes them as they are (each row of B^T holds a column at most once, so the order of a row changes
+        # only the order in which H B^T stores its entries, not their values)
+        Bcsc = Jcw.T @ self.Jp if lay.nc else None
+        self.B = Bcsc.tocsr() if lay.nc else sp.csr_matrix((0, 3 * npf))
+        self._Bt = sp.csr_matrix((Bcsc.data, Bcsc.indices, Bcsc.indptr), shape=(3 * npf, lay.nc)) \
+            if lay.nc and sp.isspmatrix_csc(Bcsc) else None
+        del Bcsc
         self.dU = np.clip(np.diag(self.U), 1e-6, 1e32) if lay.nc else np.zeros(0)
         self.dV = np.clip(np.diagonal(self.V, axis1=1, axis2=2), 1e-6, 1e32)
         self._Bc = None
-        self._Bt = None  # B^T in CSR (for H B^T), built at the first reduced matrix of this linearisation
         # work of the sparse Schur product W V^-1 W^T (sum over point columns of their non-zeros squared);
         # the dense slab product costs nc^2 * 3 npf: sparse wins when each point touches few parameters
         # (survey blocks: ~4 of 32 poses per point)
@@ -725,7 +731,7 @@ class _Normal:
                 Vsp = sp.bsr_matrix((Vinv, np.arange(npf), np.arange(npf + 1)), shape=(3 * npf, 3 * npf)).tocsr()
                 H = (self.B @ Vsp).tocsr()
                 if self._Bt is None:
-                    self._Bt = self.B.T.tocsr()  # (what ``H @ self.B.T`` converts B^T to, once per linearisation)
+                    self._Bt = self.B.T.tocsr()
                 HB = _csr_product(H, self._Bt, nc, self.threads)
                 # subtracted in row blocks: no second dense nc x nc matrix (same values as one subtraction)
                 step = max(1, int(4e6 // max(nc, 1)))
@@ -769,6 +775,23 @@ class _Normal:
 #: chunked path keeps the unrefined step (a third pass over the Jacobians would change it by less
 #: than this fraction; the old path always refines)
 _REFINE_RTOL = 1e-6
+
+
+# quantiles by the special functions behind scipy.stats' ``norm``, ``chi2`` and ``t`` (whose ``ppf`` is ``_ppf``
+# times 1 plus 0 there): the same values without importing scipy.stats (~0.5 s)
+def _norm_ppf(q):
+    """Quantile of the standard normal distribution (``scipy.stats.norm.ppf``)."""
+    return scipy.special.ndtri(q)
+
+
+def _chi2_ppf(q, df):
+    """Quantile of the chi-square distribution with ``df`` degrees of freedom (``scipy.stats.chi2.ppf``)."""
+    return 2 * scipy.special.gammaincinv(np.asarray(df) / 2, q)
+
+
+def _t_ppf(q, df):
+    """Quantile of Student's t distribution with ``df`` degrees of freedom (``scipy.stats.t.ppf``)."""
+    return scipy.special.stdtrit(df, q)
 
 
 #: stored entries of the left factor from which :func:`_csr_product` splits its rows over threads
@@ -1579,7 +1602,7 @@ def _solve(problem: BundleProblem, opt: SolverOptions) -> AdjustmentResult:
         if w is None:
             warnings.append("data snooping skipped: no redundancy numbers (covariance not available)")
             break
-        k = scipy.stats.norm.ppf(1 - opt.snooping_alpha / 2)
+        k = _norm_ppf(1 - opt.snooping_alpha / 2)
         wmax = np.max(np.nan_to_num(np.abs(w), nan=0.0), axis=1) if len(w) else np.zeros(0)
         cand = np.nonzero(wmax > k)[0]
         if not len(cand):
@@ -1661,7 +1684,7 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     out["gnss_residuals"] = -r[g0 : g0 + 3 * ng].reshape(-1, 3) * data.g_sig if ng else np.zeros((0, 3))
     if red > 0:
         stat = red * sigma0**2 / opt.sigma0_prior**2
-        lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], red)
+        lo, hi = _chi2_ppf(np.array([0.025, 0.975]), red)
         out["chi2"] = dict(statistic=stat, dof=int(red), lower=float(lo), upper=float(hi), passed=bool(lo <= stat <= hi))
     if not opt.compute_covariance:
         return out
@@ -1808,7 +1831,7 @@ def _precision(pb, lay, st, data, opt, active, warnings):
                     warnings.append(f"high correlation {corr[a, b]:+.3f} between {names[a + a0]} and {names[b]}")
             del corr
     if red > 0:
-        tcrit = scipy.stats.t.ppf(1 - opt.significance_alpha / 2, red)
+        tcrit = _t_ppf(1 - opt.significance_alpha / 2, red)
         for c, cc in enumerate(lay.cam_cols):
             for k, col in enumerate(cc):
                 name = pb.cameras[c].param_names[k]
