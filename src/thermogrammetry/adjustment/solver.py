@@ -657,7 +657,11 @@ class _Normal:
         rw = r * w
         Jc, jp = jac
         jac.clear()
-        Jcw = sp.diags(w) @ Jc if (lay.nc and np.any(w != 1.0)) else Jc
+        if lay.nc and np.any(w != 1.0):
+            # (= ``sp.diags(w) @ Jc``: the same kernel on the same CSR operands, without the symbolic count)
+            Jcw = _csr_product(sp.diags(w).tocsr(), Jc, int(np.max(np.diff(Jc.indptr), initial=0)), threads)
+        else:
+            Jcw = Jc
         del Jc
         jpw = jp * w[:, None]
         del jp
