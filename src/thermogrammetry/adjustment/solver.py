@@ -113,9 +113,6 @@ class SolverOptions:
     max_dense_inner : int
         Largest parameter count for which the free-network (inner constraint) covariance is
         computed (dense).
-    num_threads : int
-        Threads for the largest sparse products of the normal equations on the full-Jacobian path (rows split
-        over threads; the same values, bit for bit, with any count).
     chunked_min_observations : int
         Number of (active) image observations from which the normal equations are built chunk by
         chunk of points without holding the block's Jacobian (memory independent of the number of
@@ -123,6 +120,9 @@ class SolverOptions:
         step, and one per rejected step). Same solution up to rounding. 0: always; a huge number:
         never. The covariance step falls back to the full Jacobian when it needs it (redundancy
         numbers, point covariances, free-network covariance).
+    num_threads : int
+        Threads for the largest sparse products of the normal equations on the full-Jacobian path (rows split
+        over threads; the same values, bit for bit, with any count).
     """
 
     max_iterations: int = 100
