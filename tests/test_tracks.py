@@ -40,3 +40,24 @@ def test_triangulation_leaves_out_non_finite_rays():
     P, ang = triangulate_tracks(np.arange(5), track, R[image], t[image], ray)
     np.testing.assert_allclose(P[:4], X[:4], atol=1e-9)
     assert np.all(np.isnan(P[4])) and np.all(ang[:4] > 1.0)
+
+
+def test_final_adjustment_leaves_out_points_with_parallel_rays():
+    """sfm.georef._parallel_ray_points: twice the largest angle between a ray and the mean ray, against
+    MIN_FINAL_TRI_ANGLE_DEG (0.1°). Two cameras 1 m apart looking down +Z; points at 10 m (5.7°), 500 m (0.115°) and
+    1000 m (0.057°) depth in the middle, and a point at 10 m seen by one camera only twice (no second centre)."""
+    from types import SimpleNamespace
+
+    from thermogrammetry.sfm.georef import MIN_FINAL_TRI_ANGLE_DEG, _parallel_ray_points
+    from thermogrammetry.sfm.tracks import Tracks
+
+    assert MIN_FINAL_TRI_ANGLE_DEG == 0.1
+    R = np.stack([np.eye(3), np.eye(3)])
+    t = np.array([[0.5, 0.0, 0.0], [-0.5, 0.0, 0.0]])  # centres at x = -0.5 and +0.5
+    points = np.array([[0.0, 0.0, 10.0], [0.0, 0.0, 500.0], [0.0, 0.0, 1000.0], [0.3, 0.0, 10.0]])
+    tr = Tracks(np.array([0, 0, 1, 1, 2, 2, 3, 3]), np.array([0, 1, 0, 1, 0, 1, 0, 0]), np.arange(8))
+    rec = SimpleNamespace(R=R, t=t, points=points, tracks=tr)
+    obs = np.ones(8, bool)
+    assert _parallel_ray_points(rec, obs).tolist() == [2, 3]
+    obs[4:6] = False  # point 2 without observations is not named
+    assert _parallel_ray_points(rec, obs).tolist() == [3]

@@ -163,9 +163,10 @@ class SurveyOptions:
         EXIF focal length; ``off`` orients nothing) gave ``auto`` a 14/14 block 25 deg off before the guard, which now
         refuses it (plane parallax 1.28 x the RMS, planar share 0.29; right walk blocks 0.42-0.58 and 0.76-0.85);
         so are the wrong blocks of the same facade with 10 and 20 stations and with the true camera, and of the
-        plain wall at 320x256 px without ground (a single plane, 20/20 frames 36 deg off). Walk seed 4 gives nothing:
-        the PRIMARY orientation builds a 30/30 block on SIFT matches of noise, which the final adjustment rejects
-        (the fallback does not run after that).
+        plain wall at 320x256 px without ground (a single plane, 20/20 frames 36 deg off). When the final adjustment
+        rejects every block of the primary orientation, the fallback runs then (:func:`run_survey`): walk seed 4's
+        primary orientation builds a 30/30 block on SIFT matches of noise that no adjustment can determine; the
+        fallback then orients 30/30 in one block (2.59 deg RMS).
     tie_refinement : LsmOptions or None
         Least-squares matching of every tie observation against its track's reference patch before the
         orientation (:func:`~thermogrammetry.sfm.lsm.refine_tracks`); None (default) keeps the keypoint
@@ -1091,7 +1092,7 @@ def _low_texture_verdict(project: ProjectStore, out: dict, verdict: dict) -> dic
 
 
 def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=None, progress=None, rgb_camera=None,
-                            rig=None) -> dict:
+                            rig=None, *, primary_rejected: bool = False) -> dict:
     """:func:`step_orient`, then, with ``low_texture == "auto"``, the low-texture fallback when the orientation left
     fewer than 80 % of the thermal frames in one block although the matching did not trigger it (descriptor matches
     on noise and the sensor's pattern verify pairs that no orientation can use: a plain wall's frames were all
@@ -1103,6 +1104,11 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
     (their reason says why) and the primary matching's orientation is put back when its largest thermal block is at
     least as large as what is left of the fallback's: with a refused block ``auto`` gives what ``off`` gives. The
     outcome goes to ``work/low_texture.json`` and survey.json's ``low_texture``.
+
+    ``primary_rejected``: the final adjustment rejected every block of the primary orientation although it held
+    enough frames not to trigger the fallback (descriptor matches on noise can connect every frame into a block
+    that no adjustment can determine): the fallback runs, and its result is kept when it has any block
+    (:func:`run_survey` re-runs ``georef`` on it).
     """
     out = step_orient(project, _low_texture_orient_options(project, opt), camera, progress, rgb_camera)
     if opt.low_texture != "auto":
@@ -1154,8 +1160,11 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
         return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": False,
                                                    "check": chk["blocks"], "why": why})
     nt, best = _largest_thermal_block(project)
-    if nt < 2 or best >= LOW_TEXTURE_SHARE * nt:
+    if nt < 2 or (best >= LOW_TEXTURE_SHARE * nt and not primary_rejected):
         return _low_texture_verdict(project, out, {"ran": False})
+    trigger = "orientation"
+    if primary_rejected:
+        trigger, best = "adjustment", 1  # the primary blocks were all rejected: any block of two frames is more
     inputs = project.read_json("work/inputs.json")["images"]
     keep = ["work/pairs.json", "work/features.json", "work/reconstruction.json", "work/reconstruction.npz"]
     keep += [f"work/tie_xy/{im['name']}.npz" for im in inputs]
@@ -1170,11 +1179,16 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
             project.write_bytes(k, project.read_bytes(f"lowtexture/primary/{k}"))
 
     m = step_matching(project, opt, camera, None, rig, low_texture_only=True)
+    if primary_rejected and "low_texture" in m["features"]:
+        m["features"]["low_texture"]["trigger"] = "adjustment: the final adjustment rejected every primary block"
+        pp = project.read_json("work/pairs.json")
+        pp["features"]["low_texture"]["trigger"] = m["features"]["low_texture"]["trigger"]
+        project.write_json("work/pairs.json", pp)
     lt = m["features"].get("low_texture", {})
     if "used" not in m["features"]:
         restore()
         out["low_texture"] = lt
-        return _low_texture_verdict(project, out, {"ran": True, "trigger": "orientation", "kept": False,
+        return _low_texture_verdict(project, out, {"ran": True, "trigger": trigger, "kept": False,
                                                    "why": "the fallback verified no consecutive pair"})
     out2 = step_orient(project, _low_texture_orient_options(project, opt), camera, progress, rgb_camera)
     chk = _low_texture_check(project) if _low_texture_sequence_used(project) else {"blocks": [], "refused_images": [], "why": {}}
@@ -1184,14 +1198,15 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
     _, best2 = _largest_thermal_block(project)
     if best2 > best:
         out2["low_texture"] = {**lt, "largest_thermal_block_before": best, "largest_thermal_block": best2}
-        return _low_texture_verdict(project, out2, {"ran": True, "trigger": "orientation", "kept": True, "check": chk["blocks"],
+        return _low_texture_verdict(project, out2, {"ran": True, "trigger": trigger, "kept": True, "check": chk["blocks"],
                                                     **({"why": sorted(set(chk["why"].values()))[0]} if chk["why"] else {})})
     # the primary result stands (its frames keep their own reasons)
     restore()
     out["low_texture"] = lt
     why = (sorted(set(chk["why"].values()))[0] if chk["why"] else
-           f"its largest block holds {best2} thermal frames, the primary's {best}")
-    return _low_texture_verdict(project, out, {"ran": True, "trigger": "orientation", "kept": False, "check": chk["blocks"],
+           f"its largest block holds {best2} thermal frames" + (" (the primary's were rejected by the final adjustment)"
+                                                                if primary_rejected else f", the primary's {best}"))
+    return _low_texture_verdict(project, out, {"ran": True, "trigger": trigger, "kept": False, "check": chk["blocks"],
                                                "why": why})
 
 
@@ -2042,13 +2057,32 @@ def _write_clouds(project, P, values, unit, mult, crs):
 # ------------------------------------------------------------------------------------------------
 # the workflow
 # ------------------------------------------------------------------------------------------------
+def _survey_camera(inp: SurveyInput):
+    """The thermal camera held fixed: ``--camera``, else the rig file's thermal camera, else None."""
+    cam = inp.camera
+    if cam is None and inp.rig is not None and inp.rig.thermal_camera is not None:
+        cam = inp.rig.thermal_camera  # the rig file's thermal camera, held fixed like --camera
+    return cam
+
+
+def _retry_low_texture(project: ProjectStore, opt: SurveyOptions, reports) -> bool:
+    """True when ``georef`` ran and oriented nothing although ``orient`` gave blocks, with ``--low-texture auto``
+    and the fallback not yet run (:func:`step_orient_low_texture` ``primary_rejected``)."""
+    if opt.low_texture != "auto" or not reports or reports[-1].name != "georef" or not reports[-1].ok:
+        return False
+    if reports[-1].summary.get("images_oriented", 1) != 0 or not project.exists("work/low_texture.json"):
+        return False
+    orient = next((r for r in reports if r.name == "orient"), None)
+    if orient is None or not orient.summary.get("oriented"):
+        return False
+    return not project.read_json("work/low_texture.json").get("ran", True)
+
+
 def survey_steps(inp: SurveyInput, opt: SurveyOptions, progress: Callable | None = None):
     """The survey as a list of :class:`~thermogrammetry.pipeline.steps.Step`."""
     from .steps import Step
 
-    cam = inp.camera
-    if cam is None and inp.rig is not None and inp.rig.thermal_camera is not None:
-        cam = inp.rig.thermal_camera  # the rig file's thermal camera, held fixed like --camera
+    cam = _survey_camera(inp)
 
     def prog(name):
         return (lambda k, n: progress(name, k, n)) if progress else None
@@ -2116,6 +2150,19 @@ def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | Non
     _release_task_state()
     if all(r.ok for r in reports) and n_tasks < len(plain):
         reports += run_steps(project, plain[n_tasks:], on_step=on_step)
+    if _retry_low_texture(project, opt, reports):
+        # the final adjustment rejected every block of the primary orientation: the low-texture fallback, then the
+        # georeferencing again on its blocks (steps of their own, reported beside the first ones)
+        from .steps import Step
+
+        cam = _survey_camera(inp)
+        retry = [Step("orient_low_texture", lambda p: step_orient_low_texture(
+                     p, opt, cam, (lambda k, n: progress("orient", k, n)) if progress else None,
+                     rgb_camera=getattr(inp.rig, "rgb_camera", None), rig=inp.rig, primary_rejected=True),
+                      "low-texture fallback after the final adjustment rejected the primary blocks")]
+        reports += run_steps(project, retry, on_step=on_step)
+        if reports[-1].ok and project.read_json("work/low_texture.json").get("kept"):
+            reports += run_steps(project, [Step("georef_low_texture", plain[-1].run, plain[-1].description)], on_step=on_step)
     if project.exists("survey.json"):
         s = project.read_json("survey.json")
         s["seconds"] = time.perf_counter() - t0

@@ -313,6 +313,38 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, robust_ti
     return fa
 
 
+#: when a solve of the final adjustment stops on a singular point block, the tie points whose rays meet at less than
+#: this angle (degrees) are left out and the round is solved again: their depth is undetermined. The orientation
+#: creates points at >= 1.5° (``min_tri_angle_deg``); points drift towards infinity in an adjustment (a block matched
+#: on noise: walk seed 4 had 25 below 0.01°; the 64-station ring one at 0.0002°, which its solves carry). Only
+#: after such a stop, so that blocks that solve keep every point.
+MIN_FINAL_TRI_ANGLE_DEG = 0.1
+
+
+def _parallel_ray_points(rec, obs) -> np.ndarray:
+    """Tracks (point indices) of ``rec`` whose observations ``obs`` (bool over ``rec.tracks``) have rays that meet at
+    less than :data:`MIN_FINAL_TRI_ANGLE_DEG`: twice the largest angle between a ray (camera centre to point) and
+    the point's mean ray direction, as in :func:`~thermogrammetry.sfm.reconstruction.triangulate_tracks`."""
+    tr = rec.tracks
+    o = np.flatnonzero(obs)
+    if not len(o):
+        return np.zeros(0, np.int64)
+    t, i = tr.track[o], tr.image[o]
+    C = -np.einsum("kji,kj->ki", rec.R[i], rec.t[i])
+    d = rec.points[t] - C
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    m = np.zeros((len(rec.points), 3))
+    np.add.at(m, t, d)
+    m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)
+    ang = np.degrees(np.arccos(np.clip(np.einsum("ki,ki->k", d, m[t]), -1.0, 1.0)))
+    amax = np.full(len(rec.points), np.inf)
+    seen = np.zeros(len(rec.points), bool)
+    seen[t] = True
+    amax[seen] = 0.0
+    np.maximum.at(amax, t, ang)
+    return np.flatnonzero(seen & (2.0 * amax < MIN_FINAL_TRI_ANGLE_DEG))
+
+
 def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_calibrate=(), tie_sigma_px: float = 1.0,
                       max_error_px: float = 4.0, gcp_reject_px: float = 5.0, compute_covariance: bool = True,
                       georeferenced: bool = True, max_iterations: int = 50, rig=None, manual_ties=None,
@@ -362,6 +394,7 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
     gnss_rejected: list[int] = []
     gnss_screened = False
     start = _state(rec, rig)
+    drop_parallel = False  # set when a solve stops on a singular point block: such points are left out, once
     for round_ in range(5):
         # the previous round's result (its problem, residuals) is released before the next problem is built
         res = p = v_img = pb = None
@@ -369,6 +402,13 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
         obs = rec.obs_valid & in_block[tr.image] & np.isfinite(rec.points[tr.track]).all(1)
         cnt = np.bincount(tr.track[obs], minlength=len(rec.points))
         obs &= cnt[tr.track] >= 2
+        weak = _parallel_ray_points(rec, obs) if drop_parallel else ()
+        if len(weak):
+            # points whose rays have become (nearly) parallel carry no depth and made the adjustment singular
+            rec.obs_valid[np.isin(tr.track, weak) & obs] = False
+            obs &= ~np.isin(tr.track, weak)
+            notes.append(f"{len(weak)} tie point(s) with rays within {MIN_FINAL_TRI_ANGLE_DEG:g}° of parallel left out "
+                          f"(round {round_ + 1})")
         pts = np.unique(tr.track[obs])
         have_gnss = np.all(np.isfinite(ctrl.gnss_xyz[images]), axis=1)
         use_gcp = [k for k, (i, gi, xy, s) in enumerate(ctrl.gcp_obs) if in_block[i] and gcp_active[k]]
@@ -423,6 +463,12 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
                             compute_covariance=(not robust) and compute_covariance, compute_redundancy=False,
                             function_tolerance=1e-8 if not robust else 1e-3)
         res = solve(pb, opt)
+        if (not res.success and not drop_parallel and round_ < 4
+                and "point's normal block is singular" in str(res.reason)):
+            notes.append(f"final adjustment (round {round_ + 1}) stopped: {res.reason}; solved again without the points "
+                         f"whose rays meet at less than {MIN_FINAL_TRI_ANGLE_DEG:g}°")
+            drop_parallel = True
+            continue
         if not res.success:
             notes.append(f"final adjustment (round {round_ + 1}) stopped: {res.reason}")
             if res.problem is None:
