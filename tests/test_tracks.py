@@ -61,3 +61,21 @@ def test_final_adjustment_leaves_out_points_with_parallel_rays():
     assert _parallel_ray_points(rec, obs).tolist() == [2, 3]
     obs[4:6] = False  # point 2 without observations is not named
     assert _parallel_ray_points(rec, obs).tolist() == [3]
+
+
+def test_gnss_collinear_within_its_sigma():
+    """sfm.georef._collinear: a line of positions with scatter of the order of the GNSS σ cannot fix the rotation
+    about the line (a hand-held walk along a facade with 3 m GNSS); two flight lines 12 m apart with RTK can."""
+    from thermogrammetry.sfm.georef import _collinear
+
+    rng = np.random.default_rng(0)
+    x = np.linspace(0.0, 19.4, 30)
+    walk = np.column_stack([x, 0.08 * rng.standard_normal(30), 1.6 + 0.04 * rng.standard_normal(30)])
+    noisy = walk + rng.normal(0.0, 3.0, walk.shape)
+    assert not _collinear(noisy)  # by geometry alone: 3 m of scatter across 20 m is not a line
+    assert _collinear(noisy, 3.0)  # ... but it is within the positions' σ
+    assert _collinear(walk + rng.normal(0.0, 0.03, walk.shape), 0.03)  # RTK walk: a line by geometry (< 2 %)
+    two_lines = np.vstack([np.column_stack([x * 8, np.zeros(30), np.full(30, 75.0)]),
+                           np.column_stack([x * 8, np.full(30, 12.0), np.full(30, 75.0)])])
+    assert not _collinear(two_lines + rng.normal(0.0, 0.02, two_lines.shape), 0.02)
+    assert _collinear(two_lines + rng.normal(0.0, 0.02, two_lines.shape), 5.0)  # 6 m across, σ 5 m: a line

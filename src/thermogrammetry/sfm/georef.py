@@ -66,11 +66,22 @@ class ControlInputs:
     check_obs: list = field(default_factory=list)
 
 
-def _collinear(P: np.ndarray) -> bool:
+#: positions whose RMS distance from their best-fitting line is below this multiple of their σ are taken as one
+#: straight line (:func:`_collinear`): they cannot fix the rotation about it
+COLLINEAR_SIGMA = 3.0
+
+
+def _collinear(P: np.ndarray, sigma_m: float | None = None) -> bool:
+    """Whether the points (N, 3) lie on one straight line: their second singular value below 2 % of the first, or,
+    with ``sigma_m`` (their positional σ, metres), their RMS distance in the second principal direction below
+    :data:`COLLINEAR_SIGMA` σ (noisy positions along a line: a hand-held walk along a facade with 3 m GNSS has
+    ~3 m of scatter across a line of 20 m, and the rotation about the line is then noise)."""
     if len(P) < 3:
         return True
     s = np.linalg.svd(P - P.mean(0), compute_uv=False)
-    return s[1] < 0.02 * s[0]
+    if s[1] < 0.02 * s[0]:
+        return True
+    return sigma_m is not None and bool(s[1] / np.sqrt(len(P)) < COLLINEAR_SIGMA * sigma_m)
 
 
 def similarity_start(rec, images, ctrl: ControlInputs):
@@ -87,7 +98,8 @@ def similarity_start(rec, images, ctrl: ControlInputs):
     C = rec.centers()[images]
     g = ctrl.gnss_xyz[images]
     have = np.all(np.isfinite(g), axis=1)
-    if have.sum() >= 3 and not _collinear(g[have]):
+    sig_h = float(np.median(ctrl.gnss_sigma[images][have][:, :2])) if have.any() else None
+    if have.sum() >= 3 and not _collinear(g[have], sig_h):
         S = umeyama(C[have], g[have])
         # robust: drop GNSS positions far from the fit (another flight, a wrong tag) and refit once
         r = np.linalg.norm(S(C[have]) - g[have], axis=1)
@@ -98,7 +110,8 @@ def similarity_start(rec, images, ctrl: ControlInputs):
             notes.append(f"{int((~keep).sum())} GNSS position(s) far from the block's fit left out of the start")
         return S, f"GNSS of {int(have.sum())} images", notes
     if have.sum() >= 3:
-        notes.append("GNSS positions are nearly collinear (one straight line): the roll about the line is taken from GCPs if any")
+        notes.append("GNSS positions are nearly collinear (one straight line within their σ): the roll about the line is "
+                     "taken from GCPs if any")
     # GCPs triangulated in the model frame
     if len(ctrl.gcp_ids) >= 3:
         from .reconstruction import triangulate_tracks
