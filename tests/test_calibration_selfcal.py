@@ -170,7 +170,7 @@ def test_k45_and_affinity_on_request(field):
 
 
 def test_options_are_validated():
-    with pytest.raises(ConfigError, match="unknown self-calibration option"):
+    with pytest.raises(ConfigError, match="SelfCalibrationOptions: unknown key"):
         SelfCalibrationOptions.from_dict({"k45": True, "kk": 1})
     with pytest.raises(ConfigError, match="Q9"):
         SelfCalibrationOptions(fixed=("Q9",))

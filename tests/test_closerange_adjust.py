@@ -70,7 +70,7 @@ def test_config_requires_bundle_for_additional_parameters():
         CloseRangeConfig(additional_parameters=("k1",))
     with pytest.raises(ConfigError, match="'k9'"):
         CloseRangeConfig(bundle=True, additional_parameters=("k9",))
-    with pytest.raises(ConfigError, match="unknown closerange option"):
+    with pytest.raises(ConfigError, match="CloseRangeConfig: unknown key"):
         CloseRangeConfig.from_dict({"ambient": 3})
     assert CloseRangeConfig(bundle=True, additional_parameters=("K1",)).additional_parameters == ("k1",)
 

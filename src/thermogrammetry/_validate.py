@@ -6,7 +6,7 @@ import numpy as np
 
 from .errors import NonFiniteError, ShapeError
 
-__all__ = ["as_points", "as_array", "check_finite"]
+__all__ = ["as_points", "as_array", "check_finite", "config_keys"]
 
 
 def _describe(a) -> str:
@@ -57,3 +57,24 @@ def check_finite(arr: np.ndarray, name: str) -> None:
         raise NonFiniteError(
             f"{name}: {len(bad)} non-finite value(s), first at index {first} = {arr[first]!r}; expected finite numbers"
         )
+
+
+def config_keys(cls, d, what: str | None = None) -> dict:
+    """A copy of the mapping ``d`` after checking that each key is a field of the dataclass ``cls``.
+
+    Raises :class:`~thermogrammetry.errors.ConfigError` naming ``what`` (default: the class name), the unknown
+    keys and the valid ones; the ``from_dict`` of every typed configuration starts with it.
+    """
+    from collections.abc import Mapping
+    from dataclasses import fields
+
+    from .errors import ConfigError
+
+    what = what or cls.__name__
+    if not isinstance(d, Mapping):
+        raise ConfigError(f"{what}: expected a mapping of options, got {type(d).__name__}")
+    known = {f.name for f in fields(cls)}
+    bad = sorted(set(d) - known, key=str)
+    if bad:
+        raise ConfigError(f"{what}: unknown key(s) {bad}; valid: {sorted(known)}")
+    return dict(d)

@@ -39,7 +39,7 @@ Pope, A.J., 1976. The statistics of residuals and the detection of outliers. NOA
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import cv2
@@ -49,6 +49,7 @@ from scipy import stats
 from ..errors import ConfigError, InvalidInputError, TooFewPointsError
 from ..results import Outcome, Termination
 from .bundle import N_PARAMS, PARAM_NAMES, BundleProblem, BundleSolution, CameraBlock, residuals, solve_bundle
+from .._validate import config_keys
 
 __all__ = [
     "SelfCalibrationOptions",
@@ -122,11 +123,7 @@ class SelfCalibrationOptions:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SelfCalibrationOptions":
-        names = {f.name for f in fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ConfigError(f"unknown self-calibration option(s) {sorted(unknown)}; valid: {sorted(names)}")
-        d = dict(d)
+        d = config_keys(cls, d)
         if "fixed" in d:
             d["fixed"] = tuple(d["fixed"])
         return cls(**d)

@@ -25,6 +25,7 @@ from ..products.correction import (
 from . import network as nw
 from .planes import PlaneEstimate, angle_to_axis, check_plane_points, fit_plane, plane_jacobian
 from .solve import NetworkResult
+from .._validate import config_keys
 
 __all__ = [
     "AngleMode",
@@ -104,11 +105,7 @@ class CloseRangeConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "CloseRangeConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"unknown closerange option(s) {unknown}; expected some of {sorted(known)}")
-        return cls(**dict(d))
+        return cls(**config_keys(cls, d))
 
     def to_dict(self) -> dict[str, Any]:
         out = {}

@@ -34,6 +34,7 @@ import numpy as np
 from ..errors import DegenerateInputError
 from .rectify import _mul, rectify_pair, remap_frame
 from .stereo import disparity, disparity_range
+from .._validate import config_keys
 
 __all__ = ["DenseConfig", "PairCandidate", "rank_pairs", "pair_depth", "fuse_depths", "reference_points",
            "POINT_DTYPE"]
@@ -63,15 +64,7 @@ class DenseConfig:
 
     @classmethod
     def from_dict(cls, d) -> "DenseConfig":
-        from dataclasses import fields
-
-        from ..errors import ConfigError
-
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(d) - known)
-        if bad:
-            raise ConfigError(f"unknown dense option(s) {bad}; expected some of {sorted(known)}")
-        return cls(**dict(d))
+        return cls(**config_keys(cls, d))
 
 
 @dataclass

@@ -54,6 +54,7 @@ from ..sfm.matching import MatchOptions
 from ..sfm.lsm import LsmOptions
 from ..sfm.reconstruction import ReconstructionOptions
 from .project import FolderProject, ProjectStore
+from .._validate import config_keys
 
 __all__ = ["SurveyOptions", "SurveyInput", "survey_steps", "run_survey", "VIDEO_SUFFIXES", "IMAGE_SUFFIXES"]
 
@@ -225,11 +226,7 @@ class SurveyOptions:
 
     @classmethod
     def from_dict(cls, d: dict) -> "SurveyOptions":
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(d) - known)
-        if bad:
-            raise ConfigError(f"SurveyOptions: unknown key(s) {bad}; valid: {sorted(known)}")
-        d = dict(d)
+        d = config_keys(cls, d)
         for k, sub in (("features", FeatureOptions), ("matching", MatchOptions), ("reconstruction", ReconstructionOptions),
                        ("tie_refinement", LsmOptions)):  # tie_refinement: a dict turns it on
             if isinstance(d.get(k), dict):

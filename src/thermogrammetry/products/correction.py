@@ -36,13 +36,14 @@ Sawicki, Stein, Więcek (seed 000) eq. 7–8; Vollmer & Möllmann, *Infrared The
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from ..enums import StrChoice
 from ..errors import ConfigError, InvalidInputError
+from .._validate import config_keys
 
 __all__ = [
     "AngleMode",
@@ -288,11 +289,7 @@ class CorrectionConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "CorrectionConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"unknown correction option(s) {unknown}; expected some of {sorted(known)}")
-        return cls(**dict(d))
+        return cls(**config_keys(cls, d))
 
     @property
     def ambient_k(self) -> float:

@@ -39,6 +39,7 @@ import numpy as np
 
 from ..enums import StrChoice
 from .raster import Grid
+from .._validate import config_keys
 
 __all__ = ["Sampling", "OrthoConfig", "ortho_tile", "gradient", "SCORE_DOC"]
 
@@ -67,15 +68,7 @@ class OrthoConfig:
 
     @classmethod
     def from_dict(cls, d) -> "OrthoConfig":
-        from dataclasses import fields
-
-        from ..errors import ConfigError
-
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(d) - known)
-        if bad:
-            raise ConfigError(f"unknown ortho option(s) {bad}; expected some of {sorted(known)}")
-        return cls(**dict(d))
+        return cls(**config_keys(cls, d))
 
 
 def _project(cam, R, t, X):

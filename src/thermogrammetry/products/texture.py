@@ -57,13 +57,14 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 
 from ..enums import StrChoice
 from ..errors import ConfigError, InvalidInputError, ShapeError
+from .._validate import config_keys
 from .correction import CorrectionConfig
 
 __all__ = ["Levelling", "TextureConfig", "TextureView", "TextureResult", "face_view_scores",
@@ -111,17 +112,7 @@ class TextureConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "TextureConfig":
-        return _from_dict(cls, d)
-
-
-def _from_dict(cls, d):
-    if not isinstance(d, dict):
-        raise ConfigError(f"{cls.__name__}: expected a mapping, got {type(d).__name__}")
-    names = {f.name for f in fields(cls)}
-    unknown = sorted(set(d) - names)
-    if unknown:
-        raise ConfigError(f"{cls.__name__}: unknown key(s) {unknown}; valid: {sorted(names)}")
-    return cls(**d)
+        return cls(**config_keys(cls, d))
 
 
 @dataclass

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..enums import StrChoice
 from ..errors import ConfigError, ShapeError
+from .._validate import config_keys
 
 __all__ = ["Detector", "Enhancement", "FeatureOptions", "Features", "detector_input", "extract_features", "fixed_pattern"]
 
@@ -96,13 +97,7 @@ class FeatureOptions:
 
     @classmethod
     def from_dict(cls, d: dict) -> "FeatureOptions":
-        from dataclasses import fields
-
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(d) - known)
-        if bad:
-            raise ConfigError(f"FeatureOptions: unknown key(s) {bad}; valid: {sorted(known)}")
-        return cls(**d)
+        return cls(**config_keys(cls, d))
 
 
 @dataclass

@@ -38,13 +38,14 @@ Förstner, W. (1982). On the geometric precision of digital correlation. IAPRS 2
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
 from ..errors import ConfigError
 from .tracks import Tracks
+from .._validate import config_keys
 
 __all__ = ["LsmOptions", "LsmResult", "lsm_affine", "refine_tracks"]
 
@@ -98,11 +99,7 @@ class LsmOptions:
 
     @classmethod
     def from_dict(cls, d: dict) -> "LsmOptions":
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(d) - known)
-        if bad:
-            raise ConfigError(f"LsmOptions: unknown key(s) {bad}; valid: {sorted(known)}")
-        return cls(**d)
+        return cls(**config_keys(cls, d))
 
 
 @dataclass

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
+from .._validate import config_keys
 
 __all__ = ["MatchOptions", "PairMatches", "select_pairs", "match_descriptors", "verify_pair", "homography_prior", "guided_matches"]
 
@@ -79,13 +80,7 @@ class MatchOptions:
 
     @classmethod
     def from_dict(cls, d: dict) -> "MatchOptions":
-        from dataclasses import fields
-
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(d) - known)
-        if bad:
-            raise ConfigError(f"MatchOptions: unknown key(s) {bad}; valid: {sorted(known)}")
-        return cls(**d)
+        return cls(**config_keys(cls, d))
 
 
 @dataclass

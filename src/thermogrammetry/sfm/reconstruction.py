@@ -39,6 +39,7 @@ from .._memory import release_free_heap
 from ..errors import ConfigError
 from ..results import HasOutcome, Outcome, Termination
 from .tracks import Tracks
+from .._validate import config_keys
 
 __all__ = ["ReconstructionOptions", "Reconstruction", "ImageStatus", "reconstruct", "triangulate_tracks", "bundle_adjust"]
 
@@ -64,13 +65,7 @@ class ReconstructionOptions:
 
     @classmethod
     def from_dict(cls, d: dict) -> "ReconstructionOptions":
-        from dataclasses import fields
-
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(d) - known)
-        if bad:
-            raise ConfigError(f"ReconstructionOptions: unknown key(s) {bad}; valid: {sorted(known)}")
-        return cls(**d)
+        return cls(**config_keys(cls, d))
 
 
 @dataclass

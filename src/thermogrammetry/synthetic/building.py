@@ -46,7 +46,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -54,6 +54,7 @@ from ..errors import ConfigError
 from .facade import _cast_mesh, _sample_rays
 from .radiance import FlirCurve, fresnel_emissivity
 from .sensor import SensorEffects, apply_sensor_effects
+from .._validate import config_keys
 
 __all__ = ["BuildingConfig", "BuildingScene", "make_building", "render_building_thermal", "apparent_temperature",
            "write_building_survey", "write_building_user_files", "surface_temperature", "discontinuity_distance"]
@@ -118,11 +119,7 @@ class BuildingConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "BuildingConfig":
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"BuildingConfig: unknown key(s) {unknown}; valid: {sorted(names)}")
-        return cls(**d)
+        return cls(**config_keys(cls, d))
 
 
 @dataclass

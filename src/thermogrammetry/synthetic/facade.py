@@ -32,7 +32,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,6 +40,7 @@ from ..errors import ConfigError
 from ._render import sample_offsets, unproject_fast
 from .radiance import FlirCurve, fresnel_emissivity
 from .sensor import SensorEffects, apply_sensor_effects
+from .._validate import config_keys
 
 __all__ = ["FacadeConfig", "FacadeScene", "make_facade", "render_facade_thermal", "render_facade_rgb", "write_facade"]
 
@@ -81,11 +82,7 @@ class FacadeConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "FacadeConfig":
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"FacadeConfig: unknown key(s) {unknown}; valid: {sorted(names)}")
-        return cls(**d)
+        return cls(**config_keys(cls, d))
 
 
 @dataclass

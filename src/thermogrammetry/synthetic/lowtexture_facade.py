@@ -35,11 +35,12 @@ compares an oriented block with the truth after a similarity transform.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import ConfigError
+from .._validate import config_keys
 
 __all__ = ["LowTextureFacadeConfig", "LowTextureFacade", "make_lowtexture_facade", "render_lowtexture_frame",
            "write_lowtexture_facade", "pose_errors"]
@@ -112,11 +113,7 @@ class LowTextureFacadeConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "LowTextureFacadeConfig":
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"LowTextureFacadeConfig: unknown key(s) {unknown}; valid: {sorted(names)}")
-        return cls(**d)
+        return cls(**config_keys(cls, d))
 
 
 @dataclass

@@ -21,6 +21,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..errors import ConfigError, InvalidInputError
+from .._validate import config_keys
 
 __all__ = ["SensorEffects", "apply_sensor_effects", "vignetting_factor", "fixed_pattern"]
 
@@ -70,11 +71,7 @@ class SensorEffects:
 
     @classmethod
     def from_dict(cls, d: dict) -> "SensorEffects":
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"SensorEffects: unknown key(s) {unknown}; valid: {sorted(names)}")
-        return cls(**d)
+        return cls(**config_keys(cls, d))
 
 
 def vignetting_factor(image_size: tuple[int, int], vignetting: float) -> np.ndarray:

@@ -49,7 +49,7 @@ import os
 import csv
 import io
 import json
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import Any, Callable
 
 import numpy as np
@@ -59,6 +59,7 @@ from ._render import unproject_fast
 from .radiance import FlirCurve, fresnel_emissivity
 from .sensor import SensorEffects, apply_sensor_effects
 from .terrain import HeightfieldCaster, Terrain, TerrainConfig, add_square_markers, make_terrain
+from .._validate import config_keys
 
 __all__ = [
     "SurveyConfig", "SurveyScene", "FramePlan", "make_survey", "render_frame", "render_frames", "write_survey",
@@ -122,11 +123,7 @@ class SurveyConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "SurveyConfig":
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"SurveyConfig: unknown key(s) {unknown}; valid: {sorted(names)}")
-        d = dict(d)
+        d = config_keys(cls, d)
         if isinstance(d.get("terrain"), dict):
             d["terrain"] = TerrainConfig.from_dict(d["terrain"])
         if isinstance(d.get("sensor"), dict):

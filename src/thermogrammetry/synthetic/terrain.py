@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ConfigError
+from .._validate import config_keys
 
 __all__ = [
     "Material", "DEFAULT_MATERIALS", "Terrain", "TerrainConfig", "make_terrain", "raycast_heightfield",
@@ -94,13 +95,7 @@ class TerrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "TerrainConfig":
-        from dataclasses import fields
-
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"TerrainConfig: unknown key(s) {unknown}; valid: {sorted(names)}")
-        return cls(**d)
+        return cls(**config_keys(cls, d))
 
 
 @dataclass
