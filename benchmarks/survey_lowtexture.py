@@ -38,6 +38,7 @@ Usage::
     python benchmarks/survey_lowtexture.py [--data ../shared/data] [--no-colmap] [--keep DIR]
     python benchmarks/survey_lowtexture.py --synthetic [--seed 0 1] [--contrast 0.15 0.25] [--no-colmap]
     python benchmarks/survey_lowtexture.py --synthetic --scene wall320|facade [--stations 14] --no-colmap
+    python benchmarks/survey_lowtexture.py --synthetic [--gnss-sigma 0.03] [--render8 grey|palette] --no-colmap
 
 Exit status 2 when the data is absent.
 """
@@ -60,15 +61,45 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _survey(images: Path, out: Path, *extra) -> dict:
+def _survey(images: Path, out: Path, *extra, gnss: tuple = ("--gnss", "none")) -> dict:
     t0 = time.perf_counter()
     p = subprocess.run([sys.executable, "-m", "thermogrammetry", "survey", str(images), "-o", str(out), "--workers", "0",
-                        "--gnss", "none", *extra], capture_output=True, text=True,
+                        *gnss, *extra], capture_output=True, text=True,
                        env={**os.environ, "PYTHONPATH": str(REPO / "src")})
     wall = time.perf_counter() - t0
     if not (out / "survey.json").is_file():
         return {"error": (p.stderr or p.stdout)[-600:], "wall": wall, "code": p.returncode}
     return {"wall": wall, "code": p.returncode, "survey": json.loads((out / "survey.json").read_text()), "out": out}
+
+
+def _gnss_csv(scene, path: Path, sigma_m: float) -> Path:
+    """A GNSS CSV of the true centres + seeded N(0, sigma) noise (vertical 1.5 sigma), in EPSG:2056 coordinates."""
+    rng = np.random.default_rng(1)
+    rows = ["image,X,Y,Z,sX,sY,sZ"]
+    for name, p in zip(scene.names, scene.poses):
+        c = p.center + rng.normal(0.0, sigma_m, 3) * [1.0, 1.0, 1.5] + [2600000.0, 1200000.0, 400.0]
+        rows.append(f"{name},{c[0]:.4f},{c[1]:.4f},{c[2]:.4f},{sigma_m:g},{sigma_m:g},{1.5 * sigma_m:g}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def _render8(frames: Path, dst: Path, mode: str) -> Path:
+    """The frames as 8-bit JPEGs (quality 92) with a per-frame 1-99 % stretch (an AGC), grey or through matplotlib's
+    'inferno' palette, without EXIF (no focal length): what a camera's exported JPEGs give."""
+    import matplotlib
+    import tifffile
+    from PIL import Image
+
+    dst.mkdir(parents=True, exist_ok=True)
+    cmap = matplotlib.colormaps["inferno"]
+    for p in sorted(frames.glob("*.tif")):
+        a = tifffile.imread(p).astype(float)
+        lo, hi = np.percentile(a, [1, 99])
+        g = np.clip((a - lo) / max(hi - lo, 1e-12), 0, 1)
+        img = np.round(g * 255).astype(np.uint8) if mode == "grey" else (cmap(g)[..., :3] * 255).round().astype(np.uint8)
+        Image.fromarray(img).save(dst / (p.stem + ".jpg"), quality=92)
+    return dst
 
 
 def _poses(out: Path, suffix: str) -> dict:
@@ -176,6 +207,7 @@ def synthetic(args) -> int:
     try:
         for seed in args.seed:
             for contrast in args.contrast:
+                gnss = ("--gnss", "none")
                 if args.scene == "facade":
                     from thermogrammetry.synthetic.facade import FacadeConfig, make_facade, write_facade
 
@@ -192,9 +224,15 @@ def synthetic(args) -> int:
                     write_lowtexture_facade(FolderProject(work / tag), sc)
                     truth = {n: (p.R, p.t) for n, p in zip(sc.names, sc.poses)}
                     frames = work / tag / "frames"
+                    if args.render8:
+                        frames = _render8(frames, work / tag / f"frames8_{args.render8}", args.render8)
+                        tag += f"_8bit{args.render8[0]}"
+                    if args.gnss_sigma is not None:
+                        gnss = ("--gnss", str(_gnss_csv(sc, work / tag / "gnss.csv", args.gnss_sigma)), "--crs", "EPSG:2056")
+                        tag += f"_gnss{args.gnss_sigma:g}"
                 n = len(truth)
                 for mode in ("off", "auto"):
-                    run = _survey(frames, work / tag / f"out_{mode}", "--low-texture", mode)
+                    run = _survey(frames, work / tag / f"out_{mode}", "--low-texture", mode, gnss=gnss)
                     if "error" in run:
                         rows.append((tag, f"ours --low-texture {mode}", n, None, run["wall"], run["error"][-120:]))
                         continue
@@ -253,6 +291,10 @@ def main(argv=None) -> int:
                     help="--synthetic scene: walk (640x512, 4 m, ground in view), wall320 (320x256, 34 um, 2 m, 20 frames, "
                          "a single plane), facade (synthetic.facade: windows reflecting the sky, no EXIF focal length)")
     ap.add_argument("--stations", type=int, default=14, help="--scene facade: stations")
+    ap.add_argument("--gnss-sigma", type=float, default=None, metavar="M",
+                    help="--scene walk|wall320: give the survey GNSS (true centres + N(0, M) noise, EPSG:2056)")
+    ap.add_argument("--render8", choices=("grey", "palette"), default=None,
+                    help="--scene walk|wall320: the frames as 8-bit JPEGs (per-frame stretch, no EXIF focal length)")
     args = ap.parse_args(argv)
     if args.synthetic:
         sys.path.insert(0, str(REPO / "src"))

@@ -244,6 +244,16 @@ def test_bad_arguments_exit_2_and_write_nothing(tmp_path, block):
     assert main(["survey", str(block["root"] / "survey" / "images"), "-o", str(out), "--gcps", "x.csv"]) == 2
     assert main(["survey", str(block["root"] / "survey" / "images"), "-o", str(out), "--crs", "EPSG:99999999"]) == 2
     assert not out.exists()
+    # a malformed row of a user's CSV stops the run before any frame is decoded (it was found in the matching step)
+    bad = tmp_path / "gnss_bad.csv"
+    bad.write_text("image,X,Y,Z\nT0000,np.float64(1.0),2,3\n")
+    assert main(["survey", str(block["root"] / "survey" / "images"), "-o", str(out), "--gnss", str(bad)]) == 2
+    bad_cp = tmp_path / "cp_bad.csv"
+    bad_cp.write_text("id,X,Y\nA,1,2\n")
+    user = block["root"] / "survey" / "user"
+    assert main(["survey", str(block["root"] / "survey" / "images"), "-o", str(out), "--checkpoints", str(bad_cp),
+                 "--check-measurements", str(user / "check_measurements.csv")]) == 2
+    assert not out.exists()
     assert not list(tmp_path.glob(".o.partial-*"))
 
 

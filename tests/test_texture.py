@@ -87,7 +87,7 @@ def test_no_texel_from_a_view_where_it_is_occluded(scene, views, result):
     hidden = _segment_hits_box(C[sel.source[ok]][wall], P[wall], lo, hi)
     assert hidden.sum() == 0
     # the occluder really hides texels that the face score prefers: the selection had to switch views
-    best = np.argmax(face_view_scores(scene.vertices, scene.faces, views), axis=1)[tx.face[ok]]
+    best = np.argmax(face_view_scores(scene.vertices, scene.faces, views).toarray(), axis=1)[tx.face[ok]]
     hidden_in_best = _segment_hits_box(C[best][wall], P[wall], lo, hi)
     assert hidden_in_best.sum() > 1000
     assert np.all(sel.source[ok][wall][hidden_in_best] != best[wall][hidden_in_best])
@@ -116,6 +116,28 @@ def test_selection_in_chunks_equals_one_call(scene, views):
     assert np.array_equal(sel.temperature_k, one.temperature_k, equal_nan=True)
     assert np.array_equal(occ, one.occluded_in.sum(axis=0)) and occ.sum() > 0
     assert np.array_equal(ak, one.all_k[sample], equal_nan=True)
+    # the sparse (F, K) scores select exactly what their dense matrix selects
+    dense = select_and_sample(inter, V, F, views, surf, sc.toarray(), tx.points, tx.face, cfg)
+    assert np.array_equal(dense.source, one.source) and np.array_equal(dense.temperature_k, one.temperature_k, equal_nan=True)
+
+
+def test_sparse_face_view_scores(scene, views):
+    """face_view_scores keeps the positive scores only (a dense (F, K) float64 was 1.6 GB at 1 M faces x 200 images):
+    same values as one image's column computed on its own; scores_at reads any faces of an image, absent = 0."""
+    from thermogrammetry.products.texture import _check_mesh, _score_columns, _score_max_count, scores_at
+
+    V, F = _check_mesh(scene.vertices, scene.faces)
+    sc = face_view_scores(V, F, views)
+    cols = dict(_score_columns(V, F, views, 75.0, 0.1))
+    D = np.column_stack([cols[k] for k in range(len(views))])
+    assert sc.shape == D.shape and sc.nnz == int(np.sum(D > 0)) and 0 < sc.nnz < 0.6 * D.size
+    assert np.array_equal(sc.toarray(), D)
+    rng = np.random.default_rng(0)
+    fi = rng.integers(0, len(F), 5000)
+    for k in range(len(views)):
+        assert np.array_equal(scores_at(sc, k, fi), D[fi, k]) and np.array_equal(scores_at(D, k, fi), D[fi, k])
+    best, n = _score_max_count(sc)
+    assert np.array_equal(best, D.max(axis=1)) and np.array_equal(n, (D > 0).sum(axis=1))
 
 
 def test_coverage_of_visible_faces(scene, result):

@@ -145,6 +145,17 @@ def survey(
             raise ThermogrammetryError(f"--gnss {gnss!r}: expected auto, none or the path of a gnss.csv; no such file")
         if out.exists() and not out.is_dir():
             raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
+        # the user's CSV files are read once here, so that a malformed row stops the run before any frame is decoded
+        from ..io.testfield_csv import read_control_csv, read_gnss_csv, read_measurements_csv
+
+        if gnss.lower() not in ("auto", "none"):
+            read_gnss_csv(gnss)
+        for p in (gcps, checkpoints):
+            if p is not None:
+                read_control_csv(p)
+        for p in (gcp_measurements, check_measurements):
+            if p is not None:
+                read_measurements_csv(p)
         cam = Camera.load(camera) if camera is not None else None
         extra = {}
         for flag, val, sizes in (("--lever-arm", lever_arm, (3,)), ("--gnss-sigma", gnss_sigma, (2, 3))):

@@ -369,7 +369,7 @@ def orient_mesh_to_views(V, F, views, cfg):
     if any_face_seen(V, F, views, **kw):
         return F, None
     Fr = np.ascontiguousarray(F[:, ::-1])
-    seen = int(np.sum(np.any(face_view_scores(V, Fr, views, **kw) > 0, axis=1)))
+    seen = int(np.sum(face_view_scores(V, Fr, views, **kw).getnnz(axis=1) > 0))
     if not seen:
         return F, None
     return Fr, (f"no face's normal (right-hand rule) pointed towards any of the {len(views)} images; with the winding "

@@ -67,7 +67,7 @@ from ..errors import ConfigError, InvalidInputError, ShapeError
 from .._validate import config_keys
 from .correction import CorrectionConfig
 
-__all__ = ["Levelling", "TextureConfig", "TextureView", "TextureResult", "face_view_scores",
+__all__ = ["Levelling", "TextureConfig", "TextureView", "TextureResult", "face_view_scores", "scores_at",
            "any_face_seen", "build_atlas", "rasterize_atlas", "PixelSurface", "pixel_surfaces", "usable_in_view", "select_and_sample",
            "select_in_chunks", "estimate_offsets", "texture_mesh", "thermal_poses_from_rig", "local_origin", "view_in_frame"]
 
@@ -202,8 +202,8 @@ def _focal_px(camera) -> float:
 
 
 def face_view_scores(vertices, faces, views: Sequence[TextureView], *, max_angle_deg: float = 75.0,
-                     border_fraction: float = 0.1) -> np.ndarray:
-    """The documented per-face score (module docstring) of every image: (F, K), 0 = unusable.
+                     border_fraction: float = 0.1):
+    """The documented per-face score (module docstring) of every image: (F, K) sparse, absent = unusable.
 
     Parameters
     ----------
@@ -211,15 +211,51 @@ def face_view_scores(vertices, faces, views: Sequence[TextureView], *, max_angle
 
     Returns
     -------
-    (F, K) float64: ``f cos θ / d · min(1, b / b0)`` in pixels per metre; 0 where θ > ``max_angle_deg``,
-    behind the camera or the centroid projects outside the image. Occlusion is not part of the score (it is
-    tested per texel).
+    ``scipy.sparse.csc_matrix`` (F, K) float64 holding the positive scores only (sorted row indices per image):
+    ``f cos θ / d · min(1, b / b0)`` in pixels per metre; absent (0) where θ > ``max_angle_deg``, behind the
+    camera or the centroid projects outside the image. Occlusion is not part of the score (it is tested per
+    texel). Sparse because each face is seen by a few of the images: a dense matrix was 1.6 GB at 1 M faces x
+    200 images. ``.toarray()`` gives the dense matrix; :func:`scores_at` reads one image's scores of given faces.
     """
+    import scipy.sparse as sp
+
     V, F = _check_mesh(vertices, faces)
-    S = np.zeros((len(F), len(views)))
+    rows, vals, ptr = [], [], [0]
     for k, col in _score_columns(V, F, views, max_angle_deg, border_fraction):
-        S[:, k] = col
-    return S
+        nz = np.flatnonzero(col > 0)
+        rows.append(nz.astype(np.int32))
+        vals.append(col[nz])
+        ptr.append(ptr[-1] + len(nz))
+    data = np.concatenate(vals) if vals else np.zeros(0)
+    idx = np.concatenate(rows) if rows else np.zeros(0, np.int32)
+    return sp.csc_matrix((data, idx, np.asarray(ptr, np.int64)), shape=(len(F), len(views)))
+
+
+def scores_at(scores, k: int, face_index) -> np.ndarray:
+    """Scores of image ``k`` for the faces ``face_index`` (N,): from the sparse (F, K) matrix of
+    :func:`face_view_scores` (its sorted row indices: a binary search, no dense column) or a dense (F, K) array."""
+    fi = np.asarray(face_index, np.int64)
+    if isinstance(scores, np.ndarray):
+        return scores[fi, k]
+    a, b = int(scores.indptr[k]), int(scores.indptr[k + 1])
+    rows, vals = scores.indices[a:b], scores.data[a:b]
+    if not len(rows):
+        return np.zeros(len(fi))
+    pos = np.minimum(np.searchsorted(rows, fi), len(rows) - 1)
+    return np.where(rows[pos] == fi, vals[pos], 0.0)
+
+
+def _score_max_count(scores) -> tuple[np.ndarray, np.ndarray]:
+    """Per face: the best image's score and the number of images with a positive score ((F,), (F,) int)."""
+    if isinstance(scores, np.ndarray):
+        return scores.max(axis=1, initial=0.0), (scores > 0).sum(axis=1)
+    r = scores.tocsr()
+    best = np.zeros(r.shape[0])
+    n = np.diff(r.indptr)
+    has = n > 0
+    if np.any(has):
+        best[has] = np.maximum.reduceat(r.data, r.indptr[:-1][has])
+    return best, n
 
 
 def any_face_seen(vertices, faces, views: Sequence[TextureView], *, max_angle_deg: float = 75.0,
@@ -516,7 +552,7 @@ def select_and_sample(intersector, vertices, faces, views, surfaces, scores, poi
     occl = np.zeros((N, K), bool)
     all_k = np.full((N, K), np.nan, np.float32)
     for k, v in enumerate(views):
-        s = scores[fi, k]
+        s = scores_at(scores, k, fi)
         cand = np.flatnonzero(s > 0)
         if not len(cand):
             continue
@@ -796,7 +832,7 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     scores = face_view_scores(V, F, views, max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
     ts = cfg.texel_size_m
     if ts is None:  # half the median surface pixel size of each face's best image, area weighted
-        best = scores.max(axis=1)
+        best = _score_max_count(scores)[0]
         seen = best > 0
         if np.any(seen):
             px = 1.0 / best[seen]
@@ -860,7 +896,7 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
         cov = np.where(n_tex > 0, n_ok / n_tex, np.nan)
     face_source = majority_source(texels.face[textured], sel.source[textured], len(F))
     texels.points += origin  # back to the input's coordinates
-    return TextureResult(V_in, F, atlas, temp, src, angle, vtemp, cov, (scores > 0).sum(axis=1), face_source,
+    return TextureResult(V_in, F, atlas, temp, src, angle, vtemp, cov, _score_max_count(scores)[1], face_source,
                          [v.name for v in views], offsets, fixed, rms, occluded, texels, sel, cfg)
 
 
