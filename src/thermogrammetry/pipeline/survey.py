@@ -781,7 +781,8 @@ def _sequence_order_ratio(xyz) -> float | None:
 
 def _track_thermal_sequence(project: ProjectStore, inputs: dict, thermal: list, cams: dict, cam_ids: list,
                             pattern_key: str | None) -> tuple[dict, list]:
-    """Low-texture fallback for a sequence (no positions, or positions in walk order): the thermal frames tracked frame to frame (input order).
+    """Low-texture fallback for a sequence (no positions, or positions in walk order): the thermal frames tracked
+    frame to frame (input order).
 
     Writes ``lowtexture/features/<name>.npz`` (the tracked points; no descriptors: zero rows) and
     ``lowtexture/matches/<i>_<j>.npz`` of the verified consecutive pairs. Returns (feature counts by name, match
@@ -2189,7 +2190,7 @@ def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | Non
                      rgb_camera=getattr(inp.rig, "rgb_camera", None), rig=inp.rig, primary_rejected=True),
                       "low-texture fallback after the final adjustment rejected the primary blocks")]
         reports += run_steps(project, retry, on_step=on_step)
-        if reports[-1].ok and project.read_json("work/low_texture.json").get("kept"):
+        if reports[-1].ok:  # (also when the fallback was not kept: survey.json then says why)
             reports += run_steps(project, [Step("georef_low_texture", plain[-1].run, plain[-1].description)], on_step=on_step)
     if project.exists("survey.json"):
         s = project.read_json("survey.json")

@@ -66,22 +66,29 @@ class ControlInputs:
     check_obs: list = field(default_factory=list)
 
 
-#: positions whose RMS distance from their best-fitting line is below this multiple of their σ are taken as one
-#: straight line (:func:`_collinear`): they cannot fix the rotation about it
-COLLINEAR_SIGMA = 3.0
+#: positions whose RMS distance from their best-fitting line is below this multiple of the GNSS σ in that direction
+#: are taken as one straight line (:func:`_collinear`): their spread across it is noise, which cannot fix the
+#: rotation about the line
+COLLINEAR_SIGMA = 1.5
 
 
-def _collinear(P: np.ndarray, sigma_m: float | None = None) -> bool:
+def _collinear(P: np.ndarray, sigma_xyz=None) -> bool:
     """Whether the points (N, 3) lie on one straight line: their second singular value below 2 % of the first, or,
-    with ``sigma_m`` (their positional σ, metres), their RMS distance in the second principal direction below
-    :data:`COLLINEAR_SIGMA` σ (noisy positions along a line: a hand-held walk along a facade with 3 m GNSS has
-    ~3 m of scatter across a line of 20 m, and the rotation about the line is then noise)."""
+    with ``sigma_xyz`` ((3,) positional σ per axis, metres), their RMS distance along the second principal direction
+    ``u`` below :data:`COLLINEAR_SIGMA` × ``sqrt(Σ u_i² σ_i²)`` (the noise alone gives ~1 there).
+
+    A hand-held walk along a facade (19 m, 30 frames) with 3 m GNSS (4.5 m vertical): 0.8-1.25 of that σ over 200
+    noise draws -- a line; rotated about it by the noise, the block was rejected (datum undetermined). A 40 x 25 m
+    grid of 30 positions with the same GNSS: 2.5-3.1 (not a line, georeferenced as before); 40 x 12 m: 1.4-1.9."""
     if len(P) < 3:
         return True
-    s = np.linalg.svd(P - P.mean(0), compute_uv=False)
+    _, s, vt = np.linalg.svd(P - P.mean(0), full_matrices=False)
     if s[1] < 0.02 * s[0]:
         return True
-    return sigma_m is not None and bool(s[1] / np.sqrt(len(P)) < COLLINEAR_SIGMA * sigma_m)
+    if sigma_xyz is None:
+        return False
+    su = float(np.sqrt(np.sum(vt[1] ** 2 * np.asarray(sigma_xyz, float) ** 2)))
+    return bool(s[1] / np.sqrt(len(P)) < COLLINEAR_SIGMA * su)
 
 
 def similarity_start(rec, images, ctrl: ControlInputs):
@@ -98,8 +105,8 @@ def similarity_start(rec, images, ctrl: ControlInputs):
     C = rec.centers()[images]
     g = ctrl.gnss_xyz[images]
     have = np.all(np.isfinite(g), axis=1)
-    sig_h = float(np.median(ctrl.gnss_sigma[images][have][:, :2])) if have.any() else None
-    if have.sum() >= 3 and not _collinear(g[have], sig_h):
+    sig = np.median(ctrl.gnss_sigma[images][have], axis=0) if have.any() else None
+    if have.sum() >= 3 and not _collinear(g[have], sig):
         S = umeyama(C[have], g[have])
         # robust: drop GNSS positions far from the fit (another flight, a wrong tag) and refit once
         r = np.linalg.norm(S(C[have]) - g[have], axis=1)
