@@ -1142,17 +1142,17 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
     out = step_orient(project, _low_texture_orient_options(project, opt), camera, progress, rgb_camera)
     if opt.low_texture != "auto":
         return _low_texture_verdict(project, out, {"ran": False})
-    if "low_texture" in project.read_json("work/pairs.json").get("features", {}):
+    feats = project.read_json("work/pairs.json").get("features", {})  # (read once: the checks below do not write it)
+    if "low_texture" in feats:
         if not _low_texture_sequence_used(project):
-            lt_info = project.read_json("work/pairs.json")["features"]["low_texture"]
-            return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": "used" in
-                                                       project.read_json("work/pairs.json")["features"],
+            lt_info = feats["low_texture"]
+            return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": "used" in feats,
                                                        **({"why": lt_info["refused"]} if lt_info.get("refused") else {})})
         chk = _low_texture_check(project)
         if not chk["refused_images"]:
             return _low_texture_verdict(project, out, {"ran": True, "trigger": "matching", "kept": True, "check": chk["blocks"]})
         why = sorted(set(chk["why"].values()))[0]
-        prim = project.read_json("work/pairs.json")["features"].get("primary_kept")
+        prim = feats.get("primary_kept")
         if prim is not None and project.exists("lowtexture/primary/work/pairs.json"):
             # a block refused: the primary matching is oriented instead (what ``off`` gives); the refused block's
             # frames are not oriented in the fallback's result, so the primary one is kept unless the fallback's

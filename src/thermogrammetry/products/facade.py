@@ -148,13 +148,6 @@ class FacadeLevelling:
     note: str = ""
 
 
-def _sample_mask(n: int, n_sample: int, seed: int = 0) -> np.ndarray:
-    """(n,) bool: a deterministic random subset of ``min(n, n_sample)`` cells (the texture's levelling sample)."""
-    from .texture import _levelling_sample
-
-    return _levelling_sample(n, n_sample, seed)
-
-
 def level_offsets(values, cells_per_image, *, max_pairs: int = LEVELLING_MAX_PAIRS, seed: int = 0) -> FacadeLevelling:
     """Per-image offsets from sampled overlap cells, by :func:`thermogrammetry.products.texture.estimate_offsets`.
 
@@ -411,7 +404,7 @@ def homography_mosaic(images: Sequence[np.ndarray], fits: Sequence[HomographyFit
     -------
     :class:`FacadeMosaic` (``angle_deg`` None: no orientation, no viewing angle)
     """
-    from .texture import Levelling
+    from .texture import Levelling, _levelling_sample
 
     lev_mode = Levelling(levelling)
     if len(images) != len(fits) or not len(images):
@@ -424,7 +417,7 @@ def homography_mosaic(images: Sequence[np.ndarray], fits: Sequence[HomographyFit
     T = np.full((h, w), np.nan, np.float32)
     res = np.full((h, w), np.nan, np.float32)
     src = np.full((h, w), -1, np.int32)
-    sample = _sample_mask(h * w, LEVELLING_SAMPLE_CELLS).reshape(h, w) if lev_mode is Levelling.OFFSETS else None
+    sample = _levelling_sample(h * w, LEVELLING_SAMPLE_CELLS).reshape(h, w) if lev_mode is Levelling.OFFSETS else None
     samples = []
     A_all, B_all = grid.centres()
     for r0 in range(0, h, band):
@@ -479,7 +472,8 @@ def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None,
     estimated from a sample of at most ``LEVELLING_SAMPLE_CELLS`` cells; they alter the values).
     The cells are selected and sampled ``chunk_cells`` at a time (each image's value is held for one chunk only).
     """
-    from .texture import Levelling, TextureConfig, _intersector, local_origin, pixel_surfaces, select_in_chunks, view_in_frame
+    from .texture import (Levelling, TextureConfig, _intersector, _levelling_sample, local_origin, pixel_surfaces,
+                          select_in_chunks, view_in_frame)
 
     lev_mode = Levelling(levelling)
 
@@ -524,7 +518,7 @@ def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None,
     K = len(views)
     N = h * w
     fr = face.ravel()
-    sample = _sample_mask(N, LEVELLING_SAMPLE_CELLS) if lev_mode is Levelling.OFFSETS else None
+    sample = _levelling_sample(N, LEVELLING_SAMPLE_CELLS) if lev_mode is Levelling.OFFSETS else None
     sel, _, sample_k = select_in_chunks(inter, V, F, views, surfaces, scores, P, fr, cfg, sample=sample,
                                         chunk_point_views=max(1, int(chunk_cells)) * max(K, 1))
     T, src = sel.temperature_k.astype(np.float32), sel.source.astype(np.int32)

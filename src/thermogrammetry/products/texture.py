@@ -830,9 +830,9 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     views = [view_in_frame(v, origin) for v in views]
     normals, area, cen = _face_geometry(V, F)
     scores = face_view_scores(V, F, views, max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
+    best, face_views = _score_max_count(scores)
     ts = cfg.texel_size_m
     if ts is None:  # half the median surface pixel size of each face's best image, area weighted
-        best = _score_max_count(scores)[0]
         seen = best > 0
         if np.any(seen):
             px = 1.0 / best[seen]
@@ -896,7 +896,7 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
         cov = np.where(n_tex > 0, n_ok / n_tex, np.nan)
     face_source = majority_source(texels.face[textured], sel.source[textured], len(F))
     texels.points += origin  # back to the input's coordinates
-    return TextureResult(V_in, F, atlas, temp, src, angle, vtemp, cov, _score_max_count(scores)[1], face_source,
+    return TextureResult(V_in, F, atlas, temp, src, angle, vtemp, cov, face_views, face_source,
                          [v.name for v in views], offsets, fixed, rms, occluded, texels, sel, cfg)
 
 

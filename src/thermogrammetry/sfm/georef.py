@@ -343,25 +343,19 @@ MIN_FINAL_TRI_ANGLE_DEG = 0.1
 
 def _parallel_ray_points(rec, obs) -> np.ndarray:
     """Tracks (point indices) of ``rec`` whose observations ``obs`` (bool over ``rec.tracks``) have rays that meet at
-    less than :data:`MIN_FINAL_TRI_ANGLE_DEG`: twice the largest angle between a ray (camera centre to point) and
-    the point's mean ray direction, as in :func:`~thermogrammetry.sfm.reconstruction.triangulate_tracks`."""
+    less than :data:`MIN_FINAL_TRI_ANGLE_DEG`: twice :func:`~thermogrammetry.sfm.reconstruction.ray_spread_deg`, as
+    the orientation measures a track's intersection angle."""
+    from .reconstruction import ray_spread_deg
+
     tr = rec.tracks
     o = np.flatnonzero(obs)
     if not len(o):
         return np.zeros(0, np.int64)
     t, i = tr.track[o], tr.image[o]
     C = -np.einsum("kji,kj->ki", rec.R[i], rec.t[i])
-    d = rec.points[t] - C
-    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
-    m = np.zeros((len(rec.points), 3))
-    np.add.at(m, t, d)
-    m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)
-    ang = np.degrees(np.arccos(np.clip(np.einsum("ki,ki->k", d, m[t]), -1.0, 1.0)))
-    amax = np.full(len(rec.points), np.inf)
+    amax = ray_spread_deg(t, len(rec.points), C, rec.points[t])
     seen = np.zeros(len(rec.points), bool)
     seen[t] = True
-    amax[seen] = 0.0
-    np.maximum.at(amax, t, ang)
     return np.flatnonzero(seen & (2.0 * amax < MIN_FINAL_TRI_ANGLE_DEG))
 
 

@@ -169,23 +169,9 @@ def triangulate_tracks(track_ids, obs_track, obs_R, obs_t, obs_ray):
         X = Xh[:, :3] / Xh[:, 3:4]
     X[~good] = np.nan
     X[~np.isfinite(X).all(axis=1)] = np.nan
-    # angles: directions of rays in the world
-    d = np.einsum("kji,kj->ki", obs_R, np.column_stack([obs_ray, np.ones(len(obs_ray))]))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    # angles of the rays from the camera centres to the points (robust to the measured ray noise)
     C = -np.einsum("kji,kj->ki", obs_R, obs_t)
-    # largest angle against the mean direction approximates half the max pairwise angle well enough
-    mean = np.zeros((len(uid), 3))
-    np.add.at(mean, inv, d)
-    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
-    # use ray directions from the camera centre to the point (robust to the measured ray noise)
-    dp = X[inv] - C
-    dp /= np.maximum(np.linalg.norm(dp, axis=1, keepdims=True), 1e-300)
-    mp = np.zeros((len(uid), 3))
-    np.add.at(mp, inv, dp)
-    mp /= np.maximum(np.linalg.norm(mp, axis=1, keepdims=True), 1e-300)
-    ang = np.degrees(np.arccos(np.clip(np.einsum("ki,ki->k", dp, mp[inv]), -1, 1)))
-    amax = np.zeros(len(uid))
-    np.maximum.at(amax, inv, ang)
+    amax = ray_spread_deg(inv, len(uid), C, X[inv])
     pos = {int(u): k for k, u in enumerate(uid)}
     sel = np.array([pos.get(int(t), -1) for t in np.asarray(track_ids)], dtype=np.int64)
     Xo = np.full((len(sel), 3), np.nan)
@@ -194,6 +180,31 @@ def triangulate_tracks(track_ids, obs_track, obs_R, obs_t, obs_ray):
     Xo[ok] = X[sel[ok]] + origin
     ao[ok] = 2.0 * amax[sel[ok]]
     return Xo, ao
+
+
+def ray_spread_deg(group, n_groups: int, centers, points) -> np.ndarray:
+    """Per group of rays, the largest angle (degrees) between a ray and the group's mean ray direction: about half
+    the largest angle between two of its rays (the intersection angle of a track is twice it).
+
+    Parameters
+    ----------
+    group : (K,) int, the group (track, point) of each ray, in ``[0, n_groups)``
+    n_groups : int
+    centers, points : (K, 3) camera centre and point of each ray (the ray runs from the centre to the point)
+
+    Returns
+    -------
+    (n_groups,) float64 degrees, 0 for a group without rays
+    """
+    dp = np.asarray(points, float) - centers
+    dp /= np.maximum(np.linalg.norm(dp, axis=1, keepdims=True), 1e-300)
+    mp = np.zeros((int(n_groups), 3))
+    np.add.at(mp, group, dp)
+    mp /= np.maximum(np.linalg.norm(mp, axis=1, keepdims=True), 1e-300)
+    ang = np.degrees(np.arccos(np.clip(np.einsum("ki,ki->k", dp, mp[group]), -1, 1)))
+    amax = np.zeros(int(n_groups))
+    np.maximum.at(amax, group, ang)
+    return amax
 
 
 def _reproj_error(cameras, cam_idx, R, t, X, xy):
