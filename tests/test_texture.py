@@ -144,8 +144,12 @@ def test_coverage_of_visible_faces(scene, result):
     s = result.summary()
     seen = result.face_views > 0
     assert s["faces_seen"] == seen.sum() > 500
-    share = np.mean(result.faces_textured[seen])
+    vis = result.face_visible
+    assert s["faces_visible"] == vis.sum() > 500 and not np.any(vis & ~seen)  # a visible texel needs a scored face
+    share = np.mean(result.faces_textured[vis])
     assert share >= 0.98
+    assert s["faces_visible_textured"] == int(np.sum(vis & result.faces_textured))
+    assert not np.any(result.faces_textured & ~vis)  # a textured texel is a visible one
     wall = scene.face_group == GROUPS.index("wall")
     n_tex = np.bincount(result.texels.face, minlength=len(scene.faces))
     n_ok = np.bincount(result.texels.face[result.texel_selection.source >= 0], minlength=len(scene.faces))
@@ -283,7 +287,7 @@ def test_cli_texture_outputs(cli_out, scene, views):
     d = json.loads((out / "texture.json").read_text())
     assert d["unit"] == "C" and d["offsets"] is None and d["values_altered"] is False
     assert d["index"] == {str(i): v.name for i, v in enumerate(views)}
-    assert d["faces_total"] == len(scene.faces) and d["faces_textured"] >= 0.98 * d["faces_seen"] > 500
+    assert d["faces_total"] == len(scene.faces) and d["faces_visible_textured"] >= 0.98 * d["faces_visible"] > 500
     t = tifffile.imread(out / "temperature_texture.tif")
     src = tifffile.imread(out / "source_texture.tif")
     assert t.dtype == np.float32 and src.dtype == np.int32 and t.shape == src.shape
@@ -418,3 +422,64 @@ def test_majority_source_equals_a_dense_count():
     want = np.where(cnt.sum(axis=1) > 0, np.argmax(cnt, axis=1), -1)  # argmax: ties to the smallest index
     assert np.array_equal(majority_source(face, src, n_faces), want)
     assert np.all(majority_source(np.zeros(0, int), np.zeros(0, int), 4) == -1)
+
+
+def test_large_faces_seen_only_in_part_are_textured():
+    """Two 40 x 40 m ground triangles (a CAD-like ground of one square) seen by a camera 1.7 m above them, looking
+    along their common diagonal, 15 deg down: both centroids are seen at > 80 deg (beyond max_angle_deg) and outside
+    the image, yet the near ground on both sides of the diagonal is in view at < 75 deg. Scored at their centroids
+    only, neither face was textured (0 texels); now both are, and every texel equals the image at its own projection
+    (the image is linear in the pixel coordinates, so bilinear sampling is exact up to float32) and was seen within
+    max_angle_deg."""
+    from scipy.spatial.transform import Rotation
+
+    from thermogrammetry import Camera
+    from thermogrammetry.geometry import Pose
+
+    V = np.array([[-20.0, -20, 0], [20, -20, 0], [20, 20, 0], [-20, 20, 0]])
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    cam = Camera("opencv", (160, 120), dict(fx=150.0, fy=150.0, cx=79.5, cy=59.5, k1=-0.1))
+    level = np.column_stack([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # columns: camera axes in world, looking +y
+    R_wc = Rotation.from_euler("z", -45, degrees=True).as_matrix() @ Rotation.from_euler("x", -15, degrees=True).as_matrix() @ level
+    R = R_wc.T
+    C = np.array([-12.0, -12.0, 1.7])
+    pose = Pose(R, -R @ C)
+    u, v = np.meshgrid(np.arange(160.0), np.arange(120.0))
+    img = (290.0 + 0.05 * u - 0.03 * v).astype(np.float32)
+    res = texture_mesh(V, F, [TextureView("g", cam, pose, img)], TextureConfig(texel_size_m=0.1, max_texture_px=1024))
+    cen = V[F].mean(axis=1)
+    assert np.all(np.degrees(np.arccos(1.7 / np.linalg.norm(cen - C, axis=1))) > 80)  # the scene is as described
+    xy_c = cam.project(cen @ R.T + pose.t)
+    assert np.all((xy_c[:, 0] < 0) | (xy_c[:, 0] > 159))
+    assert res.faces_textured.all()
+    sel = res.texel_selection
+    ok = sel.source >= 0
+    assert np.bincount(res.texels.face[ok], minlength=2).min() > 500
+    xy = cam.project(res.texels.points[ok] @ R.T + pose.t)
+    expect = 290.0 + 0.05 * xy[:, 0] - 0.03 * xy[:, 1]
+    assert np.max(np.abs(sel.temperature_k[ok] - expect)) < 2e-3
+    assert np.max(sel.angle_deg[ok]) <= 75.0 + 1e-9
+
+
+def test_min_clean_radius_fallback_textures_silhouette_faces(scene, views):
+    """With a wide clean-pixel radius (the CLI widens it by the pose σ), small faces along a silhouette have no texel
+    clean at that radius and stayed untextured although visible (on a held-out ring with survey poses: 40 of 744
+    visible faces at radius 4). ``min_clean_radius_px`` gives exactly those faces the texels clean at the smaller
+    radius; every other texel is unchanged, and the fallback texels equal the noise-free truth (true poses) as
+    closely as any other texel."""
+    wide = texture_mesh(scene.vertices, scene.faces, views, TextureConfig(texel_size_m=TEXEL_M, clean_radius_px=4))
+    fb = texture_mesh(scene.vertices, scene.faces, views,
+                      TextureConfig(texel_size_m=TEXEL_M, clean_radius_px=4, min_clean_radius_px=1))
+    gained = fb.faces_textured & ~wide.faces_textured
+    assert gained.sum() > 0 and np.array_equal(gained, fb.face_min_radius)
+    share_wide, share_fb = np.mean(wide.faces_textured[wide.face_visible]), np.mean(fb.faces_textured[fb.face_visible])
+    assert share_fb > share_wide and share_fb >= 0.98
+    a, b = wide.texel_selection, fb.texel_selection
+    was = a.source >= 0
+    assert np.array_equal(a.source[was], b.source[was]) and np.array_equal(a.temperature_k[was], b.temperature_k[was])
+    new = (b.source >= 0) & ~was
+    assert np.all(fb.face_min_radius[fb.texels.face[new]])
+    C = np.array([v.pose.center for v in views])[b.source[new]]
+    err = b.temperature_k[new] - apparent_temperature(scene, fb.texels.points[new], fb.texels.face[new], C)
+    assert new.sum() > 100 and np.max(np.abs(err)) < 0.05
+    assert fb.summary()["faces_textured_at_min_clean_radius"] == int(gained.sum())

@@ -58,9 +58,9 @@ def texture(
     except (ThermogrammetryError, ValueError, OSError) as exc:
         console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2)
-    seen = max(d["faces_seen"], 1)
-    console.print(f"textured {d['faces_textured']}/{d['faces_total']} faces ({100 * d['faces_textured'] / seen:.1f} % of the "
-                  f"{d['faces_seen']} seen), {d['texels_textured']}/{d['texels_total']} texels; wrote {out}", highlight=False)
+    vis = d.get("faces_visible", d["faces_seen"])
+    console.print(f"textured {d['faces_textured']}/{d['faces_total']} faces ({100 * d.get('faces_visible_textured', d['faces_textured']) / max(vis, 1):.1f} % "
+                  f"of the {vis} visible), {d['texels_textured']}/{d['texels_total']} texels; wrote {out}", highlight=False)
     if d.get("unit") == "counts":
         console.print("values: raw sensor counts (frames have no documented conversion), labelled as counts", highlight=False)
     if d.get("mesh_winding"):

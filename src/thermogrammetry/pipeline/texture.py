@@ -272,13 +272,15 @@ def texture_report_html(result, views, skipped, unit: str) -> str:
     counts_note = ("<p><b>The frames are raw sensor counts (no documented conversion to temperature): every texture "
                    "value is a count as sampled, not a temperature.</b></p>") if counts else ""
     corr = "<p><b>Per-texel angle/emissivity/transmission correction applied.</b></p>" if result.config.correct else ""
-    share = s["faces_textured"] / max(s["faces_seen"], 1)
+    vis = s.get("faces_visible", s["faces_seen"])
+    share = s.get("faces_visible_textured", s["faces_textured"]) / max(vis, 1)
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>thermogrammetry texture</title>
 <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}</style></head><body>
 <h1>Thermal texture</h1>
 <h2>Coverage</h2>
-<table><tr><th>faces</th><td>{s['faces_total']}</td></tr><tr><th>faces seen by an image</th><td>{s['faces_seen']}</td></tr>
-<tr><th>faces textured (≥ 1 texel)</th><td>{s['faces_textured']} ({100 * share:.1f} % of those seen)</td></tr>
+<table><tr><th>faces</th><td>{s['faces_total']}</td></tr><tr><th>faces scored by an image</th><td>{s['faces_seen']}</td></tr>
+<tr><th>faces visible (a texel inside an image, within the angle limit, not occluded)</th><td>{vis}</td></tr>
+<tr><th>faces textured (≥ 1 texel)</th><td>{s['faces_textured']} ({100 * share:.1f} % of the visible ones textured)</td></tr>
 <tr><th>faces fully textured</th><td>{s['faces_fully_textured']}</td></tr>
 <tr><th>texels textured / inside faces</th><td>{s['texels_textured']} / {s['texels_total']}</td></tr>
 <tr><th>texel size</th><td>{s['texel_size_m'] * 100:.2f} cm ({s['texture_size'][0]} × {s['texture_size'][1]})</td></tr></table>
@@ -304,6 +306,10 @@ def clean_radius_from_poses(cfg, cameras, views, *, n_sigma: float = 3.0, max_px
     Measured on the 64-view synthetic building ring with survey poses (rotations 0.43° RMS off, reported σ
     0.1–0.35°): radius 1 left texels up to 31 K wrong (through the occluder's edge) and 99.73 % within 0.2 K;
     radius 3 gave a 1.8 K maximum and 99.89 % within 0.2 K, with 99.45 % of the seen faces still textured.
+    A face with no texel clean at the widened radius (small faces along a silhouette) takes the texels clean at the
+    configured radius (``TextureConfig.min_clean_radius_px``): on a held-out 48-station ring with survey poses
+    (radius 4), 40 of the 744 visible faces were untextured without it (94.6 %), none with it; their 2240 texels
+    were within 0.072 K of the noise-free truth, and every other texel is unchanged.
 
     Returns ``(config, note or None)``.
     """
@@ -321,8 +327,10 @@ def clean_radius_from_poses(cfg, cameras, views, *, n_sigma: float = 3.0, max_px
     r = int(min(max_px, max(cfg.clean_radius_px, np.ceil(n_sigma * med))))
     if r == cfg.clean_radius_px:
         return cfg, None
-    return replace(cfg, clean_radius_px=r), (f"{n_sigma:g} × the median pose rotation σ ({med:.2f} px) from cameras.json: "
-                                             "texels within that distance of a silhouette are not taken")
+    return replace(cfg, clean_radius_px=r, min_clean_radius_px=int(cfg.clean_radius_px)), (
+        f"{n_sigma:g} × the median pose rotation σ ({med:.2f} px) from cameras.json: texels within that distance of a "
+        f"silhouette are not taken, except on faces with no texel clean at that radius (those take texels clean at "
+        f"{int(cfg.clean_radius_px)} px; texture.json faces_textured_at_min_clean_radius)")
 
 
 def check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, crs, *, textured: int | None = None) -> None:

@@ -16,10 +16,16 @@ in pixels) with ``d = |C_k − c|`` and ``cos θ = n·(C_k − c)/d``:
 ``f_k cos θ / d`` is the image's resolution on the surface (pixels per metre along the steepest
 direction of the face: it falls with distance and with the viewing angle θ), ``b`` is the distance in
 pixels of the face's projected centroid from the nearest image border and
-``b0 = border_fraction · min(W, H)`` (distortion and vignetting are largest near the border).
-Faces seen at θ > ``max_angle_deg``, behind the camera or with the centroid outside the image get no
-score from that image (a face partly outside an image can still take texels from it: each texel is
-tested on its own). Every texel takes the highest-scoring image of its face **in which the texel itself
+``b0 = border_fraction · min(W, H)`` (distortion and vignetting are largest near the border). A large face
+(a ground cell beside a standing camera, a CAD wall of two triangles) can be seen at a grazing angle from its
+centroid, or have its centroid outside the image, and still be partly seen well: when the centroid fails either
+test, cos θ and ``b`` are the largest over a few points of the face (vertices, edge midpoints, the point nearest
+to ``C_k`` -- where θ is smallest on a plane -- and three points from there towards the centroid, and where the
+rays of a 4 x 4 grid of pixels meet the face), a generous test since each texel is tested on its own. Faces
+seen at θ > ``max_angle_deg`` at all these points, behind the camera, or with all of them outside the image get
+no score from that image (a face partly outside an image can still take texels from it: each texel is tested on
+its own).
+Every texel takes the highest-scoring image of its face **in which the texel itself
 is usable**, so a face keeps one image unless an occlusion forces a change inside it.
 
 A texel is usable in image ``k`` when
@@ -57,7 +63,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -91,6 +97,8 @@ class TextureConfig:
     surface_tol_m: float = 0.05
     normal_tol_deg: float = 30.0
     clean_radius_px: int = 1
+    # faces with no texel usable at clean_radius_px take texels usable at this smaller radius (None: no fallback)
+    min_clean_radius_px: int | None = None
     levelling: Levelling = Levelling.NONE
     offsets_max_pairs: int = 200_000
     correct: bool = False
@@ -104,6 +112,9 @@ class TextureConfig:
             raise ConfigError(f"TextureConfig.max_angle_deg={self.max_angle_deg!r}: expected degrees in (0, 90)")
         if int(self.max_texture_px) < 64:
             raise ConfigError(f"TextureConfig.max_texture_px={self.max_texture_px!r}: expected at least 64")
+        if self.min_clean_radius_px is not None and not (int(self.min_clean_radius_px) == self.min_clean_radius_px
+                                                         and self.min_clean_radius_px >= 0):
+            raise ConfigError(f"TextureConfig.min_clean_radius_px={self.min_clean_radius_px!r}: expected an integer >= 0 or None")
         for k in ("border_px", "occlusion_tol_m", "surface_tol_m"):
             if not getattr(self, k) >= 0:
                 raise ConfigError(f"TextureConfig.{k}={getattr(self, k)!r}: expected a number >= 0")
@@ -213,7 +224,7 @@ def face_view_scores(vertices, faces, views: Sequence[TextureView], *, max_angle
     -------
     ``scipy.sparse.csc_matrix`` (F, K) float64 holding the positive scores only (sorted row indices per image):
     ``f cos θ / d · min(1, b / b0)`` in pixels per metre; absent (0) where θ > ``max_angle_deg``, behind the
-    camera or the centroid projects outside the image. Occlusion is not part of the score (it is tested per
+    camera or outside the image (a large face: see the module docstring). Occlusion is not part of the score (it is tested per
     texel). Sparse because each face is seen by a few of the images: a dense matrix was 1.6 GB at 1 M faces x
     200 images. ``.toarray()`` gives the dense matrix; :func:`scores_at` reads one image's scores of given faces.
     """
@@ -266,22 +277,140 @@ def any_face_seen(vertices, faces, views: Sequence[TextureView], *, max_angle_de
     return any(np.any(col > 0) for _, col in _score_columns(V, F, views, max_angle_deg, border_fraction))
 
 
-def _score_columns(V, F, views, max_angle_deg, border_fraction):
-    """Yield ``(k, (F,) scores of image k)`` (see :func:`face_view_scores`)."""
+def _closest_on_triangles(p, a, b, c) -> np.ndarray:
+    """(N, 3) point of each triangle ``(a, b, c)`` (each (N, 3)) nearest to ``p`` (N, 3): the Voronoi-region
+    test of Ericson, Real-Time Collision Detection (2005) §5.1.5, vectorised."""
+    dot = lambda u, v: np.einsum("ij,ij->i", u, v)  # noqa: E731
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = dot(ab, ap), dot(ac, ap)
+    bp, cp = p - b, p - c
+    d3, d4 = dot(ab, bp), dot(ac, bp)
+    d5, d6 = dot(ab, cp), dot(ac, cp)
+    vc, vb, va = d1 * d4 - d3 * d2, d5 * d2 - d1 * d6, d3 * d6 - d5 * d4
+    out = np.empty_like(a)
+    left = np.ones(len(a), bool)
+
+    def put(m, x):
+        m = m & left
+        out[m] = x[m]
+        left[m] = False
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        put((d1 <= 0) & (d2 <= 0), a)
+        put((d3 >= 0) & (d4 <= d3), b)
+        put((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + (d1 / (d1 - d3))[:, None] * ab)
+        put((d6 >= 0) & (d5 <= d6), c)
+        put((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + (d2 / (d2 - d6))[:, None] * ac)
+        put((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), b + ((d4 - d3) / ((d4 - d3) + (d5 - d6)))[:, None] * (c - b))
+        den = va + vb + vc
+        put(np.ones(len(a), bool), a + (vb / den)[:, None] * ab + (vc / den)[:, None] * ac)
+    return out
+
+
+def _in_frustum(view, V, tri) -> np.ndarray:
+    """(n,) bool: triangles ``tri`` (n, 3) not wholly outside one side of the view's frustum (the planes through the
+    rays of the image corners, 5 % beyond them for the lens distortion) or wholly behind the camera."""
+    w, h = view.camera.image_size
+    mx, my = 0.05 * w, 0.05 * h
+    cor = np.array([[-0.5 - mx, -0.5 - my], [w - 0.5 + mx, -0.5 - my], [w - 0.5 + mx, h - 0.5 + my], [-0.5 - mx, h - 0.5 + my]])
+    d = view.camera.unproject(cor) @ view.pose.R  # world directions of the corner rays
+    axis = view.pose.R[2]
+    X = V[tri] - view.pose.center  # (n, 3, 3)
+    keep = np.any(X @ axis > 0, axis=1)
+    for i in range(4):
+        nrm = np.cross(d[i], d[(i + 1) % 4])
+        if nrm @ axis < 0:
+            nrm = -nrm
+        keep &= np.any(X @ nrm >= 0, axis=1)
+    return keep
+
+
+def _large_face_candidates(view, V, F, normals, faces, cmax):
+    """For faces (indices ``faces``) not scorable at their centroid: the largest cos θ and the largest border
+    distance ``b`` (px) over a few points of the face (not necessarily the same point: a generous test, each texel
+    is tested on its own later) -- its vertices and edge
+    midpoints, its point nearest to the camera (smallest θ on a plane) and three points from there to the centroid,
+    and where the rays of a 4 x 4 grid of pixels meet it.
+
+    Returns ``(cos_t (n,), b (n,), found (n,) bool)``."""
+    w, h = view.camera.image_size
+    C = view.pose.center
+    n = len(faces)
+    A, B, Cc = V[F[faces, 0]], V[F[faces, 1]], V[F[faces, 2]]
+    nrm = normals[faces]
+    near = _closest_on_triangles(np.broadcast_to(C, (n, 3)), A, B, Cc)
+    cen = (A + B + Cc) / 3
+    pts = [A, B, Cc, near, (A + B) / 2, (B + Cc) / 2, (Cc + A) / 2]
+    pts += [near + f * (cen - near) for f in (0.25, 0.5, 0.75)]  # from where θ is smallest towards the middle
+    gx, gy = np.meshgrid((np.arange(4) + 0.5) * w / 4 - 0.5, (np.arange(4) + 0.5) * h / 4 - 0.5)
+    rays = view.camera.unproject(np.column_stack([gx.ravel(), gy.ravel()])) @ view.pose.R  # (16, 3) world directions
+    ab, ac = B - A, Cc - A
+    for d in rays:
+        den = nrm @ d
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = np.einsum("ij,ij->i", nrm, A - C) / den
+        X = C + t[:, None] * d
+        # barycentric test
+        ap = X - A
+        d00, d01, d11 = np.einsum("ij,ij->i", ab, ab), np.einsum("ij,ij->i", ab, ac), np.einsum("ij,ij->i", ac, ac)
+        d20, d21 = np.einsum("ij,ij->i", ap, ab), np.einsum("ij,ij->i", ap, ac)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            den2 = d00 * d11 - d01 * d01
+            bv = (d11 * d20 - d01 * d21) / den2
+            bw = (d00 * d21 - d01 * d20) / den2
+        inside = (t > 0) & (bv >= 0) & (bw >= 0) & (bv + bw <= 1)
+        pts.append(np.where(inside[:, None], X, np.nan))
+    best_c = np.full(n, -np.inf)
+    best_b = np.full(n, -np.inf)
+    for X in pts:
+        dx = C - X
+        with np.errstate(invalid="ignore"):
+            c = np.einsum("ij,ij->i", nrm, dx) / np.linalg.norm(dx, axis=1)
+        fin = np.all(np.isfinite(X), axis=1)
+        best_c = np.where(fin & (c > best_c), c, best_c)
+        best_b = np.where(fin, np.maximum(best_b, _border_distance(view, np.where(fin[:, None], X, 0.0), w, h)), best_b)
+    found = (best_c >= cmax) & (best_b > 0)
+    return best_c, best_b, found
+
+
+def _border_distance(view, X, w, h) -> np.ndarray:
+    """(N,) distance in pixels of the projections of ``X`` from the nearest image border (pixel edges: −0.5 and
+    W − 0.5); ≤ 0 outside the image, −inf behind the camera."""
+    xy, z = _project(view, X)
+    bx = np.minimum(xy[:, 0] + 0.5, w - 0.5 - xy[:, 0])
+    by = np.minimum(xy[:, 1] + 0.5, h - 0.5 - xy[:, 1])
+    return np.nan_to_num(np.where(z > 1e-6, np.minimum(bx, by), -np.inf), nan=-np.inf)
+
+
+def _score_columns(V, F, views, max_angle_deg, border_fraction, large_faces: bool = True):
+    """Yield ``(k, (F,) scores of image k)`` (see :func:`face_view_scores`); ``large_faces=False``: scored at the
+    centroid only."""
     normals, _, cen = _face_geometry(V, F)
     cmax = np.cos(np.deg2rad(max_angle_deg))
+    amax = np.deg2rad(max_angle_deg)
+    edge = np.max(np.linalg.norm(V[F] - V[F[:, [1, 2, 0]]], axis=2), axis=1)  # longest edge of each face (m)
     for k, v in enumerate(views):
         w, h = v.camera.image_size
         C = v.pose.center
         dvec = C - cen
         d = np.linalg.norm(dvec, axis=1)
         cos_t = np.einsum("ij,ij->i", normals, dvec) / d
-        ok = np.isfinite(cos_t) & (cos_t >= cmax)
-        xy, z = _project(v, cen)
-        bx = np.minimum(xy[:, 0] + 0.5, w - 0.5 - xy[:, 0])
-        by = np.minimum(xy[:, 1] + 0.5, h - 0.5 - xy[:, 1])
-        b = np.nan_to_num(np.where(z > 1e-6, np.minimum(bx, by), -np.inf), nan=-np.inf)
-        ok &= b > 0
+        b = _border_distance(v, cen, w, h)
+        ok = np.isfinite(cos_t) & (cos_t >= cmax) & (b > 0)
+        # a large face (a ground cell beside a standing camera, a CAD wall of two triangles) can be seen at a grazing
+        # angle from its centroid, or have its centroid outside the image, and still be partly seen well: then the
+        # best of a few points of the face that are both in the image and seen within max_angle_deg counts
+        # (only faces large enough for that: seen from the centroid, no point of a face is more than its longest
+        # edge / d radians off in angle, nor more than ~f x that off in the image)
+        span = edge / d
+        need = np.flatnonzero(large_faces & np.isfinite(cos_t) & (cos_t > 0) & ~ok
+                              & (np.arccos(np.clip(cos_t, -1, 1)) - amax <= span)
+                              & (b > -1.5 * _focal_px(v.camera) * span))
+        need = need[_in_frustum(v, V, F[need])] if len(need) else need
+        if len(need):
+            cb, bb, good = _large_face_candidates(v, V, F, normals, need, cmax)
+            cos_t[need[good]], b[need[good]] = cb[good], bb[good]
+            ok[need[good]] = True
         b0 = max(1e-9, border_fraction * min(w, h))
         yield k, np.where(ok, _focal_px(v.camera) * np.clip(cos_t, 0, 1) / d * np.minimum(1.0, np.maximum(b, 0) / b0), 0.0)
 
@@ -461,6 +590,8 @@ def usable_in_view(intersector, vertices, faces, view: TextureView, surface: Pix
     cos_theta : (N,) cosine of the viewing angle
     distance_m : (N,) camera-to-point distance
     occluded : (N,) bool, inside the image and facing the camera but hidden by other geometry
+    in_view : (N,) bool, conditions 1–3 (inside, facing within ``max_angle_deg``, not occluded): the point is
+        visible in the image, usable or not (condition 4 leaves out mixed pixels at edges and folds)
     """
     V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
     X = np.asarray(points, float)
@@ -486,6 +617,7 @@ def usable_in_view(intersector, vertices, faces, view: TextureView, surface: Pix
         visible[idx] = np.isfinite(tdist) & (tdist >= dist[idx] - cfg.occlusion_tol_m)
     occluded = cand & ~visible
     usable = cand & visible
+    in_view = usable.copy()
     # (4) the pixels under the bilinear footprint (+ clean_radius_px) see the texel's plane
     idx = np.flatnonzero(usable)
     if len(idx):
@@ -505,7 +637,7 @@ def usable_in_view(intersector, vertices, faces, view: TextureView, surface: Pix
                 agree = np.einsum("ij,ij->i", n[idx], normals[np.maximum(pf, 0)]) >= cmin
                 clean &= np.isfinite(off) & (off <= cfg.surface_tol_m) & (pf >= 0) & agree
         usable[idx] = clean
-    return usable, xy, cos_t, dist, occluded
+    return usable, xy, cos_t, dist, occluded, in_view
 
 
 def _bilinear(img, xy):
@@ -524,7 +656,8 @@ def _bilinear(img, xy):
 class Selection:
     """Per point: ``source`` (N,) view index or −1, ``temperature_k`` (N,), ``angle_deg`` (N,),
     ``distance_m`` (N,), ``n_usable`` (N,) number of usable views, ``occluded_in`` (N, K) bool, and the
-    values of every usable view ``all_k`` (N, K) (NaN where unusable), for levelling.
+    values of every usable view ``all_k`` (N, K) (NaN where unusable), for levelling; ``n_visible`` (N,) the
+    number of views in which the point is visible (usable or not: conditions 1–3).
 
     The two (N, K) arrays grow with points × images: :func:`select_in_chunks` holds them for one chunk of
     points at a time and returns None for them (with per-view occlusion counts and a levelling sample)."""
@@ -536,6 +669,7 @@ class Selection:
     n_usable: np.ndarray
     occluded_in: np.ndarray | None
     all_k: np.ndarray | None
+    n_visible: np.ndarray | None = None
 
 
 def select_and_sample(intersector, vertices, faces, views, surfaces, scores, points, face_index,
@@ -549,6 +683,7 @@ def select_and_sample(intersector, vertices, faces, views, surfaces, scores, poi
     ang = np.full(N, np.nan)
     dist = np.full(N, np.nan)
     n_ok = np.zeros(N, np.int64)
+    n_vis = np.zeros(N, np.int64)
     occl = np.zeros((N, K), bool)
     all_k = np.full((N, K), np.nan, np.float32)
     for k, v in enumerate(views):
@@ -556,8 +691,9 @@ def select_and_sample(intersector, vertices, faces, views, surfaces, scores, poi
         cand = np.flatnonzero(s > 0)
         if not len(cand):
             continue
-        ok, xy, cos_t, d, oc = usable_in_view(intersector, vertices, faces, v, surfaces[k], points[cand], fi[cand], cfg)
+        ok, xy, cos_t, d, oc, vis = usable_in_view(intersector, vertices, faces, v, surfaces[k], points[cand], fi[cand], cfg)
         occl[cand, k] = oc
+        n_vis[cand[vis]] += 1
         sel = cand[ok]
         vals = _bilinear(v.image_k, xy[ok]).astype(np.float64)
         finite = np.isfinite(vals)
@@ -572,7 +708,7 @@ def select_and_sample(intersector, vertices, faces, views, surfaces, scores, poi
         T[b] = vals[better]
         ang[b] = np.degrees(np.arccos(np.clip(cs[better], -1, 1)))
         dist[b] = ds[better]
-    return Selection(src, T, ang, dist, n_ok, occl, all_k)
+    return Selection(src, T, ang, dist, n_ok, occl, all_k, n_vis)
 
 
 #: points × images per chunk of :func:`select_in_chunks` (the chunk's (N, K) float32 values and bool occlusion
@@ -602,6 +738,7 @@ def select_in_chunks(intersector, vertices, faces, views, surfaces, scores, poin
     ang = np.full(N, np.nan)
     dist = np.full(N, np.nan)
     n_ok = np.zeros(N, np.int64)
+    n_vis = np.zeros(N, np.int64)
     occluded = np.zeros(K, np.int64)
     kept = []
     fi = np.asarray(face_index, np.int64)
@@ -609,12 +746,13 @@ def select_in_chunks(intersector, vertices, faces, views, surfaces, scores, poin
         sl = slice(i0, min(N, i0 + step))
         s = select_and_sample(intersector, vertices, faces, views, surfaces, scores, points[sl], fi[sl], cfg)
         src[sl], T[sl], ang[sl], dist[sl], n_ok[sl] = s.source, s.temperature_k, s.angle_deg, s.distance_m, s.n_usable
+        n_vis[sl] = s.n_visible
         occluded += s.occluded_in.sum(axis=0)
         if sample is not None:
             kept.append(s.all_k[np.asarray(sample[sl], bool)])
         del s
     all_k = (np.concatenate(kept) if kept else np.zeros((0, K), np.float32)) if sample is not None else None
-    return Selection(src, T, ang, dist, n_ok, None, None), occluded, all_k
+    return Selection(src, T, ang, dist, n_ok, None, None, n_vis), occluded, all_k
 
 
 def _levelling_sample(n: int, size: int, seed: int = 0) -> np.ndarray:
@@ -716,12 +854,17 @@ class TextureResult:
     angle_deg : (H, W) float32 viewing angle of the source image
     vertex_temperature_k : (V,) float64, NaN where no image sees the vertex cleanly
     face_coverage : (F,) fraction of each face's texels that are textured (NaN: face has no texel)
-    face_views : (F,) number of images with a positive score for the face
+    face_views : (F,) number of images with a positive score for the face (a generous test: see the module
+        docstring; a face may be scored and yet have no texel visible)
     face_source : (F,) the view most of the face's texels came from (−1 = none)
     view_names : list of K image names (source index -> name)
     offsets_k : (K,) applied per-image offsets (zeros without levelling); ``levelling_fixed`` index
     occluded_texels : (K,) texels inside view k and facing it but hidden by other geometry
     texels_total : number of texel centres inside triangles
+    face_visible : (F,) bool, faces with a texel that some image sees (inside, within ``max_angle_deg``, not
+        occluded: conditions 1–3), textured or not -- the denominator of the coverage
+    face_min_radius : (F,) bool, faces textured only at ``config.min_clean_radius_px`` (none was clean at
+        ``clean_radius_px``)
     """
 
     vertices: np.ndarray
@@ -742,6 +885,8 @@ class TextureResult:
     texels: Texels = field(repr=False)
     texel_selection: Selection = field(repr=False)
     config: TextureConfig = field(default_factory=TextureConfig)
+    face_visible: np.ndarray | None = None
+    face_min_radius: np.ndarray | None = None
 
     @property
     def faces_total(self) -> int:
@@ -759,6 +904,11 @@ class TextureResult:
             "faces_textured": int(self.faces_textured.sum()),
             "faces_fully_textured": int(np.sum(np.nan_to_num(self.face_coverage) >= 1.0)),
             "faces_seen": int(np.sum(self.face_views > 0)),
+            **({"faces_visible": int(self.face_visible.sum()),
+                "faces_visible_textured": int(np.sum(self.face_visible & self.faces_textured))}
+               if self.face_visible is not None else {}),
+            **({"faces_textured_at_min_clean_radius": int(self.face_min_radius.sum())}
+               if self.face_min_radius is not None and self.config.min_clean_radius_px is not None else {}),
             "faces_untextured": np.flatnonzero(~self.faces_textured).tolist(),
             "texels_total": int(len(tex)),
             "texels_textured": int(tex.sum()),
@@ -830,9 +980,13 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     views = [view_in_frame(v, origin) for v in views]
     normals, area, cen = _face_geometry(V, F)
     scores = face_view_scores(V, F, views, max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
-    best, face_views = _score_max_count(scores)
+    _, face_views = _score_max_count(scores)
     ts = cfg.texel_size_m
     if ts is None:  # half the median surface pixel size of each face's best image, area weighted
+        # (scored at the centroids: a large face seen only in part at a grazing angle would coarsen every texel)
+        best = np.zeros(len(F))
+        for _, col in _score_columns(V, F, views, cfg.max_angle_deg, cfg.border_fraction, large_faces=False):
+            np.maximum(best, col, out=best)
         seen = best > 0
         if np.any(seen):
             px = 1.0 / best[seen]
@@ -851,6 +1005,18 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     sample = _levelling_sample(len(texels.points), 2 * int(cfg.offsets_max_pairs)) if levelling else None
     sel, occluded, sample_k = select_in_chunks(inter, V, F, views, surfaces, scores, texels.points, texels.face, cfg,
                                                sample=sample)
+    faces_min_radius = np.zeros(len(F), bool)
+    if cfg.min_clean_radius_px is not None and cfg.min_clean_radius_px < cfg.clean_radius_px:
+        # a face that no image sees cleanly at the wide radius (small faces along a silhouette) takes the texels
+        # that are clean at the smaller one, rather than none: recorded per face
+        has = np.bincount(texels.face[sel.source >= 0], minlength=len(F)) > 0
+        redo = np.flatnonzero(~has[texels.face] & (sel.n_visible > 0))
+        if len(redo):
+            s2, _, _ = select_in_chunks(inter, V, F, views, surfaces, scores, texels.points[redo], texels.face[redo],
+                                        replace(cfg, clean_radius_px=int(cfg.min_clean_radius_px)))
+            sel.source[redo], sel.temperature_k[redo], sel.angle_deg[redo] = s2.source, s2.temperature_k, s2.angle_deg
+            sel.distance_m[redo], sel.n_usable[redo] = s2.distance_m, s2.n_usable
+            faces_min_radius[texels.face[redo[s2.source >= 0]]] = True
     vtemp, vsel = _vertex_temperatures(inter, V, F, views, surfaces, scores, cfg)
     del surfaces
     offsets = np.zeros(K)
@@ -895,9 +1061,11 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     with np.errstate(invalid="ignore", divide="ignore"):
         cov = np.where(n_tex > 0, n_ok / n_tex, np.nan)
     face_source = majority_source(texels.face[textured], sel.source[textured], len(F))
+    face_visible = np.bincount(texels.face[sel.n_visible > 0], minlength=len(F)) > 0
     texels.points += origin  # back to the input's coordinates
     return TextureResult(V_in, F, atlas, temp, src, angle, vtemp, cov, face_views, face_source,
-                         [v.name for v in views], offsets, fixed, rms, occluded, texels, sel, cfg)
+                         [v.name for v in views], offsets, fixed, rms, occluded, texels, sel, cfg, face_visible,
+                         faces_min_radius)
 
 
 def thermal_poses_from_rig(rgb_poses, relative):

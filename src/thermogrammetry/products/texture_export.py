@@ -247,6 +247,7 @@ def texture_json(result, unit: str, *, mesh_source: str = "", survey_source: str
         "faces_textured": s["faces_textured"],
         "faces_fully_textured": s["faces_fully_textured"],
         "faces_seen": s["faces_seen"],
+        **{k: s[k] for k in ("faces_visible", "faces_visible_textured", "faces_textured_at_min_clean_radius") if k in s},
         "faces_untextured": s["faces_untextured"],
         "texels_total": s["texels_total"],
         "texels_textured": s["texels_textured"],
