@@ -328,9 +328,8 @@ def _in_frustum(view, V, tri) -> np.ndarray:
 def _large_face_candidates(view, V, F, normals, faces, cmax):
     """For faces (indices ``faces``) not scorable at their centroid: the largest cos θ and the largest border
     distance ``b`` (px) over a few points of the face (not necessarily the same point: a generous test, each texel
-    is tested on its own later) -- its vertices and edge
-    midpoints, its point nearest to the camera (smallest θ on a plane) and three points from there to the centroid,
-    and where the rays of a 4 x 4 grid of pixels meet it.
+    is tested on its own later) -- its vertices and edge midpoints, its point nearest to the camera (smallest θ on a
+    plane) and three points from there to the centroid, and where the rays of a 4 x 4 grid of pixels meet it.
 
     Returns ``(cos_t (n,), b (n,), found (n,) bool)``."""
     w, h = view.camera.image_size
@@ -399,9 +398,9 @@ def _score_columns(V, F, views, max_angle_deg, border_fraction, large_faces: boo
         ok = np.isfinite(cos_t) & (cos_t >= cmax) & (b > 0)
         # a large face (a ground cell beside a standing camera, a CAD wall of two triangles) can be seen at a grazing
         # angle from its centroid, or have its centroid outside the image, and still be partly seen well: then the
-        # best of a few points of the face that are both in the image and seen within max_angle_deg counts
-        # (only faces large enough for that: seen from the centroid, no point of a face is more than its longest
-        # edge / d radians off in angle, nor more than ~f x that off in the image)
+        # largest cos θ and border distance over a few points of the face count (module docstring). Only faces large
+        # enough for that are looked at: seen from the centroid, no point of a face is more than its longest edge / d
+        # radians off in angle, nor more than ~f times that off in the image
         span = edge / d
         need = np.flatnonzero(large_faces & np.isfinite(cos_t) & (cos_t > 0) & ~ok
                               & (np.arccos(np.clip(cos_t, -1, 1)) - amax <= span)
