@@ -1488,28 +1488,24 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                             "rms_px": float(np.sqrt(np.nanmean(np.sum(v_**2, axis=1))))})
         v = fa.tie_residuals
         rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
+        far = _gnss_far_share(rec, images, ctrl) if geo else 0.0
+        why = ""
         if not rms <= BLOCK_RMS_GATE_PX:
             # a block whose tie points do not fit is not an orientation: it is reported, never exported
-            why = (f"in block {ci + 1} ({len(images)} images) rejected: reprojection RMS {rms:.2f} px after the final "
-                   f"adjustment (> {BLOCK_RMS_GATE_PX:g} px; inconsistent tie points, e.g. repeated structure or too "
-                   "little texture)")
-            for i in images:
-                rec.status[i].reason = why
-            notes.append(f"block {ci + 1}: {why.split(' rejected: ')[1]}")
-            results.append({"block": ci + 1, "images": len(images), "datum": how, "rejected": why})
-            continue
-        far = _gnss_far_share(rec, images, ctrl) if geo else 0.0
-        if far > BLOCK_GNSS_FAR_SHARE and fa.result.termination is Termination.MAX_ITERATIONS:
+            why = (f"reprojection RMS {rms:.2f} px after the final adjustment (> {BLOCK_RMS_GATE_PX:g} px; inconsistent "
+                   "tie points, e.g. repeated structure or too little texture)")
+        elif far > BLOCK_GNSS_FAR_SHARE and fa.result.termination is Termination.MAX_ITERATIONS:
             # the tie points and the GNSS disagree across the block and the adjustment finds no minimum: a wrong
             # relative orientation held together by GNSS, not an orientation
-            why = (f"in block {ci + 1} ({len(images)} images) rejected: the final adjustment did not converge "
-                   f"({fa.result.reason}) and {100 * far:.0f} % of its camera centres are more than "
-                   f"{GNSS_FLAG_SIGMA:g} σ from their GNSS positions: its tie points contradict the GNSS (a wrong "
-                   "relative orientation)")
+            why = (f"the final adjustment did not converge ({fa.result.reason}) and {100 * far:.0f} % of its camera "
+                   f"centres are more than {GNSS_FLAG_SIGMA:g} σ from their GNSS positions: its tie points contradict "
+                   "the GNSS (a wrong relative orientation)")
+        if why:
             for i in images:
-                rec.status[i].reason = why
-            notes.append(f"block {ci + 1}: {why.split(' rejected: ')[1]}")
-            results.append({"block": ci + 1, "images": len(images), "datum": how, "rejected": why})
+                rec.status[i].reason = f"in block {ci + 1} ({len(images)} images) rejected: {why}"
+            notes.append(f"block {ci + 1}: {why}")
+            results.append({"block": ci + 1, "images": len(images), "datum": how,
+                            "rejected": f"in block {ci + 1} ({len(images)} images) rejected: {why}"})
             continue
         oriented[images] = True
         fa_all.append((ci, images, fa, how, geo))
