@@ -2,11 +2,17 @@
 
 Per output cell (centre ``(x, y)``, height ``z`` from the DSM, bilinear):
 
-1. **Visibility** per image by a z-buffer: the DSM cells of the tile and of a margin around it (wide enough
-   for the tallest relief seen at ``max_angle_deg``) are projected into the image; each bin of
-   ``bin_px`` × ``bin_px`` pixels keeps the nearest depth. A cell is visible in the image when it projects
-   inside the frame, in front of the camera, and its depth is within ``max(4 gsd, 1 % depth)`` of its
-   bin's nearest depth.
+1. **Visibility** per image by a z-buffer: the DSM surface of the tile and of a margin around it (wide enough
+   for the tallest relief seen at ``max_angle_deg``) is projected into the image; each bin of ``bin_px`` ×
+   ``bin_px`` pixels keeps the nearest depth. The surface is sampled at the DSM cell centres and, at height
+   steps (four neighbouring centres spanning more than half the smallest tolerance, and the squares next
+   to them), also between them on the bilinear surface the cells' heights come from: ``n`` × ``n`` samples
+   per square of centres, ``n = min(4, ceil(√2 s / bin_px))``, ``s`` the largest projected DSM cell in
+   pixels. (With the centres
+   alone nothing stood between the last roof centre and the first ground centre, where the roof's edge is:
+   ground cells that edge hides in a view were taken as visible and given the roof's value.) A cell is
+   visible in the image when it projects inside the frame, in front of the camera, and its depth is within
+   ``max(4 gsd, 1 % depth)`` of its bin's nearest depth.
 2. **Image choice** among the visible images by the score (documented and reported in ``ortho.json``)::
 
        score = cos θ · (g_min / g) · (1 − 0.5 r)
@@ -88,7 +94,8 @@ def ortho_tile(X, Y, Z, normals, dsm_pts, images, frames, config: OrthoConfig | 
     ----------
     X, Y, Z : (h, w) cell centres and DSM heights (m; Z NaN = no surface)
     normals : (h, w, 3) unit DSM normals (up)
-    dsm_pts : (M, 3) DSM cell centres of the tile and its margin (the occluders for the z-buffer)
+    dsm_pts : (M, 3) DSM surface points of the tile and its margin (the occluders for the z-buffer,
+        see :func:`occluders`)
     images : list of (index, camera, R, t) candidate images
     frames : callable index -> frame array
     gsd : cell size (m)
@@ -250,11 +257,9 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
     nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
     X, Y, Z, nrm = X[1:-1, 1:-1], Y[1:-1, 1:-1], Z[1:-1, 1:-1], nrm[1:-1, 1:-1]
     nrm = np.where(np.isfinite(nrm), nrm, np.array([0.0, 0.0, 1.0]))  # border of the DSM: horizontal
-    dcol, drow = np.meshgrid(np.arange(dc0, dc1), np.arange(dr0, dr1))
-    occ = np.column_stack([(dg.x0 + (dcol + 0.5) * dg.gsd).ravel(), (dg.y0 - (drow + 0.5) * dg.gsd).ravel(), D.ravel()])
-    occ = occ[np.isfinite(occ[:, 2])]
     # candidate images: the tile's box (at the DSM's height range) projects into the frame
     images = []
+    cell_px = 0.0  # largest projected DSM cell (px) among the candidates
     if np.isfinite(Z).any():
         zlo, zhi = np.nanmin(Z), np.nanmax(Z)
         corners = np.array([[x, y, z] for x in (xa, xb) for y in (ya, yb) for z in (zlo, zhi)])
@@ -267,6 +272,11 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
             if uv[:, 0].max() < -0.5 or uv[:, 0].min() > W - 0.5 or uv[:, 1].max() < -0.5 or uv[:, 1].min() > H - 0.5:
                 continue
             images.append((k, cam, R, t))
+            cell_px = max(cell_px, dg.gsd * max(cam.K[0, 0], cam.K[1, 1]) / float(z.min()))
+    # between the centres only at height steps: a square spanning less than half the smallest visibility
+    # tolerance is represented by its corners to within that (its points hide no cell its corners do not)
+    tol_min = cfg.tolerance_m if cfg.tolerance_m is not None else 4 * grid.gsd
+    occ = occluders(D, dg, dr0, dc0, occluder_subdivision(cell_px, cfg.bin_px), min_span_m=0.5 * tol_min)
     res = ortho_tile(X, Y, Z, nrm, occ, images, sv, cfg, gsd=grid.gsd)
     v = res["value"]
     notes = 0
@@ -282,6 +292,52 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
     res["value"] = v.astype(np.float32)
     res["uncorrected"] = notes
     return res
+
+
+def occluder_subdivision(cell_px: float, bin_px: int) -> int:
+    """Samples per DSM cell side for the z-buffer's surface between the cell centres:
+    ``min(4, max(1, ceil(√2 cell_px / bin_px)))``, so that the samples project at most one bin apart even
+    along the diagonal (a continuous edge in the z-buffer, whatever the image's rotation to the grid);
+    ``cell_px`` is the largest projected DSM cell in pixels."""
+    b = max(1, int(bin_px))
+    if not np.isfinite(cell_px) or cell_px <= 0:
+        return 1
+    return int(min(4, max(1, np.ceil(np.sqrt(2.0) * cell_px / b))))
+
+
+def occluders(D, dg, dr0: int, dc0: int, n: int, *, min_span_m: float = 0.0) -> np.ndarray:
+    """(M, 3) occluder points of the DSM window ``D`` (rows from ``dr0``, columns from ``dc0`` of the DSM grid
+    ``dg``): the cell centres and, for ``n`` > 1, the bilinear surface between them (the surface the ortho
+    cells' heights come from, :func:`_bilinear`) at fractions ``k / n`` of the spacing, in each square of four
+    centres whose heights span more than ``min_span_m`` (height steps; elsewhere every point of the square
+    lies within ``min_span_m`` of its corners, which stand for it) and in the squares next to those.
+    Squares with a missing corner are skipped."""
+    rows, cols = D.shape
+    dcol, drow = np.meshgrid(np.arange(dc0, dc0 + cols), np.arange(dr0, dr0 + rows))
+    occ = np.column_stack([(dg.x0 + (dcol + 0.5) * dg.gsd).ravel(), (dg.y0 - (drow + 0.5) * dg.gsd).ravel(), D.ravel()])
+    occ = occ[np.isfinite(occ[:, 2])]
+    n = int(n)
+    if n <= 1 or rows < 2 or cols < 2:
+        return occ
+    from scipy.ndimage import binary_dilation
+
+    q = np.stack([D[:-1, :-1], D[:-1, 1:], D[1:, :-1], D[1:, 1:]])
+    with np.errstate(invalid="ignore"):
+        step = (q.max(axis=0) - q.min(axis=0)) > min_span_m  # NaN corner -> False
+    # and the squares next to a step: a bin straddling the projected edge takes the roof only when a roof
+    # sample falls in it
+    step = binary_dilation(step, np.ones((3, 3), bool)) & np.isfinite(q).all(axis=0)
+    i, j = np.nonzero(step)
+    if len(i) == 0:
+        return occ
+    a, b = np.meshgrid(np.arange(n) / n, np.arange(n) / n, indexing="ij")
+    a, b = a.ravel()[1:], b.ravel()[1:]  # (0, 0) is the centre itself
+    z00, z01, z10, z11 = (qq[i, j][:, None] for qq in q)
+    Z = (z00 * (1 - b) + z01 * b) * (1 - a) + (z10 * (1 - b) + z11 * b) * a
+    fr, fc = i[:, None] + a, j[:, None] + b
+    sub = np.column_stack([(dg.x0 + (dc0 + fc + 0.5) * dg.gsd).ravel(), (dg.y0 - (dr0 + fr + 0.5) * dg.gsd).ravel(),
+                           Z.ravel()])
+    return np.concatenate([occ, sub])
 
 
 _DSM_META: dict = {}
