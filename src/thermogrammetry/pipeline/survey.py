@@ -70,6 +70,32 @@ GNSS_FLAG_SIGMA = 5.0
 #: ring (seed 0, default options) a 20-image block 5.6 deg RMS / 19 deg max off its true rotations ended so (8 of 20
 #: centres at 5-100 σ, 50 iterations); right blocks converge with their centres within ~4 σ (48-station ring, M3T)
 BLOCK_GNSS_FAR_SHARE = 0.25
+#: a block georeferenced on RTK-grade GNSS (median horizontal σ <= PRECISE_GNSS_SIGMA_M) or on GCPs whose cameras'
+#: rotation σ (median over its images of the largest axis) exceeds this is rejected: its datum (positions nearly on a
+#: line or a short arc, GCPs close together) does not fix its rotation, and the block's own shape errors then tilt
+#: it by several σ. 40-station building rings (RTK σ 3/5 cm): a 4-image block on a 27 deg arc, σ 5.3 deg, 6.6-7.3
+#: deg off; a 7-image block on a 63 deg arc, σ 1.5 deg, 4.9-6.7 deg off; right blocks of the same rings σ 0.2-0.7 deg
+#: and 0.2-1.6 deg off; the M3T flight 0.04 deg. With coarse GNSS (σ of metres) the rotation σ is the GNSS's and is
+#: reported, not gated
+BLOCK_ROTATION_SIGMA_DEG = 1.0
+PRECISE_GNSS_SIGMA_M = 0.10
+
+
+def _precise_datum(how: str, ctrl, images) -> bool:
+    """Whether a block's datum is precise enough for the rotation-σ gate: GCPs, or RTK-grade GNSS."""
+    if not how.startswith("GNSS"):
+        return True
+    s = np.asarray(ctrl.gnss_sigma, float)[np.asarray(images, np.int64)][:, :2]
+    s = s[np.isfinite(s)]
+    return bool(len(s)) and float(np.median(s)) <= PRECISE_GNSS_SIGMA_M
+
+
+def _block_rotation_sigma(fa, images) -> float:
+    """Median over the block's images of their largest rotation σ (degrees); 0 when no σ was computed."""
+    r = np.asarray(fa.rotation_std_deg, float)[np.asarray(images, np.int64)]
+    m = np.max(r, axis=1) if len(r) else np.zeros(0)
+    m = m[np.isfinite(m)]
+    return float(np.median(m)) if len(m) else 0.0
 
 
 def _gnss_far_share(rec, images, ctrl) -> float:
@@ -1385,9 +1411,14 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     if lt_verdict.get("why"):
         notes.append(f"{lt_verdict['why']}; " + ("its frames are not oriented" if lt_verdict.get("kept") else
                                                  "the primary matching's orientation is kept (what --low-texture off gives)"))
-    for ci, images in enumerate(comps):
+    queue = list(enumerate(comps))
+    pruned_blocks: set[int] = set()  # blocks already adjusted again without their GNSS-contradicting images
+    while queue:
+        ci, images = queue.pop(0)
         if len(images) == 0:
             continue
+        # the block as the orientation left it (for :func:`_prune_gnss_contradicting`), once per block, not with a rig
+        pre = _rig_snapshot(rec) if ci not in pruned_blocks and ci not in rig_enabled else None
         S, how, nts = similarity_start(rec, images, ctrl)
         notes += [f"block {ci + 1}: {x}" for x in nts]
         geo = S is not None
@@ -1489,11 +1520,37 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         v = fa.tie_residuals
         rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
         far = _gnss_far_share(rec, images, ctrl) if geo else 0.0
+        if (pre is not None and geo and how.startswith("GNSS") and ci not in pruned_blocks
+                and fa.result.termination is Termination.MAX_ITERATIONS and (far > 0 or fa.gnss_rejected)):
+            # the adjustment found no minimum and some centres contradict their GNSS: a few wrongly resected images
+            # can be the cause. The block as the orientation left it, without the images that no similarity puts
+            # near their GNSS (sfm.georef.gnss_consensus), is adjusted once more
+            kept, nts = _prune_gnss_contradicting(rec, pre, images, ctrl, names, ci,
+                                                  f"the final adjustment did not converge ({fa.result.reason}) with "
+                                                  f"{100 * far:.0f} % of the centres > {GNSS_FLAG_SIGMA:g} σ from their "
+                                                  f"GNSS and {len(fa.gnss_rejected)} GNSS position(s) rejected")
+            if kept is not None:
+                notes += nts
+                fa = None
+                release_free_heap()
+                pruned_blocks.add(ci)
+                queue.insert(0, (ci, kept))
+                continue
         why = ""
         if not rms <= BLOCK_RMS_GATE_PX:
             # a block whose tie points do not fit is not an orientation: it is reported, never exported
             why = (f"reprojection RMS {rms:.2f} px after the final adjustment (> {BLOCK_RMS_GATE_PX:g} px; inconsistent "
                    "tie points, e.g. repeated structure or too little texture)")
+        elif far > BLOCK_GNSS_FAR_SHARE and ci in pruned_blocks:
+            # already adjusted again without the images that contradicted the GNSS: still contradicting it, converged
+            # or not, the rest is no orientation either
+            why = (f"after leaving out the images that contradicted their GNSS, {100 * far:.0f} % of its camera centres "
+                   f"are still more than {GNSS_FLAG_SIGMA:g} σ from their GNSS positions: its tie points contradict the "
+                   "GNSS (a wrong relative orientation)")
+        elif geo and _precise_datum(how, ctrl, images) and _block_rotation_sigma(fa, images) > BLOCK_ROTATION_SIGMA_DEG:
+            why = (f"its camera rotations have σ {_block_rotation_sigma(fa, images):.1f}° (median over its images, > "
+                   f"{BLOCK_ROTATION_SIGMA_DEG:g}°): its GNSS/GCP datum does not fix its rotation (positions nearly on "
+                   "a line or a short arc)")
         elif far > BLOCK_GNSS_FAR_SHARE and fa.result.termination is Termination.MAX_ITERATIONS:
             # the tie points and the GNSS disagree across the block and the adjustment finds no minimum: a wrong
             # relative orientation held together by GNSS, not an orientation
@@ -1774,6 +1831,42 @@ def _adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: di
             level[c] += 1
         steps.append(f"self-calibration of {', '.join(f'{start[c].name or c}: {names(sets[c])}' for c in down)} refused: {why}; "
                      f"adjusted again with {', '.join(f'{start[c].name or c}: ' + (', '.join(ladder[c][level[c]]) or 'held fixed') for c in down)}")
+
+
+def _prune_gnss_contradicting(rec, pre, images, ctrl, names, ci, why):
+    """Images of a block rejected for contradicting its GNSS that no similarity of the block (as the orientation
+    left it, ``pre``) puts near their GNSS positions (:func:`~thermogrammetry.sfm.georef.gnss_consensus`).
+
+    When there are such images and the rest (>= 4 images, >= half of the block) agree, ``rec`` is restored to
+    ``pre``, those images are taken out of the block with their reason, and ``(kept images, notes)`` is returned;
+    otherwise ``(None, [])`` and ``rec`` is left as it is.
+    """
+    from ..sfm.georef import gnss_consensus
+
+    images = np.asarray(images, np.int64)
+    C = -np.einsum("nji,nj->ni", pre["R"][images], pre["t"][images])
+    cons = gnss_consensus(C, ctrl.gnss_xyz[images], ctrl.gnss_sigma[images])
+    if cons is None:
+        return None, []
+    drop = ~cons.inliers
+    n_keep = int((~drop).sum())
+    if not drop.any() or n_keep < 4 or n_keep < 0.5 * len(images):
+        return None, []
+    _restore(rec, pre)
+    for i, r in zip(images[drop], cons.residuals_m[drop]):
+        rec.registered[i] = False
+        rec.component[i] = -1
+        st = rec.status[i]
+        st.registered, st.component = False, -1
+        dist = f"{r:.2f} m" if np.isfinite(r) else "an unknown distance (no GNSS)"
+        st.reason = (f"left out of block {ci + 1}: after its orientation this image's centre is {dist} from its GNSS "
+                     f"position where the other {n_keep} images agree with theirs within {cons.tolerance_m:.2f} m "
+                     "(a wrong resection)")
+    gone = ", ".join(names[i] for i in images[drop])
+    return images[~drop], [f"block {ci + 1}: {why}; {int(drop.sum())} image(s) whose centres the block put "
+                           f"{', '.join(f'{r:.2f}' for r in cons.residuals_m[drop])} m from their GNSS while the other "
+                           f"{n_keep} agree within {cons.tolerance_m:.2f} m (wrong resections) left out and the block "
+                           f"adjusted again: {gone}"]
 
 
 def _restore(rec, snap) -> None:

@@ -311,6 +311,16 @@ class _Builder:
         self.obs_of_track_start = np.searchsorted(tracks.track, np.arange(nT + 1))
         self.failed_attempts = np.zeros(self.n, np.int64)
         self.last_count = np.zeros(self.n, np.int64)
+        # component whose images triangulated each point (-1: none): a later component's images never use another
+        # component's points, which are in that component's frame
+        self.point_comp = np.full(nT, -1, np.int64)
+
+    def exclude_foreign(self, i, comp):
+        """Observations of image ``i`` (registered in ``comp``) of points of other components: not used."""
+        o = self.obs_of_image[i]
+        t = self.tr.track[o]
+        foreign = (self.point_comp[t] >= 0) & (self.point_comp[t] != comp) & np.isfinite(self.rec.points[t]).all(1)
+        self.rec.obs_valid[o[foreign]] = False
 
     def log(self, msg):
         self.rec.log.append(msg)
@@ -380,6 +390,7 @@ class _Builder:
             self.rec.registered[k] = True
             self.rec.component[k] = comp
             self.rec.status[k] = ImageStatus(True, comp, "")
+            self.exclude_foreign(k, comp)
         self.log(f"component {comp}: initial pair {i}-{j}, {ng} points, median intersection angle {med:.1f} deg")
         self.triangulate_image(i, comp)
         self.ba(comp, full=True)
@@ -424,17 +435,23 @@ class _Builder:
         np.logical_or.at(bad_track, np.searchsorted(ut, tid), bad_obs)
         ok = np.isfinite(X).all(1) & (ang >= self.opt.min_tri_angle_deg) & ~bad_track
         self.rec.points[ut[ok]] = X[ok]
+        self.point_comp[ut[ok]] = comp
+        # their observations by images of other (earlier) components are not used: the point is in this one's frame
+        t_ok = ut[ok]
+        st, en = self.obs_of_track_start[t_ok], self.obs_of_track_start[t_ok + 1]
+        ln = en - st
+        allo = np.repeat(st, ln) + (np.arange(ln.sum()) - np.repeat(np.cumsum(ln) - ln, ln))
+        imo_all = tr.image[allo]
+        other = self.rec.registered[imo_all] & (self.rec.component[imo_all] != comp)
+        self.rec.obs_valid[allo[other]] = False
         return int(ok.sum())
 
     # -- resection -----------------------------------------------------------------------------
     def candidates(self, comp):
         tr = self.tr
         has_pt = np.isfinite(self.rec.points[tr.track]).all(1) & self.rec.obs_valid
-        # the point must belong to this component: some registered observer of the track in comp
-        reg_obs = self.rec.registered[tr.image] & (self.rec.component[tr.image] == comp)
-        comp_track = np.zeros(len(self.rec.points), bool)
-        comp_track[tr.track[reg_obs]] = True
-        counts = np.bincount(tr.image[has_pt & comp_track[tr.track]], minlength=self.n)
+        # the point must belong to this component (triangulated by its images)
+        counts = np.bincount(tr.image[has_pt & (self.point_comp[tr.track] == comp)], minlength=self.n)
         counts[self.rec.registered] = 0
         return counts
 
@@ -443,7 +460,8 @@ class _Builder:
 
         tr = self.tr
         o = self.obs_of_image[i]
-        o = o[np.isfinite(self.rec.points[tr.track[o]]).all(1) & np.isfinite(self.rays[i][tr.feature[o]]).all(1)]
+        o = o[np.isfinite(self.rec.points[tr.track[o]]).all(1) & np.isfinite(self.rays[i][tr.feature[o]]).all(1)
+              & (self.point_comp[tr.track[o]] == comp)]
         if len(o) < self.opt.min_pnp_points:
             return False, f"sees {len(o)} oriented points < {self.opt.min_pnp_points}"
         X = self.rec.points[tr.track[o]]
@@ -465,6 +483,7 @@ class _Builder:
         self.rec.registered[i] = True
         self.rec.component[i] = comp
         self.rec.status[i] = ImageStatus(True, comp, "")
+        self.exclude_foreign(i, comp)
         # observations that are PnP outliers are not used for this image
         out = np.setdiff1d(np.arange(len(o)), inl)
         self.rec.obs_valid[o[out]] = False
@@ -592,6 +611,10 @@ def reconstruct(cameras, image_camera, xy_by_image, tracks: Tracks, pair_counts:
             m = b.rec.component == comp
             b.rec.registered[m] = False
             b.rec.component[m] = -1
+            # its points are in its own frame: gone with it (a later component triangulates those tracks anew)
+            gone = b.point_comp == comp
+            b.rec.points[gone] = np.nan
+            b.point_comp[gone] = -1
             for k in np.nonzero(m)[0]:
                 b.rec.status[k] = ImageStatus(False, -1, f"only connected to a block of {size} images")
             b.log(f"component {comp} with {size} images dropped (< {opt.min_component_images})")
