@@ -1417,11 +1417,13 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         ci, images = queue.pop(0)
         if len(images) == 0:
             continue
-        # the block as the orientation left it (for :func:`_prune_gnss_contradicting`), once per block, not with a rig
-        pre = _rig_snapshot(rec) if ci not in pruned_blocks and ci not in rig_enabled else None
         S, how, nts = similarity_start(rec, images, ctrl)
         notes += [f"block {ci + 1}: {x}" for x in nts]
         geo = S is not None
+        # the block as the orientation left it (for :func:`_prune_gnss_contradicting`): GNSS blocks only, once per
+        # block, not with a rig (similarity_start changes nothing in ``rec``)
+        pre = (_rig_snapshot(rec) if geo and how.startswith("GNSS") and ci not in pruned_blocks and ci not in rig_enabled
+               else None)
         if not geo and ci > 0:
             # a second block without datum cannot be placed with the first: reported, not exported
             for i in images:
@@ -1520,8 +1522,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         v = fa.tie_residuals
         rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
         far = _gnss_far_share(rec, images, ctrl) if geo else 0.0
-        if (pre is not None and geo and how.startswith("GNSS") and ci not in pruned_blocks
-                and fa.result.termination is Termination.MAX_ITERATIONS and (far > 0 or fa.gnss_rejected)):
+        if pre is not None and fa.result.termination is Termination.MAX_ITERATIONS and (far > 0 or fa.gnss_rejected):
             # the adjustment found no minimum and some centres contradict their GNSS: a few wrongly resected images
             # can be the cause. The block as the orientation left it, without the images that no similarity puts
             # near their GNSS (sfm.georef.gnss_consensus), is adjusted once more
@@ -1536,6 +1537,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                 pruned_blocks.add(ci)
                 queue.insert(0, (ci, kept))
                 continue
+        rot_sigma = _block_rotation_sigma(fa, images) if geo and _precise_datum(how, ctrl, images) else 0.0
         why = ""
         if not rms <= BLOCK_RMS_GATE_PX:
             # a block whose tie points do not fit is not an orientation: it is reported, never exported
@@ -1547,8 +1549,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             why = (f"after leaving out the images that contradicted their GNSS, {100 * far:.0f} % of its camera centres "
                    f"are still more than {GNSS_FLAG_SIGMA:g} σ from their GNSS positions: its tie points contradict the "
                    "GNSS (a wrong relative orientation)")
-        elif geo and _precise_datum(how, ctrl, images) and _block_rotation_sigma(fa, images) > BLOCK_ROTATION_SIGMA_DEG:
-            why = (f"its camera rotations have σ {_block_rotation_sigma(fa, images):.1f}° (median over its images, > "
+        elif rot_sigma > BLOCK_ROTATION_SIGMA_DEG:
+            why = (f"its camera rotations have σ {rot_sigma:.1f}° (median over its images, > "
                    f"{BLOCK_ROTATION_SIGMA_DEG:g}°): its GNSS/GCP datum does not fix its rotation (positions nearly on "
                    "a line or a short arc)")
         elif far > BLOCK_GNSS_FAR_SHARE and fa.result.termination is Termination.MAX_ITERATIONS:

@@ -327,7 +327,7 @@ def gnss_consensus(centers, gnss_xyz, gnss_sigma, *, max_samples: int = 600, see
     idx = np.nonzero(have)[0]
     if len(idx) < 4:
         return None
-    Gh = G[idx]
+    Gh, Ch = G[idx], C[idx]
     spread = float(np.sqrt(np.mean(np.sum((Gh - Gh.mean(0)) ** 2, axis=1))))
     sig_h = float(np.median(S_[idx][:, :2])) if np.all(np.isfinite(S_[idx][:, :2])) else 0.0
     tol = max(GNSS_CONSENSUS_SPREAD * spread, GNSS_CONSENSUS_SIGMA * sig_h)
@@ -340,13 +340,13 @@ def gnss_consensus(centers, gnss_xyz, gnss_sigma, *, max_samples: int = 600, see
     best = None
     for s in samples:
         s = list(s)
-        if _collinear(Gh[s]) or _collinear(C[idx][s]):
+        if _collinear(Gh[s]) or _collinear(Ch[s]):
             continue
         try:
-            T = umeyama(C[idx][s], Gh[s])
+            T = umeyama(Ch[s], Gh[s])
         except (ValueError, np.linalg.LinAlgError):
             continue
-        r = np.linalg.norm(T(C[idx]) - Gh, axis=1)
+        r = np.linalg.norm(T(Ch) - Gh, axis=1)
         ok = r <= tol
         key = (int(ok.sum()), -float(np.sum(np.minimum(r, tol))))
         if best is None or key > best[0]:
@@ -354,8 +354,8 @@ def gnss_consensus(centers, gnss_xyz, gnss_sigma, *, max_samples: int = 600, see
     if best is None or best[0][0] < 3:
         return None
     ok = best[1]
-    T = umeyama(C[idx][ok], Gh[ok])
-    r = np.linalg.norm(T(C[idx]) - Gh, axis=1)
+    T = umeyama(Ch[ok], Gh[ok])
+    r = np.linalg.norm(T(Ch) - Gh, axis=1)
     res = np.full(len(C), np.inf)
     res[idx] = r
     return GnssConsensus(res <= tol, res, tol)

@@ -405,13 +405,17 @@ class _Builder:
         tids = tids[~np.isfinite(self.rec.points[tids]).all(1)]
         self._triangulate(tids, comp)
 
+    def _obs_of_tracks(self, tids) -> np.ndarray:
+        """Indices of every observation of the tracks ``tids`` (grouped by track)."""
+        starts, ends = self.obs_of_track_start[tids], self.obs_of_track_start[tids + 1]
+        lens = ends - starts
+        return np.repeat(starts, lens) + (np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens))
+
     def _triangulate(self, tids, comp):
         if len(tids) == 0:
             return 0
         tr = self.tr
-        starts, ends = self.obs_of_track_start[tids], self.obs_of_track_start[tids + 1]
-        lens = ends - starts
-        obs = np.repeat(starts, lens) + (np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens))
+        obs = self._obs_of_tracks(tids)
         im = tr.image[obs]
         use = self.rec.registered[im] & (self.rec.component[im] == comp) & self.rec.obs_valid[obs]
         obs = obs[use]
@@ -437,10 +441,7 @@ class _Builder:
         self.rec.points[ut[ok]] = X[ok]
         self.point_comp[ut[ok]] = comp
         # their observations by images of other (earlier) components are not used: the point is in this one's frame
-        t_ok = ut[ok]
-        st, en = self.obs_of_track_start[t_ok], self.obs_of_track_start[t_ok + 1]
-        ln = en - st
-        allo = np.repeat(st, ln) + (np.arange(ln.sum()) - np.repeat(np.cumsum(ln) - ln, ln))
+        allo = self._obs_of_tracks(ut[ok])
         imo_all = tr.image[allo]
         other = self.rec.registered[imo_all] & (self.rec.component[imo_all] != comp)
         self.rec.obs_valid[allo[other]] = False
