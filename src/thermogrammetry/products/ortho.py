@@ -332,9 +332,8 @@ def occluders(D, dg, dr0: int, dc0: int, n: int, *, min_span_m: float = 0.0) -> 
         return occ
     a, b = np.meshgrid(np.arange(n) / n, np.arange(n) / n, indexing="ij")
     a, b = a.ravel()[1:], b.ravel()[1:]  # (0, 0) is the centre itself
-    z00, z01, z10, z11 = (qq[i, j][:, None] for qq in q)
-    Z = (z00 * (1 - b) + z01 * b) * (1 - a) + (z10 * (1 - b) + z11 * b) * a
     fr, fc = i[:, None] + a, j[:, None] + b
+    Z = _bilinear(D, fr, fc)  # the squares' four corners are finite: no NaN
     sub = np.column_stack([(dg.x0 + (dc0 + fc + 0.5) * dg.gsd).ravel(), (dg.y0 - (dr0 + fr + 0.5) * dg.gsd).ravel(),
                            Z.ravel()])
     return np.concatenate([occ, sub])
