@@ -19,6 +19,8 @@ A :class:`BundleProblem` collects
 - **observations**: image points (px) with sigma per observation, per axis or per sensor;
   control-point coordinates (weighted, sigma in m); GNSS camera-centre priors with a lever arm
   (antenna offset in the camera frame, m); pose priors are GNSS priors with zero lever arm;
+  attitude priors (an observed ``cam_from_world`` rotation per view, e.g. a gimbal's IMU attitude,
+  residual ``log(R R_obs^T)`` in the camera frame, sigma in radians per axis);
   distances between points (scale bars); points on a common plane (a plane block: unit normal
   with 2 degrees of freedom and offset, estimated or fixed).
 
@@ -184,6 +186,7 @@ class BundleProblem:
         self._ctrl: list[tuple] = []  # (point idx (K,), xyz (K,3), sigma (K,3))
         self._gnss: list[tuple] = []  # (pose idx (K,), xyz (K,3), sigma (K,3), lever (K,3))
         self._dist: list[tuple] = []  # (point a (K,), point b (K,), distance (K,), sigma (K,))
+        self._att: list[tuple] = []  # (pose idx (K,), R_obs (K,3,3) cam_from_world, sigma (K,3) rad)
         self.plane_n: list[np.ndarray] = []  # unit normals
         self.plane_d: list[float] = []  # offsets: n . X = d (m)
         self.plane_fixed: list[bool] = []
@@ -351,6 +354,37 @@ class BundleProblem:
             raise ShapeError(f"antenna_xyz: {len(xyz)} rows for {len(v)} views; expected equal counts")
         lever = np.broadcast_to(as_array(lever_arm_m, "lever_arm_m"), (len(v), 3)).copy()
         self._gnss.append((poses, xyz, _sigma(sigma_m, len(v), 3, "sigma_m"), lever))
+
+    def add_attitude(self, views, R_cam_from_world, sigma_rad) -> None:
+        """Observed rotations of views (K,): priors on the attitude, e.g. from a gimbal's IMU.
+
+        Three residuals per view: the rotation vector of ``R R_obs^T`` (the camera frame, x right, y down,
+        z forward) divided by ``sigma_rad``. Its Jacobian with respect to the pose update ``R <- exp([dw]x) R``
+        is the inverse left Jacobian of SO(3) at the residual (exact, not the small-angle identity).
+
+        Parameters
+        ----------
+        views : (K,) int
+            Plain pose views.
+        R_cam_from_world : (K, 3, 3)
+            Observed rotations (orthonormal, det +1).
+        sigma_rad : float, (K,), (3,) or (K, 3)
+            Standard deviation of each rotation-vector component, radians.
+        """
+        v = self._check_indices(views, len(self.view_pose), "views")
+        if np.any(np.asarray(self.view_rig)[v] != -1):
+            raise InvalidInputError("views: attitude priors are supported on plain pose views, not rig views")
+        R = np.asarray(R_cam_from_world, dtype=float)
+        if R.shape != (len(v), 3, 3):
+            raise ShapeError(f"R_cam_from_world: shape {R.shape}; expected ({len(v)}, 3, 3)")
+        for k in range(len(v)):
+            _check_rotation(R[k], f"R_cam_from_world[{k}]")
+        self._att.append((np.asarray(self.view_pose)[v], R.copy(), _sigma(sigma_rad, len(v), 3, "sigma_rad")))
+
+    def attitude_observations(self):
+        if not self._att:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 3, 3)), np.zeros((0, 3))
+        return tuple(np.concatenate([a[k] for a in self._att]) for k in range(3))
 
     def add_distance(self, points_a, points_b, distance_m, sigma_m) -> None:
         """Observed distances between pairs of points (scale bars, taped distances), metres.

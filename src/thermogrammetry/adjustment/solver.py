@@ -56,7 +56,7 @@ from .._memory import release_free_heap
 from ..enums import StrChoice
 from ..errors import ConfigError, InvalidInputError
 from ..results import Termination
-from ._so3 import rotation_matrices, skew
+from ._so3 import axis_angles, rotation_matrices, skew
 from .problem import BundleProblem, Gauge
 
 __all__ = ["Loss", "SolverOptions", "AdjustmentResult", "solve"]
@@ -208,6 +208,7 @@ class AdjustmentResult:
     rejected : (K,) bool
     control_residuals : (Kc, 3) m
     gnss_residuals : (Kg, 3) m
+    attitude_residuals : (Ka, 3) rad, rotation vectors of ``R_obs R^T`` (observed minus computed, camera frame)
     control_redundancy, control_w, gnss_redundancy, gnss_w : (K, 3)
         Redundancy numbers and w-tests of the control and GNSS observations (blunders in
         coordinates are reported, not rejected automatically).
@@ -238,6 +239,7 @@ class AdjustmentResult:
     rejected: np.ndarray | None = None
     control_residuals: np.ndarray | None = None
     gnss_residuals: np.ndarray | None = None
+    attitude_residuals: np.ndarray | None = None
     control_redundancy: np.ndarray | None = None
     control_w: np.ndarray | None = None
     gnss_redundancy: np.ndarray | None = None
@@ -427,7 +429,9 @@ class _Data:
         self.g_pose, self.g_xyz, self.g_sig, self.g_lever = pb.gnss_observations()
         self.d_a, self.d_b, self.d_len, self.d_sig = pb.distance_observations()
         self.pl_k, self.pl_pt, self.pl_sig = pb.plane_observations()
-        self.m = 2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose) + len(self.d_a) + len(self.pl_k)
+        self.a_pose, self.a_R, self.a_sig = pb.attitude_observations()
+        self.m = (2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose) + len(self.d_a) + len(self.pl_k)
+                  + 3 * len(self.a_pose))
         # the LM's last full-path linearisation (state, r, w, _Normal), for the precision step at the same state
         self.linearisation = None
 
@@ -605,11 +609,33 @@ def _evaluate(pb, lay: _Layout, st: _State, data: _Data, want_jac: bool, sel=Non
             for pts_, sgn in ((data.d_a, 1.0), (data.d_b, -1.0)):
                 pcol = lay.point_col[pts_]
                 trip(rws, 1, sgn * u, pcol, pcol >= 0)
+        row += nd
+    na = len(data.a_pose) if extra else 0
+    if na:
+        # attitude priors: e = log(R R_obs^T); with R <- exp([dw]x) R, de = J_l^-1(e) dw
+        e = axis_angles(st.R[data.a_pose] @ np.swapaxes(data.a_R, 1, 2))
+        r[row : row + 3 * na] = (e / data.a_sig).ravel()
+        if want_jac:
+            J = np.concatenate([_so3_left_jacobian_inv(e), np.zeros((na, 3, 3))], axis=2) / data.a_sig[:, :, None]
+            pc = lay.pose_col[data.a_pose]
+            trip(row + 3 * np.arange(na), 3, J, pc, pc >= 0)
+        row += 3 * na
     if not want_jac:
         return r
     flush(2 * K, m)
     Jc = blocks[0] if len(blocks) == 1 else sp.vstack(blocks, format="csr")
     return r, Jc, jp, pslot
+
+
+def _so3_left_jacobian_inv(e: np.ndarray) -> np.ndarray:
+    """Inverse left Jacobian of SO(3) at rotation vectors ``e`` (K, 3) -> (K, 3, 3):
+    ``I - [e]x / 2 + (1/θ² - (1 + cos θ) / (2 θ sin θ)) [e]x²`` (1/12 as θ -> 0)."""
+    th = np.linalg.norm(e, axis=1)
+    small = th < 1e-6
+    ts = np.where(small, 1.0, th)
+    c = np.where(small, 1.0 / 12.0, 1.0 / ts**2 - (1.0 + np.cos(ts)) / (2.0 * ts * np.sin(ts)))
+    S = skew(e)
+    return np.eye(3)[None] - 0.5 * S + c[:, None, None] * (S @ S)
 
 
 #: image observations per piece of :func:`_robust` (its temporaries: ~80 B per observation of a piece)
@@ -1686,6 +1712,9 @@ def _precision(pb, lay, st, data, opt, active, warnings):
     ng = len(data.g_pose)
     g0 = 2 * data.K + 3 * nc_  # GNSS rows (plane and distance rows follow them)
     out["gnss_residuals"] = -r[g0 : g0 + 3 * ng].reshape(-1, 3) * data.g_sig if ng else np.zeros((0, 3))
+    na = len(data.a_pose)
+    a0 = data.m - 3 * na  # attitude rows are the last
+    out["attitude_residuals"] = -r[a0 : a0 + 3 * na].reshape(-1, 3) * data.a_sig if na else np.zeros((0, 3))
     if red > 0:
         stat = red * sigma0**2 / opt.sigma0_prior**2
         lo, hi = _chi2_ppf(np.array([0.025, 0.975]), red)
