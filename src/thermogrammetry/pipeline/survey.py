@@ -85,6 +85,8 @@ def _precise_datum(how: str, ctrl, images) -> bool:
     """Whether a block's datum is precise enough for the rotation-σ gate: GCPs, or RTK-grade GNSS."""
     if not how.startswith("GNSS"):
         return True
+    if "attitude" in how:  # the rotation about a GNSS line comes from the gimbal: its σ is reported, not gated
+        return False
     s = np.asarray(ctrl.gnss_sigma, float)[np.asarray(images, np.int64)][:, :2]
     s = s[np.isfinite(s)]
     return bool(len(s)) and float(np.median(s)) <= PRECISE_GNSS_SIGMA_M
@@ -321,7 +323,24 @@ def _geotag_dict(gt) -> dict:
         return {}
     return {"lat": gt.latitude_deg, "lon": gt.longitude_deg, "alt": gt.altitude_m, "rtk_flag": gt.rtk_flag,
             "rtk_std_m": list(gt.rtk_std_m) if gt.rtk_std_m else None,
-            "gimbal_yaw_deg": gt.gimbal_yaw_deg, "gimbal_pitch_deg": gt.gimbal_pitch_deg}
+            "gimbal_yaw_deg": gt.gimbal_yaw_deg, "gimbal_pitch_deg": gt.gimbal_pitch_deg,
+            "gimbal_roll_deg": gt.gimbal_roll_deg}
+
+
+def _attitudes(inputs: dict, crs: str | None) -> np.ndarray | None:
+    """(n, 3, 3) cam_from_world rotations in ``crs`` from the files' gimbal angles (NaN where an image has none;
+    :mod:`thermogrammetry.sfm.attitude`), or None when no image has all three angles or there is no CRS."""
+    from ..sfm.attitude import cam_from_world_from_gimbal, meridian_convergence_deg
+
+    keys = ("gimbal_yaw_deg", "gimbal_pitch_deg", "gimbal_roll_deg", "lon", "lat")
+    a = np.array([[(im.get("geotag") or {}).get(k) for k in keys] for im in inputs["images"]], dtype=float)
+    have = np.all(np.isfinite(a), axis=1)
+    if crs is None or not have.any():
+        return None
+    out = np.full((len(a), 3, 3), np.nan)
+    gam = meridian_convergence_deg(crs, a[have, 3], a[have, 4])
+    out[have] = cam_from_world_from_gimbal(a[have, 0], a[have, 1], a[have, 2], gam)
+    return out
 
 
 def _camera_guess(width, height, md) -> dict:
@@ -1381,7 +1400,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     t_ids, t_obs, n3 = _read_manual_ties(inp.gcp_measurements, names, set(g_ids) | set(c_ids), opt.marker_sigma_px)
     notes += n3
     ctrl = ControlInputs(gnss, np.where(np.isfinite(gsig), gsig, 1.0), np.asarray(opt.lever_arm_m, float),
-                         g_ids, g_xyz, g_sig, g_obs, c_ids, c_xyz, c_obs)
+                         g_ids, g_xyz, g_sig, g_obs, c_ids, c_xyz, c_obs,
+                         attitude=_attitudes(inputs, crs) if str(opt.gnss).lower() != "none" else None)
     comps = rec.components()
     results = []
     oriented = np.zeros(len(names), bool)
@@ -1456,6 +1476,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         fa = None
         if rigv is not None and not refused:
             fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, focal_known=focal_known,
+                                                    attitude_priors=geo and "attitude" in how,
                                                     tie_sigma_px=opt.tie_sigma_px,
                                                     max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
                                                     compute_covariance=len(images) <= 2500, manual_ties=t_obs or None)
@@ -1476,6 +1497,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             fa = None
         if fa is None:
             fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, focal_known=focal_known,
+                                                    attitude_priors=geo and "attitude" in how,
                                                     tie_sigma_px=opt.tie_sigma_px,
                                                     max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
                                                     compute_covariance=len(images) <= 2500, manual_ties=t_obs or None)

@@ -52,6 +52,8 @@ class ControlInputs:
     gcp_ids : list of str; gcp_xyz (G, 3); gcp_sigma (G, 3)
     gcp_obs : list of (image index, gcp index, (2,) xy px, sigma px)
     check_ids, check_xyz, check_obs : the same for check points (never adjusted)
+    attitude : (n, 3, 3) cam_from_world rotations in the CRS observed by the camera's gimbal/IMU (NaN where an image has
+        none; :mod:`.attitude`), or None. Used only for a block whose GNSS positions lie on one straight line.
     """
 
     gnss_xyz: np.ndarray
@@ -64,6 +66,43 @@ class ControlInputs:
     check_ids: list = field(default_factory=list)
     check_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     check_obs: list = field(default_factory=list)
+    attitude: np.ndarray | None = None
+
+
+#: the rotation about a straight GNSS line is taken from the images' attitudes when at least this many of the block's
+#: images have one
+MIN_ATTITUDE_IMAGES = 3
+
+
+def _attitude_images(ctrl, images) -> np.ndarray:
+    """The images of ``images`` with an observed attitude."""
+    if ctrl.attitude is None:
+        return np.zeros(0, np.int64)
+    images = np.asarray(images, np.int64)
+    return images[np.all(np.isfinite(ctrl.attitude[images]), axis=(1, 2))]
+
+
+def _roll_from_attitude(rec, images, g, S, ctrl):
+    """``S`` (a similarity to GNSS positions ``g`` that lie on one line) turned about that line so that the block's
+    cameras agree with their observed attitudes (:func:`.attitude.rotation_about_axis`). Returns (S', note) or
+    (None, "") without enough attitudes."""
+    from ..geometry import Similarity
+    from .attitude import ATTITUDE_SIGMA_DEG, rotation_about_axis
+
+    att = _attitude_images(ctrl, images)
+    if len(att) < MIN_ATTITUDE_IMAGES:
+        return None, ""
+    c = g.mean(axis=0)
+    axis = np.linalg.svd(g - c, full_matrices=False)[2][0]
+    R_est = rec.R[att] @ S.R.T
+    alpha, al = rotation_about_axis(R_est, ctrl.attitude[att], axis)
+    Q = matrix_from_axis_angle(alpha * axis)
+    S2 = Similarity(S.scale, Q @ S.R, Q @ (S.translation - c) + c)
+    spread = float(np.degrees(np.median(np.abs(np.angle(np.exp(1j * (al - alpha)))))))
+    return S2, (f"GNSS positions on one straight line: the rotation about it is taken from the camera attitude of "
+                f"{len(att)} image(s) (turned {np.degrees(alpha):+.1f}°, their median deviation {spread:.2f}°) and "
+                f"enters the final adjustment as attitude priors (one {ATTITUDE_SIGMA_DEG:g}° observation of the "
+                "block's rotation: gimbal errors are correlated from frame to frame)")
 
 
 #: positions whose RMS distance from their best-fitting line is below this multiple of the GNSS σ in that direction
@@ -116,6 +155,11 @@ def similarity_start(rec, images, ctrl: ControlInputs):
             S = umeyama(C[have][keep], g[have][keep])
             notes.append(f"{int((~keep).sum())} GNSS position(s) far from the block's fit left out of the start")
         return S, f"GNSS of {int(have.sum())} images", notes
+    if have.sum() >= 3 and len(ctrl.gcp_ids) < 3 and np.ptp(g[have], axis=0).max() > 0:
+        S2, why = _roll_from_attitude(rec, images[have], g[have], umeyama(C[have], g[have]), ctrl)
+        if S2 is not None:
+            notes.append(why)
+            return S2, f"GNSS of {int(have.sum())} images + attitude of {len(_attitude_images(ctrl, images))}", notes
     if have.sum() >= 3:
         notes.append("GNSS positions are nearly collinear (one straight line within their σ): the roll about the line is "
                      "taken from GCPs if any")
@@ -468,7 +512,7 @@ def _parallel_ray_points(rec, obs) -> np.ndarray:
 def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_calibrate=(), tie_sigma_px: float = 1.0,
                       max_error_px: float = 4.0, gcp_reject_px: float = 5.0, compute_covariance: bool = True,
                       georeferenced: bool = True, max_iterations: int = 50, rig=None, manual_ties=None,
-                      final_loss: str = "trivial") -> FinalAdjustment:
+                      final_loss: str = "trivial", attitude_priors: bool = False) -> FinalAdjustment:
     """One pass of :func:`final_adjustment`: a robust round, then ``final_loss`` rounds (least squares by default).
 
     ``rec`` is updated in place (cameras, poses, points).
@@ -478,6 +522,9 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
     their masters (seed 002 eq. 4-5); the rig is fixed or estimated (``rig.R, rig.t, rig.std`` updated).
     ``manual_ties``: list of (image index, tie index, (2,) xy px, σ px) -- points measured by hand in
     several images (RGB and thermal), unknown 3D points of the adjustment (at least 2 images of the block).
+    ``attitude_priors``: the images' observed attitudes (``ctrl.attitude``) enter as priors, each with σ
+    :data:`~.attitude.ATTITUDE_SIGMA_DEG` · sqrt(n) (together one observation of the block's rotation): the datum of a
+    block whose GNSS positions lie on one line (:func:`similarity_start`).
     """
     from ..adjustment import BundleProblem, SolverOptions, solve
 
@@ -577,6 +624,12 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
         if georeferenced and gnss_views:
             sel = images[have_gnss]
             pb.add_gnss(np.array(gnss_views), ctrl.gnss_xyz[sel], ctrl.gnss_sigma[sel], ctrl.lever_arm_m)
+        att = [int(i) for i in _attitude_images(ctrl, images) if int(i) not in slaves] if attitude_priors else []
+        if georeferenced and att:
+            from .attitude import ATTITUDE_SIGMA_DEG
+
+            pb.add_attitude(np.array([view[i] for i in att]), ctrl.attitude[att],
+                            np.radians(ATTITUDE_SIGMA_DEG) * np.sqrt(len(att)))
         robust = round_ == 0 or (round_ == 1 and bool(gnss_rejected))
         opt = SolverOptions(loss="huber" if robust else final_loss, loss_scale=2.0 if robust else HUBER_K,
                             max_iterations=max_iterations,
