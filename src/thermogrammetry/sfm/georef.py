@@ -162,7 +162,8 @@ def similarity_start(rec, images, ctrl: ControlInputs):
             return S2, f"GNSS of {int(have.sum())} images + attitude of {len(_attitude_images(ctrl, images))}", notes
     if have.sum() >= 3:
         notes.append("GNSS positions are nearly collinear (one straight line within their σ): the roll about the line is "
-                     "taken from GCPs if any")
+                     "taken from GCPs if any" + ("" if len(_attitude_images(ctrl, images)) else
+                                                 " (the files carry no camera attitude: DJI gimbal angles would fix it)"))
     # GCPs triangulated in the model frame
     if len(ctrl.gcp_ids) >= 3:
         from .reconstruction import triangulate_tracks
@@ -180,7 +181,9 @@ def similarity_start(rec, images, ctrl: ControlInputs):
                 Xw.append(ctrl.gcp_xyz[g_i])
         if len(Xm) >= 3 and not _collinear(np.array(Xw)):
             return umeyama(np.array(Xm), np.array(Xw)), f"{len(Xm)} GCPs", notes
-    return None, "none", notes + ["no GNSS and fewer than 3 usable GCPs: the block stays in a local frame of arbitrary scale"]
+    why = ("no GNSS" if have.sum() == 0 else f"GNSS of {int(have.sum())} image(s) that does not fix the rotation (fewer than 3, "
+           "or on one straight line without camera attitudes in the files)")
+    return None, "none", notes + [f"{why} and fewer than 3 usable GCPs: the block stays in a local frame of arbitrary scale"]
 
 
 @dataclass

@@ -75,7 +75,9 @@ class SurveyConfig:
     (k1 k2 p1 p2 k3), principal-point offset ``pp_offset_px``. Flight: ``flight_height_m`` above the
     mean ground, ``overlap``/``sidelap`` fractions, ``speed_mps``; ``video_fps`` switches to video mode
     (exposures every ``speed_mps / video_fps`` metres). ``max_frames`` caps the plan (None = all).
-    GNSS noise ``gnss_sigma_h_m``/``gnss_sigma_v_m``. Radiometry: sky, air, humidity. Sensor: see
+    GNSS noise ``gnss_sigma_h_m``/``gnss_sigma_v_m``. The attitude written in each frame's XMP as DJI gimbal angles
+    (:mod:`thermogrammetry.sfm.attitude`): the true one turned by a common tilt ``gimbal_tilt_deg`` (about east, north)
+    and per-frame noise ``gimbal_sigma_deg`` per axis (the DJI M3T flight: 1.3° tilt, ~0.5° scatter). Radiometry: sky, air, humidity. Sensor: see
     :class:`SensorEffects`. ``supersample``: S×S samples per pixel.
     """
 
@@ -92,6 +94,8 @@ class SurveyConfig:
     video_fps: float | None = None
     max_frames: int | None = None
     attitude_sigma_deg: float = 1.0
+    gimbal_sigma_deg: float = 0.5
+    gimbal_tilt_deg: tuple[float, float] = (1.0, 0.5)
     gnss_sigma_h_m: float = 0.03
     gnss_sigma_v_m: float = 0.05
     n_gcp: int = 5
@@ -128,7 +132,7 @@ class SurveyConfig:
             d["terrain"] = TerrainConfig.from_dict(d["terrain"])
         if isinstance(d.get("sensor"), dict):
             d["sensor"] = SensorEffects.from_dict(d["sensor"])
-        for k in ("image_size", "pp_offset_px"):
+        for k in ("image_size", "pp_offset_px", "gimbal_tilt_deg"):
             if k in d:
                 d[k] = tuple(d[k])
         return cls(**d)
@@ -631,6 +635,25 @@ def _latlon(epsg: int, enh: np.ndarray) -> tuple[float, float]:
 VIDEO_MAPPING = (0.01, 150.0)  # (scale K/code, offset K): codes 1..65535 cover 150.01..805.35 K
 
 
+def gimbal_angles(scene: SurveyScene) -> np.ndarray:
+    """(N, 3) DJI gimbal yaw, pitch, roll (degrees) of the frames as :func:`write_survey` writes them: the true
+    attitude turned by ``gimbal_tilt_deg`` and ``gimbal_sigma_deg`` noise (drawn from ``config.seed``, independent of
+    every other draw of the scene)."""
+    from ..geometry.rotations import matrix_from_axis_angle
+    from ..sfm.attitude import gimbal_from_cam_from_world, meridian_convergence_deg
+
+    cfg = scene.config
+    rng = np.random.default_rng([cfg.seed, 0x61])
+    out = np.zeros((len(scene.frames), 3))
+    for i, fr in enumerate(scene.frames):
+        lat, lon = _latlon(scene.terrain.epsg, fr.pose.center)
+        e = np.r_[cfg.gimbal_tilt_deg, 0.0] + rng.normal(0, cfg.gimbal_sigma_deg, 3)
+        R = fr.pose.R @ matrix_from_axis_angle(np.radians(e))  # a world-frame turn of the camera
+        g = meridian_convergence_deg(f"EPSG:{scene.terrain.epsg}", lon, lat)
+        out[i] = np.concatenate(gimbal_from_cam_from_world(R, g))
+    return out
+
+
 def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads: int = 2, write_jpeg: bool = False,
                  on_frame: Callable | None = None, mode: str = "process", write_video: bool | None = None,
                  n_tie_points: int = 0) -> dict:
@@ -656,6 +679,7 @@ def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads
     lo, hi = None, None
     tr = ter.transform
     video = _VideoWriter(cfg.video_fps or 10.0) if (write_video if write_video is not None else cfg.video_fps) else None
+    gimbal = gimbal_angles(scene)
     for i, img in render_frames(scene, threads=threads, on_frame=on_frame, mode=mode):
         if video is not None:
             video.add(img, scene.frames[i].time_s)
@@ -663,7 +687,9 @@ def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads
         lat, lon = _latlon(ter.epsg, fr.gnss_enh)
         md = ThermalMetadata(make="thermogrammetry", model="synthetic", focal_length_mm=cfg.focal_mm,
                              pixel_pitch_um=(cfg.pixel_pitch_um, cfg.pixel_pitch_um),
-                             geotag=Geotag(latitude_deg=lat, longitude_deg=lon, altitude_m=float(fr.gnss_enh[2])))
+                             geotag=Geotag(latitude_deg=lat, longitude_deg=lon, altitude_m=float(fr.gnss_enh[2]),
+                                           gimbal_yaw_deg=float(gimbal[i, 0]), gimbal_pitch_deg=float(gimbal[i, 1]),
+                                           gimbal_roll_deg=float(gimbal[i, 2])))
         data, _ = encode_temperature_tiff(img, metadata=md)
         project.write_bytes(f"{p}images/{fr.name}.tif", data)
         if write_jpeg:
