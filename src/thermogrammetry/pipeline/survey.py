@@ -1382,8 +1382,8 @@ def _read_markers(path_pts, path_meas, names, default_sigma_m, default_sigma_px,
 def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, camera=None, progress=None) -> dict:
     """Georeference the largest block(s), adjust, intersect check points, write every output."""
     from ..results import Termination
-    from ..sfm.georef import (ControlInputs, apply_similarity, axis_statistics, intersect_check_points,
-                              similarity_start)
+    from ..sfm.georef import (MIN_ATTITUDE_IMAGES, ControlInputs, apply_similarity, attitude_images, axis_statistics,
+                              intersect_check_points, similarity_start)
 
     t0 = time.perf_counter()
     inputs = project.read_json("work/inputs.json")
@@ -1433,17 +1433,17 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                                                  "the primary matching's orientation is kept (what --low-texture off gives)"))
     queue = list(enumerate(comps))
     pruned_blocks: set[int] = set()  # blocks already adjusted again without their GNSS-contradicting images
+    attitude_blocks: set[int] = set()  # blocks adjusted again with the camera attitudes (their GNSS left a rotation open)
     while queue:
         ci, images = queue.pop(0)
         if len(images) == 0:
             continue
-        S, how, nts = similarity_start(rec, images, ctrl)
+        S, how, nts = similarity_start(rec, images, ctrl, attitude_line=ci in attitude_blocks)
         notes += [f"block {ci + 1}: {x}" for x in nts]
         geo = S is not None
-        # the block as the orientation left it (for :func:`_prune_gnss_contradicting`): GNSS blocks only, once per
-        # block, not with a rig (similarity_start changes nothing in ``rec``)
-        pre = (_rig_snapshot(rec) if geo and how.startswith("GNSS") and ci not in pruned_blocks and ci not in rig_enabled
-               else None)
+        # the block as the orientation left it (for :func:`_prune_gnss_contradicting` and a second adjustment with the
+        # camera attitudes): GNSS blocks only, not with a rig (similarity_start changes nothing in ``rec``)
+        pre = _rig_snapshot(rec) if geo and how.startswith("GNSS") and ci not in rig_enabled else None
         if not geo and ci > 0:
             # a second block without datum cannot be placed with the first: reported, not exported
             for i in images:
@@ -1544,7 +1544,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         v = fa.tie_residuals
         rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
         far = _gnss_far_share(rec, images, ctrl) if geo else 0.0
-        if pre is not None and fa.result.termination is Termination.MAX_ITERATIONS and (far > 0 or fa.gnss_rejected):
+        if (pre is not None and ci not in pruned_blocks and fa.result.termination is Termination.MAX_ITERATIONS
+                and (far > 0 or fa.gnss_rejected)):
             # the adjustment found no minimum and some centres contradict their GNSS: a few wrongly resected images
             # can be the cause. The block as the orientation left it, without the images that no similarity puts
             # near their GNSS (sfm.georef.gnss_consensus), is adjusted once more
@@ -1560,6 +1561,18 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                 queue.insert(0, (ci, kept))
                 continue
         rot_sigma = _block_rotation_sigma(fa, images) if geo and _precise_datum(how, ctrl, images) else 0.0
+        if (rot_sigma > BLOCK_ROTATION_SIGMA_DEG and pre is not None and ci not in attitude_blocks
+                and rms <= BLOCK_RMS_GATE_PX and len(attitude_images(ctrl, images)) >= MIN_ATTITUDE_IMAGES):
+            # its GNSS does not fix its rotation, the frames' gimbal attitudes can: adjusted again from the orientation
+            # with them (sfm.georef.similarity_start(attitude_line=True)) instead of being rejected
+            notes.append(f"block {ci + 1}: its camera rotations have σ {rot_sigma:.1f}° on its GNSS alone (> "
+                         f"{BLOCK_ROTATION_SIGMA_DEG:g}°): adjusted again with the camera attitudes of the files")
+            _restore(rec, pre)
+            fa = None
+            release_free_heap()
+            attitude_blocks.add(ci)
+            queue.insert(0, (ci, images))
+            continue
         why = ""
         if not rms <= BLOCK_RMS_GATE_PX:
             # a block whose tie points do not fit is not an orientation: it is reported, never exported

@@ -74,7 +74,7 @@ class ControlInputs:
 MIN_ATTITUDE_IMAGES = 3
 
 
-def _attitude_images(ctrl, images) -> np.ndarray:
+def attitude_images(ctrl, images) -> np.ndarray:
     """The images of ``images`` with an observed attitude."""
     if ctrl.attitude is None:
         return np.zeros(0, np.int64)
@@ -89,7 +89,7 @@ def _roll_from_attitude(rec, images, g, S, ctrl):
     from ..geometry import Similarity
     from .attitude import ATTITUDE_SIGMA_DEG, rotation_about_axis
 
-    att = _attitude_images(ctrl, images)
+    att = attitude_images(ctrl, images)
     if len(att) < MIN_ATTITUDE_IMAGES:
         return None, ""
     c = g.mean(axis=0)
@@ -130,8 +130,12 @@ def _collinear(P: np.ndarray, sigma_xyz=None) -> bool:
     return bool(s[1] / np.sqrt(len(P)) < COLLINEAR_SIGMA * su)
 
 
-def similarity_start(rec, images, ctrl: ControlInputs):
+def similarity_start(rec, images, ctrl: ControlInputs, *, attitude_line: bool = False):
     """Similarity model -> CRS from GNSS centres or GCPs.
+
+    GNSS positions on one straight line (:func:`_collinear`) with camera attitudes (``ctrl.attitude``) give the
+    rotation about the line from the attitudes; ``attitude_line`` does so for positions that are not collinear by
+    that test but whose adjustment left the block's rotation undetermined (the survey's rotation-σ gate).
 
     Returns
     -------
@@ -145,7 +149,8 @@ def similarity_start(rec, images, ctrl: ControlInputs):
     g = ctrl.gnss_xyz[images]
     have = np.all(np.isfinite(g), axis=1)
     sig = np.median(ctrl.gnss_sigma[images][have], axis=0) if have.any() else None
-    if have.sum() >= 3 and not _collinear(g[have], sig):
+    use_att = attitude_line and len(attitude_images(ctrl, images)) >= MIN_ATTITUDE_IMAGES
+    if have.sum() >= 3 and not _collinear(g[have], sig) and not use_att:
         S = umeyama(C[have], g[have])
         # robust: drop GNSS positions far from the fit (another flight, a wrong tag) and refit once
         r = np.linalg.norm(S(C[have]) - g[have], axis=1)
@@ -158,11 +163,13 @@ def similarity_start(rec, images, ctrl: ControlInputs):
     if have.sum() >= 3 and len(ctrl.gcp_ids) < 3 and np.ptp(g[have], axis=0).max() > 0:
         S2, why = _roll_from_attitude(rec, images[have], g[have], umeyama(C[have], g[have]), ctrl)
         if S2 is not None:
-            notes.append(why)
-            return S2, f"GNSS of {int(have.sum())} images + attitude of {len(_attitude_images(ctrl, images))}", notes
+            notes.append(why if not attitude_line or _collinear(g[have], sig) else
+                         why.replace("GNSS positions on one straight line", "GNSS positions nearly on one line (they did "
+                                     "not fix the block's rotation)"))
+            return S2, f"GNSS of {int(have.sum())} images + attitude of {len(attitude_images(ctrl, images))}", notes
     if have.sum() >= 3:
         notes.append("GNSS positions are nearly collinear (one straight line within their σ): the roll about the line is "
-                     "taken from GCPs if any" + ("" if len(_attitude_images(ctrl, images)) else
+                     "taken from GCPs if any" + ("" if len(attitude_images(ctrl, images)) else
                                                  " (the files carry no camera attitude: DJI gimbal angles would fix it)"))
     # GCPs triangulated in the model frame
     if len(ctrl.gcp_ids) >= 3:
@@ -627,7 +634,7 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
         if georeferenced and gnss_views:
             sel = images[have_gnss]
             pb.add_gnss(np.array(gnss_views), ctrl.gnss_xyz[sel], ctrl.gnss_sigma[sel], ctrl.lever_arm_m)
-        att = [int(i) for i in _attitude_images(ctrl, images) if int(i) not in slaves] if attitude_priors else []
+        att = [int(i) for i in attitude_images(ctrl, images) if int(i) not in slaves] if attitude_priors else []
         if georeferenced and att:
             from .attitude import ATTITUDE_SIGMA_DEG
 
