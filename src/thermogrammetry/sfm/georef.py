@@ -53,7 +53,8 @@ class ControlInputs:
     gcp_obs : list of (image index, gcp index, (2,) xy px, sigma px)
     check_ids, check_xyz, check_obs : the same for check points (never adjusted)
     attitude : (n, 3, 3) cam_from_world rotations in the CRS observed by the camera's gimbal/IMU (NaN where an image has
-        none; :mod:`.attitude`), or None. Used only for a block whose GNSS positions lie on one straight line.
+        none; :mod:`.attitude`), or None. Used only for a block whose GNSS positions lie on one straight line or
+        otherwise leave its rotation undetermined (:func:`similarity_start`).
     """
 
     gnss_xyz: np.ndarray
@@ -82,7 +83,7 @@ def attitude_images(ctrl, images) -> np.ndarray:
     return images[np.all(np.isfinite(ctrl.attitude[images]), axis=(1, 2))]
 
 
-def _roll_from_attitude(rec, images, g, S, ctrl):
+def _roll_from_attitude(rec, images, g, S, ctrl, lead: str):
     """``S`` (a similarity to GNSS positions ``g`` that lie on one line) turned about that line so that the block's
     cameras agree with their observed attitudes (:func:`.attitude.rotation_about_axis`). Returns (S', note) or
     (None, "") without enough attitudes."""
@@ -99,7 +100,7 @@ def _roll_from_attitude(rec, images, g, S, ctrl):
     Q = matrix_from_axis_angle(alpha * axis)
     S2 = Similarity(S.scale, Q @ S.R, Q @ (S.translation - c) + c)
     spread = float(np.degrees(np.median(np.abs(np.angle(np.exp(1j * (al - alpha)))))))
-    return S2, (f"GNSS positions on one straight line: the rotation about it is taken from the camera attitude of "
+    return S2, (f"{lead}: the rotation about it is taken from the camera attitude of "
                 f"{len(att)} image(s) (turned {np.degrees(alpha):+.1f}°, their median deviation {spread:.2f}°) and "
                 f"enters the final adjustment as attitude priors (one {ATTITUDE_SIGMA_DEG:g}° observation of the "
                 "block's rotation: gimbal errors are correlated from frame to frame)")
@@ -161,11 +162,11 @@ def similarity_start(rec, images, ctrl: ControlInputs, *, attitude_line: bool = 
             notes.append(f"{int((~keep).sum())} GNSS position(s) far from the block's fit left out of the start")
         return S, f"GNSS of {int(have.sum())} images", notes
     if have.sum() >= 3 and len(ctrl.gcp_ids) < 3 and np.ptp(g[have], axis=0).max() > 0:
-        S2, why = _roll_from_attitude(rec, images[have], g[have], umeyama(C[have], g[have]), ctrl)
+        lead = ("GNSS positions on one straight line" if _collinear(g[have], sig) else
+                "GNSS positions nearly on one line (they did not fix the block's rotation)")
+        S2, why = _roll_from_attitude(rec, images[have], g[have], umeyama(C[have], g[have]), ctrl, lead)
         if S2 is not None:
-            notes.append(why if not attitude_line or _collinear(g[have], sig) else
-                         why.replace("GNSS positions on one straight line", "GNSS positions nearly on one line (they did "
-                                     "not fix the block's rotation)"))
+            notes.append(why)
             return S2, f"GNSS of {int(have.sum())} images + attitude of {len(attitude_images(ctrl, images))}", notes
     if have.sum() >= 3:
         notes.append("GNSS positions are nearly collinear (one straight line within their σ): the roll about the line is "
