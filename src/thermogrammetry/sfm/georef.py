@@ -494,11 +494,14 @@ def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, robust_ti
     return fa
 
 
-#: when a solve of the final adjustment stops on a singular point block, the tie points whose rays meet at less than
-#: this angle (degrees) are left out and the round is solved again: their depth is undetermined. The orientation
-#: creates points at >= 1.5° (``min_tri_angle_deg``); points drift towards infinity in an adjustment (a block matched
-#: on noise: walk seed 4 had 25 below 0.01°; the 64-station ring one at 0.0002°, which its solves carry). Only
-#: after such a stop, so that blocks that solve keep every point.
+#: when a solve of the final adjustment stops on a singular point block -- or on an undetermined camera side: one such
+#: point's huge depth and tiny parallax leave the reduced camera system numerically singular (the held-out 48-station
+#: building ring with ``--refine-ties lsm``: "condition 4.77e+300" on a 29-image block, rejected whole; one point
+#: removed and it solves) --, the tie points whose rays meet at less than this angle (degrees) are left out and the
+#: round is solved again: their depth is undetermined. The orientation creates points at >= 1.5°
+#: (``min_tri_angle_deg``); points drift towards infinity in an adjustment (a block matched on noise: walk seed 4 had
+#: 25 below 0.01°; the 64-station ring one at 0.0002°, which its solves carry). Only after such a stop, so that
+#: blocks that solve keep every point.
 MIN_FINAL_TRI_ANGLE_DEG = 0.1
 
 
@@ -648,7 +651,7 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
                             function_tolerance=1e-8 if not robust else 1e-3)
         res = solve(pb, opt)
         if (not res.success and not drop_parallel and round_ < 4
-                and "point's normal block is singular" in str(res.reason)):
+                and any(w in str(res.reason) for w in ("point's normal block is singular", "undetermined"))):
             notes.append(f"final adjustment (round {round_ + 1}) stopped: {res.reason}; solved again without the points "
                          f"whose rays meet at less than {MIN_FINAL_TRI_ANGLE_DEG:g}°")
             drop_parallel = True
