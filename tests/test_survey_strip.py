@@ -85,3 +85,18 @@ def test_short_strip_on_rtk_is_adjusted_again_with_the_attitude(strip):
     # measured 0.82° RMS: the gimbal's tilt (1.0°, 0.5°) weighed against what the GNSS says (σ about the line 1.58°)
     assert np.sqrt(np.mean(np.sum(err**2, axis=1))) < 1.3
     assert 1.0 < np.median(sd[:, 1]) < 2.1
+
+
+def test_attitudes_that_do_not_describe_the_cameras_are_not_used(tmp_path):
+    """Gimbal angles 25° off about north (across this east-west line: an axis that the GNSS line and the tie points
+    fix) disagree with the block by ~25°: not used -- the strip stays in a local frame and says why, instead of being
+    turned by attitudes that do not belong to these cameras."""
+    from thermogrammetry.synthetic.survey import make_survey, write_survey
+    from thermogrammetry.synthetic.survey_files import uav_thermal_config
+
+    sc = make_survey(uav_thermal_config(seed=0, max_frames=8, gimbal_tilt_deg=(0.0, 25.0)))
+    write_survey(FolderProject(tmp_path), sc, prefix="survey", threads=2)
+    code, s, err, dc, sd = _run(sc, tmp_path, "bad")
+    assert code == 0 and s["crs"] is None and s["blocks"][0]["datum"] == "none"
+    msg = [n for n in s["notes"] if "disagree with the block" in n]
+    assert len(msg) == 1 and 20.0 < float(msg[0].split("by ")[1].split("°")[0]) < 30.0, msg

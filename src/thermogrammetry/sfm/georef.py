@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._memory import release_free_heap
-from ..geometry.rotations import matrix_from_axis_angle
+from ..geometry.rotations import axis_angle_from_matrix, matrix_from_axis_angle
 
 __all__ = ["GnssOffset", "gnss_offset", "ControlInputs", "FinalAdjustment", "similarity_start", "apply_similarity", "final_adjustment",
            "intersect_check_points", "axis_statistics"]
@@ -73,6 +73,10 @@ class ControlInputs:
 #: the rotation about a straight GNSS line is taken from the images' attitudes when at least this many of the block's
 #: images have one
 MIN_ATTITUDE_IMAGES = 3
+#: ... and when, turned about the line to them, the block's cameras agree with them within this angle (degrees, median
+#: over the frames): the other two axes are fixed by the GNSS line and the tie points, so a larger disagreement means
+#: attitudes that do not describe these cameras (a payload that writes zeros, another mounting). The M3T flight: 1.4°
+ATTITUDE_MAX_DISAGREEMENT_DEG = 10.0
 
 
 def attitude_images(ctrl, images) -> np.ndarray:
@@ -85,8 +89,9 @@ def attitude_images(ctrl, images) -> np.ndarray:
 
 def _roll_from_attitude(rec, images, g, S, ctrl, lead: str):
     """``S`` (a similarity to GNSS positions ``g`` that lie on one line) turned about that line so that the block's
-    cameras agree with their observed attitudes (:func:`.attitude.rotation_about_axis`). Returns (S', note) or
-    (None, "") without enough attitudes."""
+    cameras agree with their observed attitudes (:func:`.attitude.rotation_about_axis`). Returns (S', note), (None, "")
+    without enough attitudes, or (None, why) when the attitudes disagree with the block
+    (:data:`ATTITUDE_MAX_DISAGREEMENT_DEG`)."""
     from ..geometry import Similarity
     from .attitude import ATTITUDE_SIGMA_DEG, rotation_about_axis
 
@@ -99,6 +104,11 @@ def _roll_from_attitude(rec, images, g, S, ctrl, lead: str):
     alpha, al = rotation_about_axis(R_est, ctrl.attitude[att], axis)
     Q = matrix_from_axis_angle(alpha * axis)
     S2 = Similarity(S.scale, Q @ S.R, Q @ (S.translation - c) + c)
+    off = np.degrees(np.linalg.norm(axis_angle_from_matrix(rec.R[att] @ S2.R.T @ np.swapaxes(ctrl.attitude[att], 1, 2)),
+                                    axis=1))
+    if float(np.median(off)) > ATTITUDE_MAX_DISAGREEMENT_DEG:
+        return None, (f"the camera attitudes in the files disagree with the block by {float(np.median(off)):.1f}° (median "
+                      f"over {len(att)} images, > {ATTITUDE_MAX_DISAGREEMENT_DEG:g}°) in the axes its GNSS fixes: not used")
     spread = float(np.degrees(np.median(np.abs(np.angle(np.exp(1j * (al - alpha)))))))
     return S2, (f"{lead}: the rotation about it is taken from the camera attitude of "
                 f"{len(att)} image(s) (turned {np.degrees(alpha):+.1f}°, their median deviation {spread:.2f}°) and "
@@ -150,8 +160,15 @@ def similarity_start(rec, images, ctrl: ControlInputs, *, attitude_line: bool = 
     g = ctrl.gnss_xyz[images]
     have = np.all(np.isfinite(g), axis=1)
     sig = np.median(ctrl.gnss_sigma[images][have], axis=0) if have.any() else None
-    use_att = attitude_line and len(attitude_images(ctrl, images)) >= MIN_ATTITUDE_IMAGES
-    if have.sum() >= 3 and not _collinear(g[have], sig) and not use_att:
+    line = have.sum() >= 3 and _collinear(g[have], sig)
+    if (line or (attitude_line and have.sum() >= 3)) and len(ctrl.gcp_ids) < 3 and np.ptp(g[have], axis=0).max() > 0:
+        lead = ("GNSS positions on one straight line" if line else
+                "GNSS positions nearly on one line (they did not fix the block's rotation)")
+        S2, why = _roll_from_attitude(rec, images[have], g[have], umeyama(C[have], g[have]), ctrl, lead)
+        notes += [why] if why else []
+        if S2 is not None:
+            return S2, f"GNSS of {int(have.sum())} images + attitude of {len(attitude_images(ctrl, images))}", notes
+    if have.sum() >= 3 and not line:
         S = umeyama(C[have], g[have])
         # robust: drop GNSS positions far from the fit (another flight, a wrong tag) and refit once
         r = np.linalg.norm(S(C[have]) - g[have], axis=1)
@@ -161,13 +178,6 @@ def similarity_start(rec, images, ctrl: ControlInputs, *, attitude_line: bool = 
             S = umeyama(C[have][keep], g[have][keep])
             notes.append(f"{int((~keep).sum())} GNSS position(s) far from the block's fit left out of the start")
         return S, f"GNSS of {int(have.sum())} images", notes
-    if have.sum() >= 3 and len(ctrl.gcp_ids) < 3 and np.ptp(g[have], axis=0).max() > 0:
-        lead = ("GNSS positions on one straight line" if _collinear(g[have], sig) else
-                "GNSS positions nearly on one line (they did not fix the block's rotation)")
-        S2, why = _roll_from_attitude(rec, images[have], g[have], umeyama(C[have], g[have]), ctrl, lead)
-        if S2 is not None:
-            notes.append(why)
-            return S2, f"GNSS of {int(have.sum())} images + attitude of {len(attitude_images(ctrl, images))}", notes
     if have.sum() >= 3:
         notes.append("GNSS positions are nearly collinear (one straight line within their σ): the roll about the line is "
                      "taken from GCPs if any" + ("" if len(attitude_images(ctrl, images)) else
