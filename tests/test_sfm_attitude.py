@@ -68,3 +68,24 @@ def test_rotation_about_axis_recovers_a_turn_despite_one_wrong_attitude():
     assert len(per) == 9
     with pytest.raises(InvalidInputError, match="equal counts"):
         rotation_about_axis(R_est[:2], R_obs[:3], axis)
+
+
+def test_survey_names_an_image_far_from_its_attitude():
+    from types import SimpleNamespace
+
+    from thermogrammetry.pipeline.survey import ATTITUDE_FLAG_DEG, _attitude_check
+
+    rng = np.random.default_rng(1)
+    R = np.array([matrix_from_axis_angle(rng.normal(0, 1, 3)) for _ in range(6)])
+    # attitudes 1.5° off about x (a common tilt) except image 4 (a wrong resection: 25° off); image 5 has none
+    att = np.array([r @ matrix_from_axis_angle(np.radians([1.5, 0, 0])) for r in R])
+    att[4] = R[4] @ matrix_from_axis_angle(np.radians([0, 25.0, 0]))
+    att[5] = np.nan
+    status = [{} for _ in range(6)]
+    a = _attitude_check(SimpleNamespace(R=R), [(0, np.arange(6), None, "GNSS", True)], SimpleNamespace(attitude=att),
+                        [f"I{k}" for k in range(6)], status)
+    assert a["n"] == 5 and a["median_deg"] == pytest.approx(1.5, abs=1e-9)
+    assert [f["image"] for f in a["flagged"]] == ["I4"] and a["flagged"][0]["deviation_deg"] > ATTITUDE_FLAG_DEG
+    assert status[0]["attitude_deviation_deg"] == pytest.approx(1.5, abs=1e-9) and "attitude_deviation_deg" not in status[5]
+    # R_att = R_adj E: E's mean rotation vector, world frame
+    np.testing.assert_allclose(a["mean_deg"], [1.2, 5.0, 0.0], atol=1e-9)

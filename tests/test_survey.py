@@ -333,6 +333,9 @@ def test_real_m3t_gimbal_attitude_and_a_single_strip(m3t, tmp_path):
     assert len(d) == 32
     assert np.sqrt(np.mean(np.sum(d**2, axis=1))) < 2.0
     assert abs(np.mean(d[:, 2])) < 0.6
+    # the same comparison as the survey reports it (survey.json "attitude"): all 32, none flagged (> 10°)
+    a = json.loads((out / "survey.json").read_text())["attitude"]
+    assert a["n"] == 32 and a["flagged"] == [] and 1.0 < a["rms_deg"] < 2.0 and a["max_deg"] < 3.0
     # --- the first strip alone, with the camera as the whole flight calibrated it ----------------------------------
     strip = tmp_path / "strip"
     strip.mkdir()

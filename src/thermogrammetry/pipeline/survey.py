@@ -1969,6 +1969,39 @@ def _rig_scale_local(rec, images, rig, master, rigv) -> list:
             f"{np.linalg.norm(rig.t):.3f} m"]
 
 
+#: an oriented image whose adjusted rotation is further than this (degrees) from the camera attitude in its file is
+#: named (``survey.json`` ``attitude.flagged``): gimbal attitudes are good to ~1-2° (the M3T flight: 0.4-2.2°), a wrong
+#: resection is tens of degrees off
+ATTITUDE_FLAG_DEG = 10.0
+
+
+def _attitude_check(rec, fa_all, ctrl, names, status) -> dict:
+    """Adjusted rotations of the georeferenced blocks against the camera attitudes in the files (DJI gimbal angles):
+    per image ``attitude_deviation_deg`` in ``status``; summary n, median, RMS, max (degrees), ``mean_deg`` the mean of
+    the world-frame rotation vectors of ``R_adjᵀ R_att`` (CRS x, y, z ~ east, north, up: a gimbal's common tilt), and
+    the images beyond :data:`ATTITUDE_FLAG_DEG`. Empty without attitudes."""
+    from ..geometry.rotations import axis_angle_from_matrix
+    from ..sfm.georef import attitude_images
+
+    rows = []
+    for ci, images, fa, how, geo in fa_all:
+        if not geo:
+            continue
+        for i in attitude_images(ctrl, images):
+            # world-frame rotation E with R_att = R_adj E
+            w = np.degrees(axis_angle_from_matrix(rec.R[i].T @ ctrl.attitude[i]))
+            status[i]["attitude_deviation_deg"] = float(np.linalg.norm(w))
+            rows.append((int(i), w))
+    if not rows:
+        return {}
+    W = np.array([w for _, w in rows])
+    dev = np.linalg.norm(W, axis=1)
+    return {"n": len(rows), "median_deg": float(np.median(dev)), "rms_deg": float(np.sqrt(np.mean(dev**2))),
+            "max_deg": float(dev.max()), "mean_deg": [float(x) for x in W.mean(axis=0)],
+            "flagged": [{"image": names[i], "deviation_deg": float(np.linalg.norm(w))} for i, w in rows
+                        if np.linalg.norm(w) > ATTITUDE_FLAG_DEG]}
+
+
 def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results, extra=None,
                    rig_only=None):
     from ..io.oriented import OrientedCameras, OrientedImage
@@ -2048,6 +2081,11 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
                              f"({z:.1f} σ{'' if used else '; that GNSS position was left out of the final adjustment'}): "
                              "its orientation (e.g. tie points on occluding edges or repeated structure) or its GNSS tag "
                              "is wrong; check it before using its products" for i, d, z, used in flagged]
+    att_summary = _attitude_check(rec, fa_all, ctrl, names, status)
+    if att_summary.get("flagged"):
+        notes = notes + [f"{f['image']}: adjusted rotation {f['deviation_deg']:.1f}° from the camera attitude in its file "
+                         f"(the block's median {att_summary['median_deg']:.1f}°): its orientation (a wrong resection) or its "
+                         "attitude tag is wrong; check it before using its products" for f in att_summary["flagged"]]
     for f in inputs["failed"]:
         status.append({"name": Path(f["file"]).name, "oriented": False, "block": None, "reason": f["reason"], "tie_points": 0,
                        "rms_px": None, "unit": None, "sensor": None})
@@ -2077,6 +2115,7 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
         "gnss": axis_statistics(gnss_d),
         "gnss_flagged": [{"image": names[i], "dx": float(d[0]), "dy": float(d[1]), "dz": float(d[2]), "sigma": z,
                           "used": used} for i, d, z, used in flagged],
+        "attitude": att_summary,
         "crs": crs,
         "seconds": None,
         "georeferenced": bool(crs),

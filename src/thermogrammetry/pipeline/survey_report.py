@@ -132,6 +132,15 @@ def write_survey_report(project) -> None:
             parts.append("<p class='bad'>Camera centres far from their GNSS positions (orientation or GNSS tag wrong): "
                          + ", ".join(f"{html.escape(g['image'])} ({np.hypot(np.hypot(g['dx'], g['dy']), g['dz']):.3f} m, "
                                      f"{g['sigma']:.1f} σ)" for g in s["gnss_flagged"]) + "</p>")
+    if s.get("attitude", {}).get("n"):
+        a = s["attitude"]
+        parts.append(f"<p>Camera rotations against the camera attitude in the files (gimbal): {a['n']} images, median "
+                     f"{a['median_deg']:.2f}°, RMS {a['rms_deg']:.2f}°, max {a['max_deg']:.2f}°; their common tilt (mean "
+                     f"world-frame rotation vector about x, y, z of the CRS) {', '.join(f'{x:+.2f}' for x in a['mean_deg'])}°"
+                     "</p>")
+        if a.get("flagged"):
+            parts.append("<p class='bad'>Images far from their camera attitude (orientation or attitude tag wrong): "
+                         + ", ".join(f"{html.escape(f['image'])} ({f['deviation_deg']:.1f}°)" for f in a["flagged"]) + "</p>")
     if s.get("gcp_rejected_measurements"):
         parts.append("<p class='bad'>GCP measurements rejected (blunders: not visible or wrongly identified): " + ", ".join(
             f"{html.escape(r['id'])} in {html.escape(r['image'])} ({r['residual_px']:.1f} px)" for r in s["gcp_rejected_measurements"]) + "</p>")
