@@ -77,8 +77,8 @@ class SurveyConfig:
     (exposures every ``speed_mps / video_fps`` metres). ``max_frames`` caps the plan (None = all).
     GNSS noise ``gnss_sigma_h_m``/``gnss_sigma_v_m``. The attitude written in each frame's XMP as DJI gimbal angles
     (:mod:`thermogrammetry.sfm.attitude`): the true one turned by a common tilt ``gimbal_tilt_deg`` (about east, north)
-    and per-frame noise ``gimbal_sigma_deg`` per axis (the DJI M3T flight: 1.3° tilt, ~0.5° scatter). Radiometry: sky, air, humidity. Sensor: see
-    :class:`SensorEffects`. ``supersample``: S×S samples per pixel.
+    and per-frame noise ``gimbal_sigma_deg`` per axis (the DJI M3T flight: 1.3° tilt, ~0.5° scatter). Radiometry:
+    sky, air, humidity. Sensor: see :class:`SensorEffects`. ``supersample``: S×S samples per pixel.
     """
 
     terrain: TerrainConfig = field(default_factory=TerrainConfig)
