@@ -89,3 +89,8 @@ def test_survey_names_an_image_far_from_its_attitude():
     assert status[0]["attitude_deviation_deg"] == pytest.approx(1.5, abs=1e-9) and "attitude_deviation_deg" not in status[5]
     # R_att = R_adj E: E's mean rotation vector, world frame
     np.testing.assert_allclose(a["mean_deg"], [1.2, 5.0, 0.0], atol=1e-9)
+    # a convention the files do not describe (every attitude 40° off about the same world axis) names nobody
+    att2 = np.array([r @ matrix_from_axis_angle(np.radians([0, 0, 40.0 + k])) for k, r in enumerate(R)])
+    a2 = _attitude_check(SimpleNamespace(R=R), [(0, np.arange(6), None, "GNSS", True)], SimpleNamespace(attitude=att2),
+                         [f"I{k}" for k in range(6)], [{} for _ in range(6)])
+    assert a2["median_deg"] > ATTITUDE_FLAG_DEG and a2["flagged"] == []

@@ -1969,9 +1969,10 @@ def _rig_scale_local(rec, images, rig, master, rigv) -> list:
             f"{np.linalg.norm(rig.t):.3f} m"]
 
 
-#: an oriented image whose adjusted rotation is further than this (degrees) from the camera attitude in its file is
-#: named (``survey.json`` ``attitude.flagged``): gimbal attitudes are good to ~1-2° (the M3T flight: 0.4-2.2°), a wrong
-#: resection is tens of degrees off
+#: an oriented image whose attitude in its file differs from its adjusted rotation by more than this (degrees) beyond
+#: the block's common difference is named (``survey.json`` ``attitude.flagged``): gimbal attitudes are good to ~1-2°
+#: (the M3T flight: 0.4-2.2°), a wrong resection is tens of degrees off. A common difference above it (every image) is
+#: a convention or mounting the files do not describe, said once, not blamed on each image
 ATTITUDE_FLAG_DEG = 10.0
 
 
@@ -1979,7 +1980,8 @@ def _attitude_check(rec, fa_all, ctrl, names, status) -> dict:
     """Adjusted rotations of the georeferenced blocks against the camera attitudes in the files (DJI gimbal angles):
     per image ``attitude_deviation_deg`` in ``status``; summary n, median, RMS, max (degrees), ``mean_deg`` the mean of
     the world-frame rotation vectors of ``R_adjᵀ R_att`` (CRS x, y, z ~ east, north, up: a gimbal's common tilt), and
-    the images beyond :data:`ATTITUDE_FLAG_DEG`. Empty without attitudes."""
+    the images whose ``R_adjᵀ R_att`` is more than :data:`ATTITUDE_FLAG_DEG` from the block's mean rotation (chordal
+    mean), with that distance. Empty without attitudes."""
     from ..geometry.rotations import axis_angle_from_matrix
     from ..sfm.georef import attitude_images
 
@@ -1994,12 +1996,18 @@ def _attitude_check(rec, fa_all, ctrl, names, status) -> dict:
             rows.append((int(i), w))
     if not rows:
         return {}
+    from ..geometry.rotations import matrix_from_axis_angle
+
     W = np.array([w for _, w in rows])
     dev = np.linalg.norm(W, axis=1)
+    E = matrix_from_axis_angle(np.radians(W))
+    U, _, Vt = np.linalg.svd(E.mean(axis=0))
+    Ebar = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt  # chordal mean rotation
+    rel = np.degrees(np.linalg.norm(axis_angle_from_matrix(E @ Ebar.T), axis=1))
     return {"n": len(rows), "median_deg": float(np.median(dev)), "rms_deg": float(np.sqrt(np.mean(dev**2))),
             "max_deg": float(dev.max()), "mean_deg": [float(x) for x in W.mean(axis=0)],
-            "flagged": [{"image": names[i], "deviation_deg": float(np.linalg.norm(w))} for i, w in rows
-                        if np.linalg.norm(w) > ATTITUDE_FLAG_DEG]}
+            "flagged": [{"image": names[i], "deviation_deg": float(dev[k]), "from_common_deg": float(rel[k])}
+                        for k, (i, w) in enumerate(rows) if rel[k] > ATTITUDE_FLAG_DEG]}
 
 
 def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results, extra=None,
@@ -2082,10 +2090,14 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
                              "its orientation (e.g. tie points on occluding edges or repeated structure) or its GNSS tag "
                              "is wrong; check it before using its products" for i, d, z, used in flagged]
     att_summary = _attitude_check(rec, fa_all, ctrl, names, status)
+    if att_summary.get("median_deg", 0.0) > ATTITUDE_FLAG_DEG:
+        notes = notes + [f"the camera attitudes in the files differ from the adjusted rotations by {att_summary['median_deg']:.1f}° "
+                         "(median over the images): a convention or camera mounting the files do not describe, not a "
+                         "fault of the orientation"]
     if att_summary.get("flagged"):
-        notes = notes + [f"{f['image']}: adjusted rotation {f['deviation_deg']:.1f}° from the camera attitude in its file "
-                         f"(the block's median {att_summary['median_deg']:.1f}°): its orientation (a wrong resection) or its "
-                         "attitude tag is wrong; check it before using its products" for f in att_summary["flagged"]]
+        notes = notes + [f"{f['image']}: adjusted rotation {f['from_common_deg']:.1f}° from the camera attitude in its file "
+                         "beyond the block's common difference: its orientation (a wrong resection) or its attitude tag is "
+                         "wrong; check it before using its products" for f in att_summary["flagged"]]
     for f in inputs["failed"]:
         status.append({"name": Path(f["file"]).name, "oriented": False, "block": None, "reason": f["reason"], "tie_points": 0,
                        "rms_px": None, "unit": None, "sensor": None})

@@ -140,7 +140,8 @@ def write_survey_report(project) -> None:
                      "</p>")
         if a.get("flagged"):
             parts.append("<p class='bad'>Images far from their camera attitude (orientation or attitude tag wrong): "
-                         + ", ".join(f"{html.escape(f['image'])} ({f['deviation_deg']:.1f}°)" for f in a["flagged"]) + "</p>")
+                         + ", ".join(f"{html.escape(f['image'])} ({f['from_common_deg']:.1f}° beyond the block's common difference)"
+                                   for f in a["flagged"]) + "</p>")
     if s.get("gcp_rejected_measurements"):
         parts.append("<p class='bad'>GCP measurements rejected (blunders: not visible or wrongly identified): " + ", ".join(
             f"{html.escape(r['id'])} in {html.escape(r['image'])} ({r['residual_px']:.1f} px)" for r in s["gcp_rejected_measurements"]) + "</p>")
