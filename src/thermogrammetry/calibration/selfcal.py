@@ -47,6 +47,7 @@ import numpy as np
 from scipy import stats
 
 from ..errors import ConfigError, InvalidInputError, TooFewPointsError
+from ..geometry.rotations import mean_rotation
 from ..results import Outcome, Termination
 from .bundle import N_PARAMS, PARAM_NAMES, BundleProblem, BundleSolution, CameraBlock, residuals, solve_bundle
 from .._validate import config_keys
@@ -389,15 +390,6 @@ def _resect(xyz: np.ndarray, xy: np.ndarray, K: np.ndarray, planar: bool):
     return (R, t), ""
 
 
-def _mean_rotation(Rs: np.ndarray) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(Rs.sum(0))
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        U[:, -1] *= -1
-        R = U @ Vt
-    return R
-
-
 def calibrate(
     cameras: Sequence[CameraSetup],
     points: np.ndarray,
@@ -641,7 +633,7 @@ def _calibrate_once(
                     R2, t2 = poses[k]
                     Rr = R2 @ R1.T
                     rels.append((Rr, t2 - Rr @ t1))
-            Rm = _mean_rotation(np.array([r[0] for r in rels]))
+            Rm = mean_rotation(np.array([r[0] for r in rels]))
             tm = np.median(np.array([r[1] for r in rels]), axis=0)
             rig_init[g] = (Rm, tm)
 

@@ -38,6 +38,7 @@ __all__ = [
     "skew",
     "matrix_from_axis_angle",
     "axis_angle_from_matrix",
+    "mean_rotation",
     "matrix_from_quaternion",
     "quaternion_from_matrix",
     "matrix_from_opk",
@@ -128,6 +129,18 @@ def matrix_from_axis_angle(rvec) -> np.ndarray:
     b = np.where(small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0, (1.0 - np.cos(ths)) / (ths * ths))
     K = skew(r)
     return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def mean_rotation(Rs) -> np.ndarray:
+    """Chordal L2 mean of rotations: the sum of ``Rs`` (K, 3, 3) projected on SO(3) by its SVD,
+    ``U diag(1, 1, sign det(U Vᵀ)) Vᵀ``.
+
+    References
+    ----------
+    Hartley, R., Trumpf, J., Dai, Y., Li, H. (2013). Rotation averaging. IJCV 103(3), 267-305, §5.3.
+    """
+    U, _, Vt = np.linalg.svd(np.asarray(Rs, float).reshape(-1, 3, 3).sum(axis=0))
+    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
 
 
 def quaternion_from_matrix(R) -> np.ndarray:

@@ -1474,12 +1474,12 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                 ok, why = rig_estimation_evidence(rec, rigv, images, _rig_own_before(rec, rigv, images, t_obs))
                 refused = "" if ok else why
         fa = None
+        # the final adjustment's options for this block (the images and the rig may change below)
+        adjust_kw = dict(focal_known=focal_known, attitude_priors=geo and "attitude" in how, tie_sigma_px=opt.tie_sigma_px,
+                         max_error_px=opt.reconstruction.max_error_px, georeferenced=geo, manual_ties=t_obs or None)
         if rigv is not None and not refused:
-            fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, focal_known=focal_known,
-                                                    attitude_priors=geo and "attitude" in how,
-                                                    tie_sigma_px=opt.tie_sigma_px,
-                                                    max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
-                                                    compute_covariance=len(images) <= 2500, manual_ties=t_obs or None)
+            fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv,
+                                                    compute_covariance=len(images) <= 2500, **adjust_kw)
             if not rigv.fixed:
                 ok, why = rig_estimate_accepted(rigv, fa)
                 refused = "" if ok else why
@@ -1496,11 +1496,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             rigv = None
             fa = None
         if fa is None:
-            fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, focal_known=focal_known,
-                                                    attitude_priors=geo and "attitude" in how,
-                                                    tie_sigma_px=opt.tie_sigma_px,
-                                                    max_error_px=opt.reconstruction.max_error_px, georeferenced=geo,
-                                                    compute_covariance=len(images) <= 2500, manual_ties=t_obs or None)
+            fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv,
+                                                    compute_covariance=len(images) <= 2500, **adjust_kw)
         release_free_heap()
         notes += [f"block {ci + 1}: {x}" for x in fa.notes]
         notes += [f"block {ci + 1}: {x}" for x in cal_steps]
@@ -1982,7 +1979,7 @@ def _attitude_check(rec, fa_all, ctrl, names, status) -> dict:
     the world-frame rotation vectors of ``R_adjᵀ R_att`` (CRS x, y, z ~ east, north, up: a gimbal's common tilt), and
     the images whose ``R_adjᵀ R_att`` is more than :data:`ATTITUDE_FLAG_DEG` from the block's mean rotation (chordal
     mean), with that distance. Empty without attitudes."""
-    from ..geometry.rotations import axis_angle_from_matrix
+    from ..geometry.rotations import axis_angle_from_matrix, matrix_from_axis_angle, mean_rotation
     from ..sfm.georef import attitude_images
 
     rows = []
@@ -1996,14 +1993,10 @@ def _attitude_check(rec, fa_all, ctrl, names, status) -> dict:
             rows.append((int(i), w))
     if not rows:
         return {}
-    from ..geometry.rotations import matrix_from_axis_angle
-
     W = np.array([w for _, w in rows])
     dev = np.linalg.norm(W, axis=1)
     E = matrix_from_axis_angle(np.radians(W))
-    U, _, Vt = np.linalg.svd(E.mean(axis=0))
-    Ebar = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt  # chordal mean rotation
-    rel = np.degrees(np.linalg.norm(axis_angle_from_matrix(E @ Ebar.T), axis=1))
+    rel = np.degrees(np.linalg.norm(axis_angle_from_matrix(E @ mean_rotation(E).T), axis=1))
     return {"n": len(rows), "median_deg": float(np.median(dev)), "rms_deg": float(np.sqrt(np.mean(dev**2))),
             "max_deg": float(dev.max()), "mean_deg": [float(x) for x in W.mean(axis=0)],
             "flagged": [{"image": names[i], "deviation_deg": float(dev[k]), "from_common_deg": float(rel[k])}

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..geometry.rotations import matrix_from_axis_angle, skew
 
 __all__ = ["ATTITUDE_SIGMA_DEG", "cam_from_world_from_gimbal", "gimbal_from_cam_from_world", "meridian_convergence_deg",
            "rotation_about_axis"]
@@ -47,22 +48,11 @@ _BODY_FROM_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 _ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
 
-def _rz(a):
-    c, s = np.cos(a), np.sin(a)
-    z, o = np.zeros_like(a), np.ones_like(a)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
-
-
-def _ry(a):
-    c, s = np.cos(a), np.sin(a)
-    z, o = np.zeros_like(a), np.ones_like(a)
-    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
-
-
-def _rx(a):
-    c, s = np.cos(a), np.sin(a)
-    z, o = np.zeros_like(a), np.ones_like(a)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+def _about(axis: int, a) -> np.ndarray:
+    """Rotations (N, 3, 3) by the angles ``a`` (N,) (radians, right-handed) about coordinate axis ``axis``."""
+    r = np.zeros(np.shape(a) + (3,))
+    r[..., axis] = a
+    return matrix_from_axis_angle(r)
 
 
 def cam_from_world_from_gimbal(yaw_deg, pitch_deg, roll_deg, convergence_deg=0.0) -> np.ndarray:
@@ -74,8 +64,8 @@ def cam_from_world_from_gimbal(yaw_deg, pitch_deg, roll_deg, convergence_deg=0.0
     y, p, r, g = np.broadcast_arrays(*(np.radians(np.asarray(v, float)) for v in (yaw_deg, pitch_deg, roll_deg,
                                                                                     convergence_deg)))
     y, p, r, g = (np.atleast_1d(v) for v in (y, p, r, g))
-    ned_from_cam = _rz(y) @ _ry(p) @ _rx(r) @ _BODY_FROM_CAM
-    world_from_cam = _rz(g) @ _ENU_FROM_NED @ ned_from_cam
+    ned_from_cam = _about(2, y) @ _about(1, p) @ _about(0, r) @ _BODY_FROM_CAM
+    world_from_cam = _about(2, g) @ _ENU_FROM_NED @ ned_from_cam
     return np.swapaxes(world_from_cam, -1, -2)
 
 
@@ -86,7 +76,7 @@ def gimbal_from_cam_from_world(R, convergence_deg=0.0) -> tuple[np.ndarray, np.n
     """
     R = np.asarray(R, float).reshape(-1, 3, 3)
     g = np.radians(np.broadcast_to(np.asarray(convergence_deg, float), (len(R),)))
-    ned_from_body = _ENU_FROM_NED @ _rz(-g) @ np.swapaxes(R, -1, -2) @ _BODY_FROM_CAM.T
+    ned_from_body = _ENU_FROM_NED @ _about(2, -g) @ np.swapaxes(R, -1, -2) @ _BODY_FROM_CAM.T
     # Z-Y-X: M = Rz(y) Ry(p) Rx(r); M[2,0] = -sin p, M[1,0] = cos p sin y, M[0,0] = cos p cos y, M[2,1] = cos p sin r
     p = -np.arcsin(np.clip(ned_from_body[:, 2, 0], -1.0, 1.0))
     lock = np.abs(np.cos(p)) < 1e-9
@@ -136,8 +126,6 @@ def rotation_about_axis(R_est, R_obs, axis) -> tuple[float, np.ndarray]:
     -------
     (alpha_rad, alpha_i_rad (N,))
     """
-    from ..geometry.rotations import skew
-
     R_est = np.asarray(R_est, float).reshape(-1, 3, 3)
     R_obs = np.asarray(R_obs, float).reshape(-1, 3, 3)
     if len(R_est) != len(R_obs) or not len(R_est):

@@ -56,7 +56,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, DataFileError, UnsupportedFormatError
-from ..geometry.rotations import axis_angle_from_matrix, matrix_from_axis_angle
+from ..geometry.rotations import axis_angle_from_matrix, matrix_from_axis_angle, mean_rotation
 
 __all__ = ["RigFile", "RigViews", "read_rig", "parse_rig", "pair_rig_images", "relative_from_poses",
            "attach_rig_images", "rig_report", "RIG_KEYS", "own_observations", "rig_estimation_evidence",
@@ -254,8 +254,7 @@ def relative_from_poses(R_m, t_m, R_s, t_s):
     R (3, 3), t (3,), spread_deg (K,) angle of each pair's rotation from the mean
     """
     Rk = np.einsum("kij,klj->kil", R_s, R_m)  # R_s R_m^T
-    U, _, Vt = np.linalg.svd(Rk.sum(axis=0))
-    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    R = mean_rotation(Rk)
     tk = t_s - np.einsum("ij,kj->ki", R, t_m)
     t = np.median(tk, axis=0)
     spread = np.degrees([np.linalg.norm(axis_angle_from_matrix(r @ R.T)) for r in Rk])

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
+from ..geometry.rotations import mean_rotation
 from .._validate import config_keys
 
 __all__ = ["LowTextureFacadeConfig", "LowTextureFacade", "make_lowtexture_facade", "render_lowtexture_frame",
@@ -309,8 +310,7 @@ def pose_errors(truth: dict, estimate: dict) -> dict:
     Rt = [np.asarray(truth[n][0], float) for n in names]
     Re = [np.asarray(estimate[n][0], float) for n in names]
     # X_true = s Q X_est + q  =>  R_est = R_true Q  (cam_from_world), so Q ~ mean of R_trueᵀ R_est
-    U, _, Vt = np.linalg.svd(sum(a.T @ b for a, b in zip(Rt, Re)))
-    Q = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    Q = mean_rotation([a.T @ b for a, b in zip(Rt, Re)])
     Ct = np.array([centre(*truth[n]) for n in names])
     Ce = np.array([centre(*estimate[n]) for n in names])
     A, B = Ct - Ct.mean(0), (Ce - Ce.mean(0)) @ Q.T

@@ -642,16 +642,19 @@ def gimbal_angles(scene: SurveyScene) -> np.ndarray:
     from ..geometry.rotations import matrix_from_axis_angle
     from ..sfm.attitude import gimbal_from_cam_from_world, meridian_convergence_deg
 
+    from pyproj import Transformer
+
     cfg = scene.config
     rng = np.random.default_rng([cfg.seed, 0x61])
-    out = np.zeros((len(scene.frames), 3))
-    for i, fr in enumerate(scene.frames):
-        lat, lon = _latlon(scene.terrain.epsg, fr.pose.center)
-        e = np.r_[cfg.gimbal_tilt_deg, 0.0] + rng.normal(0, cfg.gimbal_sigma_deg, 3)
-        R = fr.pose.R @ matrix_from_axis_angle(np.radians(e))  # a world-frame turn of the camera
-        g = meridian_convergence_deg(f"EPSG:{scene.terrain.epsg}", lon, lat)
-        out[i] = np.concatenate(gimbal_from_cam_from_world(R, g))
-    return out
+    n = len(scene.frames)
+    # per frame: the common tilt + noise, one draw of 3 after the other (a world-frame turn of the camera)
+    noise = np.array([rng.normal(0, cfg.gimbal_sigma_deg, 3) for _ in range(n)]).reshape(n, 3)
+    e = np.r_[cfg.gimbal_tilt_deg, 0.0] + noise
+    R = np.array([fr.pose.R for fr in scene.frames]).reshape(n, 3, 3) @ matrix_from_axis_angle(np.radians(e))
+    C = np.array([fr.pose.center for fr in scene.frames]).reshape(n, 3)
+    lon, lat = Transformer.from_crs(int(scene.terrain.epsg), 4326, always_xy=True).transform(C[:, 0], C[:, 1])
+    g = meridian_convergence_deg(f"EPSG:{scene.terrain.epsg}", lon, lat)
+    return np.column_stack(gimbal_from_cam_from_world(R, g))
 
 
 def write_survey(project, scene: SurveyScene, *, prefix: str = "survey", threads: int = 2, write_jpeg: bool = False,
