@@ -123,6 +123,36 @@ def test_normalisation_is_invariant_to_dtype_offset_and_scale():
     assert (~v).sum() == 40 * 50 and e.max() <= 1 and np.mean(e > 0) < 0.01
 
 
+def test_matching_codes_on_two_threads_equal_one_thread_and_numpy_grey():
+    """The codes of a pair are computed on two threads when OpenCV may use two (the two images' passes, and the
+    equalisation beside the local normalisations): the same codes as one thread, bit for bit, with no data in
+    both images and for each weight; colour is averaged as NumPy's float32 mean of the channels."""
+    import cv2
+
+    from thermogrammetry.dense.stereo import _grey, matching_codes
+
+    L, R, _ = _pair(hot=True)
+    Ln, Rn = L.copy(), R.copy()
+    Ln[:, :30] = np.nan
+    Rn[200:260, 300:420] = np.nan
+    before = cv2.getNumThreads()
+    try:
+        out = {}
+        for n in (1, 2):
+            cv2.setNumThreads(n)
+            out[n] = [matching_codes(a, b, equalised_weight=w) for a, b in ((L, R), (Ln, Rn)) for w in (0.0, 0.5, 1.0)]
+    finally:
+        cv2.setNumThreads(before)
+    for one, two in zip(out[1], out[2]):
+        assert all(np.array_equal(x, y) for x, y in zip(one, two))
+    assert not np.array_equal(out[1][1][0], out[1][2][0])  # the weights give different codes (the test can tell)
+    rng = np.random.default_rng(3)
+    for dt in (np.uint8, np.uint16, np.int16, np.float32):
+        c = (rng.random((40, 50, 4)) * 250).astype(dt)
+        g = _grey(c, "c")
+        assert g.dtype == np.float32 and np.array_equal(g, c[..., :3].mean(axis=2, dtype=np.float32)), dt
+
+
 def test_disparity_full_dynamic_range_beats_global_8bit_rendering():
     """With a hot block taking most of the range, a global 8-bit rendering leaves the ±1 K texture a few grey
     levels; our local normalisation in float keeps it (fewer bad pixels than the same matcher on 8 bits).

@@ -13,7 +13,8 @@ with its sub-pixel parabola fit, a left-right consistency check (``disp12MaxDiff
 speckle filter. Both code images get a few mirrored columns on the right before SGBM (cropped after), so that
 the left image's last columns are matched like the others instead of locking onto the right image's border.
 A coarse-to-fine variant (:func:`disparity_range`) finds the disparity search range of a pair at a quarter
-resolution. Figures: benchmarks/dense.py.
+resolution. The codes of the two images are computed on two threads when OpenCV may use two (same values as
+one thread). Figures: benchmarks/dense.py.
 
 References
 ----------
@@ -53,7 +54,18 @@ def _grey(img, name: str) -> np.ndarray:
     if a.ndim == 3 and a.shape[2] in (3, 4):
         if a.dtype.kind not in "uif" and a.dtype != bool:
             raise InvalidInputError(f"{name}: expected an integer or float image, got dtype {a.dtype}")
-        a = a[..., :3].mean(axis=2, dtype=np.float64 if a.dtype == np.float64 else np.float32)
+        if a.dtype not in (np.uint8, np.uint16, np.int16, np.float32):
+            a = a[..., :3].mean(axis=2, dtype=np.float64 if a.dtype == np.float64 else np.float32)
+        else:
+            # the mean of the three channels in float32, ((c0 + c1) + c2) / 3 as NumPy's mean computes it (same
+            # values), by OpenCV's channel split and adds: 10x faster than a reduction over the last axis
+            import cv2
+
+            c = cv2.split(np.ascontiguousarray(a[..., :3]))
+            s = cv2.add(c[0], c[1], dtype=cv2.CV_32F) if a.dtype != np.float32 else cv2.add(c[0], c[1])
+            s = cv2.add(s, c[2].astype(np.float32, copy=False))
+            s /= np.float32(3.0)
+            a = s
     elif a.ndim != 2:
         raise InvalidInputError(f"{name}: expected a (H, W) grey or (H, W, 3) colour image, got shape {a.shape}")
     if a.dtype.kind not in "uif" and a.dtype != bool:
@@ -131,7 +143,7 @@ def _local_levels(img, window_px: int, clip_sigma: float, gain: float = 1.0) -> 
 
 
 def _equalised_levels(L, R, vl=None, vr=None, gain: float = 1.0,
-                      bins: int = 65536) -> tuple[np.ndarray, np.ndarray]:
+                      bins: int = 65536, threads: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Joint histogram equalisation of a pair: one monotonic map of the values of both images onto 0..255.
 
     The map is the mid-rank of each value in the pooled histogram (``bins`` equal bins between the pair's
@@ -139,26 +151,68 @@ def _equalised_levels(L, R, vl=None, vr=None, gain: float = 1.0,
     same level in both images, steps and low frequencies are kept (no halo), and the levels go where the pixels
     are: a hot object taking most of the range but few pixels gets few levels. ``L``, ``R`` must be finite
     (no-data already filled); ``vl``, ``vr`` (bool, optional) restrict the histogram to the valid pixels.
-    Returns ``gain`` × float32 levels in 0..255.5 (floor = the rounded code).
+    Returns ``gain`` × float32 levels in 0..255.5 (floor = the rounded code). ``threads``: the two images' passes
+    on two threads (:func:`_run_pair`).
     """
+    pair = _run_pair if threads else (lambda fn, a, b: (fn(a), fn(b)))
     lo = float(min(L.min(), R.min()))
     hi = float(max(L.max(), R.max()))
     g = float(gain)
     if not hi > lo:
         return np.full(L.shape, 128.0 * g, np.float32), np.full(R.shape, 128.0 * g, np.float32)
     sc = (bins - 1) / (hi - lo)
-    idx = []
-    for a in (L, R):
-        f = np.subtract(a, lo, dtype=np.float64 if a.dtype == np.float64 else np.float32)
-        f *= sc
-        idx.append(f.astype(np.intp))  # the index type of bincount and take (no conversion inside)
+    idx = pair(lambda a: _bin_index(a, lo, sc, bins), L, R)
     h = np.zeros(bins, np.intp)
     for i, v in ((idx[0], vl), (idx[1], vr)):
         sub = i[::2, ::2]
         h += np.bincount(sub.ravel() if v is None else sub[v[::2, ::2]], minlength=bins)
     c = np.cumsum(h)
     lut = ((c - 0.5 * h) * (255.0 * g / max(int(c[-1]), 1)) + 0.5 * g).astype(np.float32)
-    return np.take(lut, idx[0]), np.take(lut, idx[1])
+    return tuple(pair(lambda i: np.take(lut, i), *idx))
+
+
+def _bin_index(a: np.ndarray, lo: float, sc: float, bins: int) -> np.ndarray:
+    """Histogram bin of every pixel, ``floor((a − lo) · sc)`` in the input's float precision (float32 unless
+    float64), as uint16 when ``bins`` <= 65536 (half the memory traffic of an index array; bitwise the same
+    bins as a conversion to intp: the truncation of the same float values)."""
+    f = np.subtract(a, lo, dtype=np.float64 if a.dtype == np.float64 else np.float32)
+    f *= sc
+    if bins <= 65536:
+        np.minimum(f, bins - 1, out=f)  # (hi − lo) · sc may round up past the last bin
+        return f.astype(np.uint16)
+    return f.astype(np.intp)
+
+
+def _threaded(a) -> bool:
+    """Whether a pair of images of ``a``'s size is coded on two threads (OpenCV allowed more than one)."""
+    import cv2
+
+    return cv2.getNumThreads() >= 2 and a.size >= _THREADED_MIN_PIXELS
+
+
+def _run_pair(fn, a, b) -> tuple:
+    """``(fn(a), fn(b))``, the two calls on two threads when OpenCV may use more than one (OpenCV and NumPy
+    release the GIL in these array passes; the results are those of two calls in a row). ``a``, ``b``: arrays,
+    or tuples whose first item is the image (its size decides)."""
+    if not _threaded(a[0] if isinstance(a, tuple) else a):
+        return fn(a), fn(b)
+    fut = _thread_pool().submit(fn, b)
+    return fn(a), fut.result()
+
+
+#: pairs smaller than this (pixels per image) are coded in one thread (thread hand-over costs ~0.1 ms)
+_THREADED_MIN_PIXELS = 65536
+_POOL: list = [None, None]  # [executor, pid that created it]
+
+
+def _thread_pool():
+    """A two-thread executor of this process (made again after a fork: a child has no threads of its parent)."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    if _POOL[0] is None or _POOL[1] != os.getpid():
+        _POOL[0], _POOL[1] = ThreadPoolExecutor(max_workers=2, thread_name_prefix="tg-codes"), os.getpid()
+    return _POOL[0]
 
 
 def _fill_nearest_value(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -219,15 +273,22 @@ def matching_codes(left, right, *, window_px: int = 15, clip_sigma: float = 3.0,
     # edge at the frame's border for SGBM to lock onto (5 rendered survey pairs of 320x256 px, bad pixels > 1 px:
     # 0.0505 0.0399 0.0424 0.0197 0.0491 -> 0.0441 0.0391 0.0364 0.0109 0.0406, tests/test_dense.py), and the
     # all-valid (fast) paths below
-    Lf = L if all_l else _fill_nearest_value(L, vl)
-    Rf = R if all_r else _fill_nearest_value(R, vr)
-    if w < 1.0:
-        tl, _ = _local_levels(Lf, window_px, clip_sigma, gain=1.0 - w)
-        tr, _ = _local_levels(Rf, window_px, clip_sigma, gain=1.0 - w)
+    Lf, Rf = _run_pair(lambda ab: ab[0] if ab[2] else _fill_nearest_value(ab[0], ab[1]), (L, vl, all_l), (R, vr, all_r))
+    masks = (None if all_l else vl, None if all_r else vr)
+    if 0.0 < w < 1.0 and _threaded(Lf):
+        # the two local normalisations on the two pool threads while this thread equalises (same values)
+        fl, fr = (_thread_pool().submit(_local_levels, a, window_px, clip_sigma, 1.0 - w) for a in (Lf, Rf))
+        el, er = _equalised_levels(Lf, Rf, *masks, gain=w, threads=False)
+        tl, tr = fl.result()[0], fr.result()[0]
+    elif w < 1.0:
+        (tl, _), (tr, _) = _run_pair(lambda a: _local_levels(a, window_px, clip_sigma, gain=1.0 - w), Lf, Rf)
+        el = er = None
+        if w > 0.0:
+            el, er = _equalised_levels(Lf, Rf, *masks, gain=w)
     else:  # the local part has weight 0: not computed
-        tl, tr = np.zeros(L.shape, np.float32), np.zeros(R.shape, np.float32)
-    if w > 0.0:
-        el, er = _equalised_levels(Lf, Rf, None if all_l else vl, None if all_r else vr, gain=w)
+        tl, tr = _equalised_levels(Lf, Rf, *masks, gain=w)
+        el = er = None
+    if 0.0 < w < 1.0:
         tl += el
         tr += er
     return tl.astype(np.uint8), tr.astype(np.uint8), vl, vr
