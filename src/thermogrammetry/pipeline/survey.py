@@ -81,11 +81,12 @@ BLOCK_ROTATION_SIGMA_DEG = 1.0
 PRECISE_GNSS_SIGMA_M = 0.10
 
 
-def _precise_datum(how: str, ctrl, images) -> bool:
-    """Whether a block's datum is precise enough for the rotation-σ gate: GCPs, or RTK-grade GNSS."""
-    if not how.startswith("GNSS"):
+def _precise_datum(datum, ctrl, images) -> bool:
+    """Whether a block's datum (:class:`~thermogrammetry.sfm.georef.Datum`) is precise enough for the rotation-σ
+    gate: GCPs, or RTK-grade GNSS."""
+    if not datum.from_gnss:
         return True
-    if "attitude" in how:  # the rotation about a GNSS line comes from the gimbal: its σ is reported, not gated
+    if datum.from_attitude:  # the rotation about a GNSS line comes from the gimbal: its σ is reported, not gated
         return False
     s = np.asarray(ctrl.gnss_sigma, float)[np.asarray(images, np.int64)][:, :2]
     s = s[np.isfinite(s)]
@@ -1438,12 +1439,12 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         ci, images = queue.pop(0)
         if len(images) == 0:
             continue
-        S, how, nts = similarity_start(rec, images, ctrl, attitude_line=ci in attitude_blocks)
+        S, datum, nts = similarity_start(rec, images, ctrl, attitude_line=ci in attitude_blocks)
         notes += [f"block {ci + 1}: {x}" for x in nts]
         geo = S is not None
         # the block as the orientation left it (for :func:`_prune_gnss_contradicting` and a second adjustment with the
         # camera attitudes): GNSS blocks only, not with a rig (similarity_start changes nothing in ``rec``)
-        pre = _rig_snapshot(rec) if geo and how.startswith("GNSS") and ci not in rig_enabled else None
+        pre = _rig_snapshot(rec) if geo and datum.from_gnss and ci not in rig_enabled else None
         if not geo and ci > 0:
             # a second block without datum cannot be placed with the first: reported, not exported
             for i in images:
@@ -1456,7 +1457,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         gnss_off = None
         if geo:
             apply_similarity(rec, images, S)
-            if how.startswith("GNSS") and ctrl.gcp_obs and inp.rig is None:
+            if datum.from_gnss and ctrl.gcp_obs and inp.rig is None:
                 gnss_off, nts = _gnss_offset(rec, xy, images, ctrl, self_cal, tie_sigma_px=opt.tie_sigma_px,
                                              max_error_px=opt.reconstruction.max_error_px, georeferenced=True)
                 notes += [f"block {ci + 1}: {x}" for x in nts]
@@ -1475,7 +1476,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                 refused = "" if ok else why
         fa = None
         # the final adjustment's options for this block (the images and the rig may change below)
-        adjust_kw = dict(focal_known=focal_known, attitude_priors=geo and "attitude" in how, tie_sigma_px=opt.tie_sigma_px,
+        adjust_kw = dict(focal_known=focal_known, attitude_priors=geo and datum.from_attitude, tie_sigma_px=opt.tie_sigma_px,
                          max_error_px=opt.reconstruction.max_error_px, georeferenced=geo, manual_ties=t_obs or None)
         if rigv is not None and not refused:
             fa, cal_used, cal_steps = _adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv,
@@ -1507,7 +1508,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                    f"orientation ({cal_steps[-1]})")
             for i in images:
                 rec.status[i].reason = why
-            results.append({"block": ci + 1, "images": len(images), "datum": how, "rejected": why,
+            results.append({"block": ci + 1, "images": len(images), "datum": str(datum), "rejected": why,
                             "self_calibration_steps": cal_steps})
             continue
         if lt_seq and cal_steps and any(str(meta["camera_ids"][int(rec.image_camera[i])]).startswith("thermal") for i in images):
@@ -1519,7 +1520,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             for i in images:
                 rec.status[i].reason = why
             notes.append(f"block {ci + 1}: {why.split(' rejected: ')[1]}")
-            results.append({"block": ci + 1, "images": len(images), "datum": how, "rejected": why,
+            results.append({"block": ci + 1, "images": len(images), "datum": str(datum), "rejected": why,
                             "self_calibration_steps": cal_steps})
             continue
         if rigv is not None:
@@ -1557,7 +1558,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                 pruned_blocks.add(ci)
                 queue.insert(0, (ci, kept))
                 continue
-        rot_sigma = _block_rotation_sigma(fa, images) if geo and _precise_datum(how, ctrl, images) else 0.0
+        rot_sigma = _block_rotation_sigma(fa, images) if geo and _precise_datum(datum, ctrl, images) else 0.0
         if (rot_sigma > BLOCK_ROTATION_SIGMA_DEG and pre is not None and ci not in attitude_blocks
                 and rms <= BLOCK_RMS_GATE_PX and len(attitude_images(ctrl, images)) >= MIN_ATTITUDE_IMAGES):
             # its GNSS does not fix its rotation, the frames' gimbal attitudes can: adjusted again from the orientation
@@ -1595,12 +1596,12 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             for i in images:
                 rec.status[i].reason = f"in block {ci + 1} ({len(images)} images) rejected: {why}"
             notes.append(f"block {ci + 1}: {why}")
-            results.append({"block": ci + 1, "images": len(images), "datum": how,
+            results.append({"block": ci + 1, "images": len(images), "datum": str(datum),
                             "rejected": f"in block {ci + 1} ({len(images)} images) rejected: {why}"})
             continue
         oriented[images] = True
-        fa_all.append((ci, images, fa, how, geo))
-        results.append({"block": ci + 1, "images": len(images), "datum": how, "sigma0": float(fa.result.sigma0),
+        fa_all.append((ci, images, fa, datum, geo))
+        results.append({"block": ci + 1, "images": len(images), "datum": str(datum), "sigma0": float(fa.result.sigma0),
                         "termination": fa.result.termination.value, "reason": fa.result.reason,
                         "self_calibration": sorted({n for v in cal_used.values() for n in v}),
                         "self_calibration_steps": cal_steps, **({"gnss_offset": gnss_off} if gnss_off else {})})
@@ -1613,7 +1614,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     checks = []
     gcp_errors = []
     gcp_rejected = []
-    for ci, images, fa, how, geo in fa_all:
+    for ci, images, fa, datum, geo in fa_all:
         if not geo:
             continue
         checks += [c for c in intersect_check_points(rec, fa, ctrl) if c["xyz"] is not None or c["n_images"] > 0]
@@ -1983,7 +1984,7 @@ def _attitude_check(rec, fa_all, ctrl, names, status) -> dict:
     from ..sfm.georef import attitude_images
 
     rows = []
-    for ci, images, fa, how, geo in fa_all:
+    for ci, images, fa, datum, geo in fa_all:
         if not geo:
             continue
         for i in attitude_images(ctrl, images):
@@ -2014,7 +2015,7 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
     rms_all = []
     tie_by_image: dict[int, np.ndarray] = {}
     oriented_idx = []
-    for ci, images, fa, how, geo in fa_all:
+    for ci, images, fa, datum, geo in fa_all:
         for i in images:
             oriented_idx.append(int(i))
         v = fa.tie_residuals
@@ -2058,7 +2059,7 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
                        **({"rig_only": True} if ok and i in (rig_only or {}) else {})})
     # GNSS misfit per image: adjusted antenna position − given GNSS position (a surveyor's check of every centre)
     gnss_d, flagged = [], []
-    for ci, images, fa, how, geo in fa_all:
+    for ci, images, fa, datum, geo in fa_all:
         if not geo:
             continue
         for i, (d, z) in sorted(gnss_misfit(rec, images, ctrl).items()):
@@ -2113,7 +2114,7 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
     summary = {
         "images_total": n_total,
         "images_oriented": int(len(oriented_idx)),
-        "components": [int(len(images)) for ci, images, fa, how, geo in fa_all],
+        "components": [int(len(images)) for ci, images, fa, datum, geo in fa_all],
         "reprojection_rms_px": rms,
         "gcps": axis_statistics(gcp_errors),
         "checkpoints": axis_statistics([c["error"] for c in checks if c.get("error") is not None]),
@@ -2135,7 +2136,7 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
                                                                                    for x in (c.param_std if c.param_std is not None else [np.nan] * len(c.param_names))]))}
                     for cid, c in cams.items()},
         "gcp_residuals": [{"id": ctrl.gcp_ids[g], "dx": float(e[0]), "dy": float(e[1]), "dz": float(e[2])}
-                          for g, e in zip([g for *_, fa, how, geo in fa_all for g in np.nonzero(fa.gcp_used)[0]], gcp_errors)],
+                          for g, e in zip([g for *_, fa, datum, geo in fa_all for g in np.nonzero(fa.gcp_used)[0]], gcp_errors)],
         "gcp_rejected_measurements": gcp_rejected,
         "checkpoint_errors": [{"id": c["id"], "n_images": c["n_images"], "reason": c.get("reason", ""),
                                **({"dx": float(c["error"][0]), "dy": float(c["error"][1]), "dz": float(c["error"][2]),

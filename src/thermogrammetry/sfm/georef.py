@@ -34,9 +34,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._memory import release_free_heap
+from ..enums import StrChoice
 from ..geometry.rotations import axis_angle_from_matrix, matrix_from_axis_angle
 
-__all__ = ["GnssOffset", "gnss_offset", "ControlInputs", "FinalAdjustment", "similarity_start", "apply_similarity", "final_adjustment",
+__all__ = ["Datum", "DatumSource", "GnssOffset", "gnss_offset", "ControlInputs", "FinalAdjustment", "similarity_start", "apply_similarity", "final_adjustment",
            "intersect_check_points", "axis_statistics"]
 
 
@@ -141,6 +142,59 @@ def _collinear(P: np.ndarray, sigma_xyz=None) -> bool:
     return bool(s[1] / np.sqrt(len(P)) < COLLINEAR_SIGMA * su)
 
 
+class DatumSource(StrChoice):
+    """What placed a block in the CRS (:class:`Datum`)."""
+
+    GNSS = "gnss"
+    GNSS_ATTITUDE = "gnss+attitude"
+    GCPS = "gcps"
+    NONE = "none"
+
+
+@dataclass(frozen=True)
+class Datum:
+    """What a block's start (:func:`similarity_start`) was placed on, as a value rather than a sentence.
+
+    Attributes
+    ----------
+    source : DatumSource
+        ``GNSS`` (camera positions), ``GNSS_ATTITUDE`` (positions on one line, the rotation about it from the
+        camera attitudes), ``GCPS`` (GCPs triangulated in the model) or ``NONE`` (a local frame of arbitrary scale).
+    n_gnss, n_attitude, n_gcps : int
+        Images with GNSS, images with an attitude, GCPs used.
+
+    ``str(datum)`` is the sentence written to survey.json (``blocks[].datum``) and the report.
+    """
+
+    source: DatumSource
+    n_gnss: int = 0
+    n_attitude: int = 0
+    n_gcps: int = 0
+
+    @property
+    def georeferenced(self) -> bool:
+        return self.source is not DatumSource.NONE
+
+    @property
+    def from_gnss(self) -> bool:
+        """Placed on GNSS positions (with or without attitudes)."""
+        return self.source in (DatumSource.GNSS, DatumSource.GNSS_ATTITUDE)
+
+    @property
+    def from_attitude(self) -> bool:
+        """The rotation about the GNSS line comes from the camera attitudes."""
+        return self.source is DatumSource.GNSS_ATTITUDE
+
+    def __str__(self) -> str:
+        if self.source is DatumSource.GNSS:
+            return f"GNSS of {self.n_gnss} images"
+        if self.source is DatumSource.GNSS_ATTITUDE:
+            return f"GNSS of {self.n_gnss} images + attitude of {self.n_attitude}"
+        if self.source is DatumSource.GCPS:
+            return f"{self.n_gcps} GCPs"
+        return "none"
+
+
 def similarity_start(rec, images, ctrl: ControlInputs, *, attitude_line: bool = False):
     """Similarity model -> CRS from GNSS centres or GCPs.
 
@@ -150,7 +204,7 @@ def similarity_start(rec, images, ctrl: ControlInputs, *, attitude_line: bool = 
 
     Returns
     -------
-    (Similarity or None, how: str, notes: list of str)
+    (Similarity or None, Datum, notes: list of str)
     """
     from ..geometry import umeyama
 
@@ -167,7 +221,7 @@ def similarity_start(rec, images, ctrl: ControlInputs, *, attitude_line: bool = 
         S2, why = _roll_from_attitude(rec, images[have], g[have], umeyama(C[have], g[have]), ctrl, lead)
         notes += [why] if why else []
         if S2 is not None:
-            return S2, f"GNSS of {int(have.sum())} images + attitude of {len(attitude_images(ctrl, images))}", notes
+            return S2, Datum(DatumSource.GNSS_ATTITUDE, int(have.sum()), len(attitude_images(ctrl, images))), notes
     if have.sum() >= 3 and not line:
         S = umeyama(C[have], g[have])
         # robust: drop GNSS positions far from the fit (another flight, a wrong tag) and refit once
@@ -177,7 +231,7 @@ def similarity_start(rec, images, ctrl: ControlInputs, *, attitude_line: bool = 
         if keep.sum() >= 3 and (~keep).any():
             S = umeyama(C[have][keep], g[have][keep])
             notes.append(f"{int((~keep).sum())} GNSS position(s) far from the block's fit left out of the start")
-        return S, f"GNSS of {int(have.sum())} images", notes
+        return S, Datum(DatumSource.GNSS, int(have.sum())), notes
     if have.sum() >= 3:
         notes.append("GNSS positions are nearly collinear (one straight line within their σ): the roll about the line is "
                      "taken from GCPs if any" + ("" if len(attitude_images(ctrl, images)) else
@@ -198,10 +252,10 @@ def similarity_start(rec, images, ctrl: ControlInputs, *, attitude_line: bool = 
                 Xm.append(X[0])
                 Xw.append(ctrl.gcp_xyz[g_i])
         if len(Xm) >= 3 and not _collinear(np.array(Xw)):
-            return umeyama(np.array(Xm), np.array(Xw)), f"{len(Xm)} GCPs", notes
+            return umeyama(np.array(Xm), np.array(Xw)), Datum(DatumSource.GCPS, n_gcps=len(Xm)), notes
     why = ("no GNSS" if have.sum() == 0 else f"GNSS of {int(have.sum())} image(s) that does not fix the rotation (fewer than 3, "
            "or on one straight line without camera attitudes in the files)")
-    return None, "none", notes + [f"{why} and fewer than 3 usable GCPs: the block stays in a local frame of arbitrary scale"]
+    return None, Datum(DatumSource.NONE), notes + [f"{why} and fewer than 3 usable GCPs: the block stays in a local frame of arbitrary scale"]
 
 
 @dataclass
