@@ -357,6 +357,20 @@ def test_real_m3t_gimbal_attitude_and_a_single_strip(m3t, tmp_path):
     assert np.sqrt(np.mean(np.sum(dr**2, axis=1))) < 1.0
     sd = np.array([im.rotation_std_deg for im in est.images])
     assert np.all((sd.max(axis=1) > 0.7) & (sd.max(axis=1) < 2.1))  # the line's rotation: not claimed better
+    # --- the same strip without a camera file: the block cannot determine its focal length (flat ground, no GCPs) --
+    # the focal length ran to ~2000 px; the old ladder then accepted fx/fy 738.6/714.9 px with the distortion held
+    # (rotations 2.33° RMS off REF). Now focal length and principal point stay at EXIF's (758.3 px) and only the
+    # distortion is self-calibrated: measured 0.28° RMS (max 0.38°), k1 -0.340 (REF -0.360)
+    o3 = tmp_path / "strip_selfcal"
+    assert main(["survey", str(strip), "-o", str(o3), "--workers", "0"]) == 0
+    s3 = json.loads((o3 / "survey.json").read_text())
+    assert s3["images_oriented"] == 16 and set(s3["blocks"][0]["self_calibration"]) == {"k1", "k2", "p1", "p2"}
+    assert "held at their start" in s3["blocks"][0]["self_calibration_steps"][0]
+    est3 = OrientedCameras.load(o3 / "cameras.json")
+    dr3 = np.array([_rotvec_deg(im.R, by_name[im.name].R) for im in est3.images])
+    assert np.sqrt(np.mean(np.sum(dr3**2, axis=1))) < 0.8
+    cam3, cam_ref = est3.cameras["thermal"].param_dict, ref.cameras["thermal"].param_dict
+    assert abs(cam3["fx"] - 758.33) < 0.01 and abs(cam3["k1"] - cam_ref["k1"]) < 0.05
 
 
 def test_float_tiff_without_unit_names_the_flag(tmp_path, capsys):

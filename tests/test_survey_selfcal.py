@@ -134,18 +134,31 @@ def test_only_the_camera_that_cannot_be_calibrated_steps_down(monkeypatch):
 
     def fake_final(rec_, xy, images, ctrl, *, self_calibrate, rig=None, **kw):
         calls.append({c: tuple(v) for c, v in self_calibrate.items()})
-        # the thermal camera runs away while it has more than fx, fy free
-        rec_.cameras[0] = _cam(fy=316.0) if len(self_calibrate[0]) > 2 else _cam(fx=770.0, fy=772.0)
+        # the thermal camera runs away while its focal length is free with more than fx, fy
+        free = set(self_calibrate[0])
+        rec_.cameras[0] = _cam(fy=316.0) if "fy" in free and len(free) > 2 else _cam(k1=-0.2) if "fy" not in free else \
+            _cam(fx=770.0, fy=772.0)
         rec_.cameras[1] = Camera("opencv", (1920, 1080), {"fx": 1694.0, "fy": 1701.0, "cx": 965.0, "cy": 545.0}, name="rgb")
         return SimpleNamespace(result=SimpleNamespace(termination=Termination.CONVERGED, success=True, reason="",
                                                       camera_std=[]), notes=[])
 
     monkeypatch.setattr(georef, "final_adjustment", fake_final)
     fa, used, steps = sv._adjust_block(rec, None, np.arange(n), None, sv.SELF_CALIBRATION)
-    assert [set(c[1]) for c in calls] == [set(sv.SELF_CALIBRATION)] * 4  # the RGB camera keeps every parameter
-    assert [len(c[0]) for c in calls] == [8, 4, 3, 2]
-    assert set(used[1]) == set(sv.SELF_CALIBRATION) and set(used[0]) == {"fx", "fy"}
-    assert len(steps) == 3 and all(st.startswith("self-calibration of thermal:") for st in steps)
+    assert [set(c[1]) for c in calls] == [set(sv.SELF_CALIBRATION)] * 2  # the RGB camera keeps every parameter
+    # the thermal camera's focal length ran away: it holds its interior orientation and calibrates distortion
+    assert [set(c[0]) for c in calls] == [set(sv.SELF_CALIBRATION), {"k1", "k2", "p1", "p2"}]
+    assert set(used[1]) == set(sv.SELF_CALIBRATION) and set(used[0]) == {"k1", "k2", "p1", "p2"}
+    assert len(steps) == 1 and steps[0].startswith("self-calibration of thermal:")
+    # a refusal that is not the focal length (fy/fx) steps down the usual ladder, still only for that camera
+    calls.clear()
+    monkeypatch.setattr(georef, "final_adjustment", lambda rec_, *a, self_calibrate, **kw: (
+        calls.append({c: tuple(v) for c, v in self_calibrate.items()}),
+        rec_.cameras.__setitem__(0, _cam(fy=840.0) if len(self_calibrate[0]) > 2 else _cam(fx=770.0, fy=772.0)),
+        SimpleNamespace(result=SimpleNamespace(termination=Termination.CONVERGED, success=True, reason="",
+                                               camera_std=[]), notes=[]))[-1])
+    fa, used, steps = sv._adjust_block(rec, None, np.arange(n), None, sv.SELF_CALIBRATION)
+    assert [len(c[0]) for c in calls] == [8, 4, 3, 2] and set(used[0]) == {"fx", "fy"}
+    assert all(set(c[1]) == set(sv.SELF_CALIBRATION) for c in calls) and len(steps) == 3
 
 
 def test_focal_band_only_when_the_start_is_the_files_focal_length():
@@ -162,3 +175,40 @@ def test_focal_band_only_when_the_start_is_the_files_focal_length():
                          {"camera_guess": {"source": "EXIF 35 mm-equivalent focal 40 mm"}}]}
     rec = SimpleNamespace(image_camera=np.array([0, 1, 2, 3]))
     assert [sv._focal_from_exif(inputs, rec, k) for k in range(4)] == [True, False, False, True]
+
+
+def test_an_implausible_focal_length_holds_the_interior_orientation_and_calibrates_distortion(monkeypatch):
+    """A block that does not determine its focal length (one strip over flat ground, no GCPs) runs it away on every
+    rung that frees it. Once refused for that, the camera keeps focal length and principal point at their start and
+    self-calibrates distortion only (FIXED_INTERIOR_LADDER) instead of freeing the focal length with the distortion
+    held: on the real M3T strip 0008-0023 the old ladder accepted fx/fy 738.6/714.9 px (truth ~783/781) and the
+    rotations were 2.33 deg off; now 0.28 deg. Other refusals step down the usual ladder (test above)."""
+    import thermogrammetry.sfm.georef as georef
+
+    n = 3
+    rec = SimpleNamespace(R=np.repeat(np.eye(3)[None], n, 0), t=np.zeros((n, 3)), registered=np.ones(n, bool),
+                          component=np.zeros(n, int), points=np.zeros((4, 3)), obs_valid=np.ones(8, bool),
+                          cameras=[_cam()], image_camera=np.zeros(n, int),
+                          status=[SimpleNamespace(registered=True, component=0, reason="") for _ in range(n)])
+    calls = []
+
+    def fake_final(rec_, xy, images, ctrl, *, self_calibrate, rig=None, **kw):
+        free = set(self_calibrate[0])
+        calls.append(free)
+        # the focal length runs away whenever it is free; distortion alone is fine unless p1/p2 are free
+        rec_.cameras[0] = (_cam(fx=2000.0, fy=1990.0) if "fx" in free else
+                           _cam(k1=-0.9) if "p1" in free else _cam(k1=-0.3, k2=0.08))
+        return SimpleNamespace(result=SimpleNamespace(termination=Termination.CONVERGED, success=True, reason="",
+                                                      camera_std=[]), notes=[])
+
+    monkeypatch.setattr(georef, "final_adjustment", fake_final)
+    fa, used, steps = sv._adjust_block(rec, None, np.arange(n), None, sv.SELF_CALIBRATION, focal_known={0: True})
+    assert calls == [set(sv.SELF_CALIBRATION), {"k1", "k2", "p1", "p2"}, {"k1", "k2"}]
+    assert set(used[0]) == {"k1", "k2"} and rec.cameras[0].param_dict["fx"] == 765.0
+    assert "focal length 2000.0/1990.0" in steps[0] and "held at their start" in steps[0]
+    assert "radial distortion" in steps[1] and "adjusted again with thermal: k1, k2" in steps[1]
+    # without the file's focal length (a guess) the focal band does not apply: the usual ladder, focal kept free
+    calls.clear()
+    fa, used, steps = sv._adjust_block(rec, None, np.arange(n), None, sv.SELF_CALIBRATION, focal_known={0: False})
+    assert calls == [set(sv.SELF_CALIBRATION)] and set(used[0]) == set(sv.SELF_CALIBRATION)
+    assert sv._fixed_interior_rungs(("fx", "fy", "k1"), [("fx", "fy", "k1")]) == [("k1",), ()]
