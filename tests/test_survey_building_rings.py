@@ -47,7 +47,9 @@ def test_ring_is_not_broken_by_one_weak_resection(tmp_path):
     # second block (4 stations on a 27 deg arc) has rotation σ 7.8 deg: rejected, not reported
     assert s["images_oriented"] >= 31 and s["components"][0] == s["images_oriented"]
     e = np.array(list(errs.values()))
-    assert np.sqrt(np.mean(e**2)) < 1.0 and e.max() < 2.0
+    # since the rejected 4-station arc (T36-T39) and T35 are added to the block at their RTK GNSS positions: 38/40,
+    # 0.81 deg RMS, max 1.96 deg (T36, at the end of that chain; the others 0.95-1.52 deg)
+    assert np.sqrt(np.mean(e**2)) < 1.0 and e.max() < 2.5
 
 
 @pytest.mark.slow
@@ -59,14 +61,20 @@ def test_wrongly_resected_images_are_left_out_of_a_block_that_contradicts_its_gn
     # (max 1.77) -- whatever is reported as oriented must be right (no rotation beyond 3 deg; the wrong ones 19 deg)
     assert code == 0
     assert all(e < 3.0 for e in errs.values()), errs
-    assert s["images_oriented"] >= 15 and s["components"][0] == s["images_oriented"]  # measured 17
-    assert np.sqrt(np.mean(np.square(list(errs.values())))) < 1.2  # measured 0.89 deg
-    left = [im for im in s["images"] if "wrong resection" in (im.get("reason") or "")]
-    assert sorted(im["name"] for im in left) == ["T02", "T03", "T04"]
+    assert s["images_oriented"] >= 15 and s["components"][0] == s["images_oriented"]
+    assert np.sqrt(np.mean(np.square(list(errs.values())))) < 1.2  # measured 0.89 deg (17 images), 0.84 deg (28)
+    # T02-T04 left out of the block as wrong resections (17 images), then placed at their RTK GNSS positions and turned
+    # to the block's points: with them alone the block's adjustment did not converge (not kept, said in a note) ...
+    assert any("T04, T02, T03 placed at their GNSS positions" in n and "not kept" in n for n in s["notes"])
     # two short arcs (7 and 4 stations) whose GNSS positions do not fix their rotation (σ 1.5 and 5.3 deg; they were
-    # 5-7 deg off) are rejected, not reported as oriented
+    # 5-7 deg off) are rejected, not reported as oriented as blocks of their own
     weak = [b["rejected"] for b in s["blocks"] if "does not fix its rotation" in (b.get("rejected") or "")]
     assert len(weak) == 2
+    # ... and after those blocks were rejected, their images and T02-T04 were placed at their GNSS positions in block
+    # 1 together: 28/40 in one block, 0.84 deg RMS (max 1.38; the added 0.63-1.38 deg)
+    added = s["blocks"][0].get("added_at_gnss", [])
+    assert {"T02", "T03", "T04"} <= set(added) and s["images_oriented"] >= 25
+    assert max(errs[k] for k in added) < 2.0
 
 
 @pytest.mark.slow

@@ -1419,6 +1419,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     comps = rec.components()
     results = []
     oriented = np.zeros(len(names), bool)
+    second_pass: list = []  # accepted GNSS blocks that may take images left over at the end (_extend_with_gnss)
     fa_all = []
     rig_master, rig_enabled, rig_out, tie_out = {}, {}, [], []
     rig_only: dict[int, str] = {}  # oriented rig views without observations of their own -> reason
@@ -1613,7 +1614,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                             "rejected": f"in block {ci + 1} ({len(images)} images) rejected: {why}"})
             continue
         n_own = len(images)
-        if geo and datum.from_gnss and rigv is None and not np.any(ctrl.lever_arm_m):
+        extendable = geo and datum.from_gnss and rigv is None and not np.any(ctrl.lever_arm_m)
+        if extendable:
             images, fa, cal_used, cal_steps, nts = _extend_with_gnss(rec, xy, images, ctrl, names, ci, self_cal, adjust_kw,
                                                                       opt, (fa, cal_used, cal_steps), rms, far)
             notes += nts
@@ -1624,6 +1626,30 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                         "self_calibration": sorted({n for v in cal_used.values() for n in v}),
                         "self_calibration_steps": cal_steps, **({"gnss_offset": gnss_off} if gnss_off else {}),
                         **({"added_at_gnss": [names[i] for i in images[n_own:]]} if len(images) > n_own else {})})
+        if extendable:
+            second_pass.append((len(fa_all) - 1, len(results) - 1, adjust_kw, cal_used, cal_steps))
+    # images of blocks rejected after an accepted block was extended (short arcs, wrong blocks) and images still
+    # unregistered: a second chance at their GNSS positions in the accepted blocks (their own orientation is dropped)
+    for k_fa, k_res, kw_b, cal_b, steps_b in second_pass:
+        ci, images, fa, datum, geo = fa_all[k_fa]
+        left = np.nonzero(~oriented & np.all(np.isfinite(ctrl.gnss_xyz), axis=1))[0]
+        if not rec.registered[left].any():
+            break  # only images every block already tried in the first pass
+        _unregister(rec, left[rec.registered[left]])
+        v = fa.tie_residuals
+        rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
+        n_own = len(images)
+        images2, fa2, cal2, steps2, nts = _extend_with_gnss(rec, xy, images, ctrl, names, ci, self_cal, kw_b, opt,
+                                                             (fa, cal_b, steps_b), rms, _gnss_far_share(rec, images, ctrl))
+        notes += nts
+        if len(images2) > n_own:
+            oriented[images2] = True
+            fa_all[k_fa] = (ci, images2, fa2, datum, geo)
+            r = results[k_res]
+            r.update({"images": len(images2), "sigma0": float(fa2.result.sigma0), "termination": fa2.result.termination.value,
+                      "reason": fa2.result.reason, "self_calibration": sorted({n for v in cal2.values() for n in v}),
+                      "self_calibration_steps": steps2,
+                      "added_at_gnss": r.get("added_at_gnss", []) + [names[i] for i in images2[n_own:]]})
     if not fa_all:
         crs = None
     georeferenced = any(g for *_, g in fa_all)
@@ -1911,6 +1937,23 @@ def _adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: di
         steps.append(f"self-calibration of {', '.join(f'{start[c].name or c}: {names(sets[c])}' for c in down)} refused: {why}; "
                      f"adjusted again with {', '.join(f'{start[c].name or c}: ' + (', '.join(ladder[c][level[c]]) or 'held fixed') for c in down)}"
                      + held)
+
+
+def _unregister(rec, images) -> None:
+    """Drop the orientation of ``images`` (their block was rejected) and the points only they determined (in their
+    block's frame, not the CRS's), keeping their status reasons."""
+    images = np.asarray(images, np.int64)
+    if not len(images):
+        return
+    tr = rec.tracks
+    rec.registered[images] = False
+    rec.component[images] = -1
+    for i in images:
+        rec.status[i].registered, rec.status[i].component = False, -1
+    touched = np.unique(tr.track[np.isin(tr.image, images)])
+    live = rec.obs_valid & rec.registered[tr.image]
+    cnt = np.bincount(tr.track[live], minlength=len(rec.points))
+    rec.points[touched[cnt[touched] < 2]] = np.nan
 
 
 #: an image is added to a georeferenced block at its GNSS position (rotation-only resection) only when its GNSS σ
