@@ -33,6 +33,15 @@ def _fa(cam, termination=Termination.CONVERGED, std=None, reason=""):
     return SimpleNamespace(result=res, cameras_after={0: cam}, covariance_asked=True)
 
 
+def _block(n, cameras=None, image_camera=None):
+    """A stand-in for a Reconstruction of n registered images (what _adjust_block touches)."""
+    return SimpleNamespace(R=np.repeat(np.eye(3)[None], n, 0), t=np.zeros((n, 3)), registered=np.ones(n, bool),
+                           component=np.zeros(n, int), points=np.zeros((4, 3)), obs_valid=np.ones(8, bool),
+                           cameras=cameras or [_cam()],
+                           image_camera=np.zeros(n, int) if image_camera is None else np.asarray(image_camera),
+                           status=[SimpleNamespace(registered=True, component=0, reason="") for _ in range(n)])
+
+
 def test_ladder_rungs_follow_the_request():
     rungs = sv._ladder_sets(sv.SELF_CALIBRATION, [0])[0]
     assert [set(r) for r in rungs] == [set(sv.SELF_CALIBRATION), {"fx", "fy", "k1", "k2"}, {"fx", "fy", "k1"},
@@ -81,10 +90,7 @@ def test_adjust_block_steps_down_and_restores_the_block(monkeypatch):
     import thermogrammetry.sfm.georef as georef
 
     n = 3
-    rec = SimpleNamespace(R=np.repeat(np.eye(3)[None], n, 0), t=np.zeros((n, 3)), registered=np.ones(n, bool),
-                          component=np.zeros(n, int), points=np.zeros((4, 3)), obs_valid=np.ones(8, bool),
-                          cameras=[_cam()], image_camera=np.zeros(n, int),
-                          status=[SimpleNamespace(registered=True, component=0, reason="") for _ in range(n)])
+    rec = _block(n)
     calls = []
 
     def fake_final(rec_, xy, images, ctrl, *, self_calibrate, rig=None, **kw):
@@ -126,10 +132,7 @@ def test_only_the_camera_that_cannot_be_calibrated_steps_down(monkeypatch):
 
     n = 4
     rgb = Camera("opencv", (1920, 1080), {"fx": 1700.0, "fy": 1700.0, "cx": 960.0, "cy": 540.0}, name="rgb")
-    rec = SimpleNamespace(R=np.repeat(np.eye(3)[None], n, 0), t=np.zeros((n, 3)), registered=np.ones(n, bool),
-                          component=np.zeros(n, int), points=np.zeros((4, 3)), obs_valid=np.ones(8, bool),
-                          cameras=[_cam(), rgb], image_camera=np.array([0, 0, 1, 1]),
-                          status=[SimpleNamespace(registered=True, component=0, reason="") for _ in range(n)])
+    rec = _block(n, [_cam(), rgb], [0, 0, 1, 1])
     calls = []
 
     def fake_final(rec_, xy, images, ctrl, *, self_calibrate, rig=None, **kw):
@@ -186,10 +189,7 @@ def test_an_implausible_focal_length_holds_the_interior_orientation_and_calibrat
     import thermogrammetry.sfm.georef as georef
 
     n = 3
-    rec = SimpleNamespace(R=np.repeat(np.eye(3)[None], n, 0), t=np.zeros((n, 3)), registered=np.ones(n, bool),
-                          component=np.zeros(n, int), points=np.zeros((4, 3)), obs_valid=np.ones(8, bool),
-                          cameras=[_cam()], image_camera=np.zeros(n, int),
-                          status=[SimpleNamespace(registered=True, component=0, reason="") for _ in range(n)])
+    rec = _block(n)
     calls = []
 
     def fake_final(rec_, xy, images, ctrl, *, self_calibrate, rig=None, **kw):
