@@ -1630,12 +1630,11 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             second_pass.append((len(fa_all) - 1, len(results) - 1, adjust_kw, cal_used, cal_steps))
     # images of blocks rejected after an accepted block was extended (short arcs, wrong blocks) and images still
     # unregistered: a second chance at their GNSS positions in the accepted blocks (their own orientation is dropped)
-    for k_fa, k_res, kw_b, cal_b, steps_b in second_pass:
+    left = np.nonzero(~oriented & np.all(np.isfinite(ctrl.gnss_xyz), axis=1))[0]
+    freed = left[rec.registered[left]] if second_pass else left[:0]  # images of rejected blocks (the others were tried)
+    _unregister(rec, freed)
+    for k_fa, k_res, kw_b, cal_b, steps_b in (second_pass if len(freed) else []):
         ci, images, fa, datum, geo = fa_all[k_fa]
-        left = np.nonzero(~oriented & np.all(np.isfinite(ctrl.gnss_xyz), axis=1))[0]
-        if not rec.registered[left].any():
-            break  # only images every block already tried in the first pass
-        _unregister(rec, left[rec.registered[left]])
         v = fa.tie_residuals
         rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
         n_own = len(images)
