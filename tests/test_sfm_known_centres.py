@@ -114,3 +114,18 @@ def test_no_centre_or_too_few_points_adds_nothing():
     added, why = register_with_known_centres(rec, xy, np.arange(4), C2, np.arange(4, 8))
     assert len(added) == 0 and not rec.registered[4:].any()
     assert 4 not in why  # not a candidate (no centre)
+
+
+def test_nearest_rotation_is_the_kabsch_rotation_batched_or_not():
+    from thermogrammetry.geometry.rotations import mean_rotation, nearest_rotation
+
+    rng = np.random.default_rng(5)
+    R = Rotation.from_rotvec(rng.normal(size=(4, 3))).as_matrix()
+    a = rng.normal(size=(4, 10, 3))
+    M = np.einsum("sij,skj,skl->sil", R, a, a)  # sum_k (R a_k) a_k^T
+    Rb = nearest_rotation(M)
+    assert np.allclose(Rb, R, atol=1e-12) and np.allclose(nearest_rotation(M[1]), R[1], atol=1e-12)
+    # a reflection is never returned
+    F = np.diag([1.0, 1.0, -1.0])
+    assert np.isclose(np.linalg.det(nearest_rotation(F)), 1.0)
+    assert np.allclose(mean_rotation(np.stack([R[0], R[0]])), R[0], atol=1e-12)

@@ -39,6 +39,7 @@ __all__ = [
     "matrix_from_axis_angle",
     "axis_angle_from_matrix",
     "mean_rotation",
+    "nearest_rotation",
     "matrix_from_quaternion",
     "quaternion_from_matrix",
     "matrix_from_opk",
@@ -131,16 +132,30 @@ def matrix_from_axis_angle(rvec) -> np.ndarray:
     return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
+def nearest_rotation(M) -> np.ndarray:
+    """The rotation nearest to ``M`` (..., 3, 3) in the Frobenius norm, by its SVD: ``U diag(1, 1, ±1) Vᵀ`` with
+    the sign of ``det(U Vᵀ)``. With ``M = Σ b_k a_kᵀ`` it is the rotation that best turns directions ``a_k`` into
+    ``b_k`` (Kabsch / Wahba); with ``M = Σ R_k`` the chordal mean (:func:`mean_rotation`).
+
+    References
+    ----------
+    Kabsch, W. (1976). A solution for the best rotation to relate two sets of vectors. Acta Cryst. A32, 922-923.
+    """
+    U, _, Vt = np.linalg.svd(np.asarray(M, float))
+    d = np.where(np.linalg.det(U @ Vt) < 0, -1.0, 1.0)
+    U = U.copy()
+    U[..., :, 2] *= d[..., None]
+    return U @ Vt
+
+
 def mean_rotation(Rs) -> np.ndarray:
-    """Chordal L2 mean of rotations: the sum of ``Rs`` (K, 3, 3) projected on SO(3) by its SVD,
-    ``U diag(1, 1, sign det(U Vᵀ)) Vᵀ``.
+    """Chordal L2 mean of rotations: the sum of ``Rs`` (K, 3, 3) projected on SO(3) (:func:`nearest_rotation`).
 
     References
     ----------
     Hartley, R., Trumpf, J., Dai, Y., Li, H. (2013). Rotation averaging. IJCV 103(3), 267-305, §5.3.
     """
-    U, _, Vt = np.linalg.svd(np.asarray(Rs, float).reshape(-1, 3, 3).sum(axis=0))
-    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    return nearest_rotation(np.asarray(Rs, float).reshape(-1, 3, 3).sum(axis=0))
 
 
 def quaternion_from_matrix(R) -> np.ndarray:

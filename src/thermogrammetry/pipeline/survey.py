@@ -83,6 +83,12 @@ BLOCK_ROTATION_SIGMA_DEG = 1.0
 PRECISE_GNSS_SIGMA_M = 0.10
 
 
+def _tie_rms(v) -> float:
+    """Root mean square of the lengths of residual vectors ``v`` (K, 2) px (NaN rows skipped; NaN when empty)."""
+    v = np.asarray(v, float)
+    return float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
+
+
 def _precise_datum(datum, ctrl, images) -> bool:
     """Whether a block's datum (:class:`~thermogrammetry.sfm.georef.Datum`) is precise enough for the rotation-σ
     gate: GCPs, or RTK-grade GNSS."""
@@ -1552,9 +1558,9 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             tie_out.append({"id": t_ids[mt["tie"]], "block": ci + 1, "xyz": mt["xyz"].tolist(),
                             "images": [names[i] for i in mt["images"]],
                             "sensors": sorted({inputs["images"][i]["sensor"] for i in mt["images"]}),
-                            "rms_px": float(np.sqrt(np.nanmean(np.sum(v_**2, axis=1))))})
+                            "rms_px": _tie_rms(v_)})
         v = fa.tie_residuals
-        rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
+        rms = _tie_rms(v)
         far = _gnss_far_share(rec, images, ctrl) if geo else 0.0
         if (pre is not None and ci not in pruned_blocks and fa.result.termination is Termination.MAX_ITERATIONS
                 and (far > 0 or fa.gnss_rejected)):
@@ -1636,7 +1642,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     for k_fa, k_res, kw_b, cal_b, steps_b in (second_pass if len(freed) else []):
         ci, images, fa, datum, geo = fa_all[k_fa]
         v = fa.tie_residuals
-        rms = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
+        rms = _tie_rms(v)
         n_own = len(images)
         images2, fa2, cal2, steps2, nts = _extend_with_gnss(rec, xy, images, ctrl, names, ci, self_cal, kw_b, opt,
                                                              (fa, cal_b, steps_b), rms, _gnss_far_share(rec, images, ctrl))
@@ -2001,7 +2007,7 @@ def _extend_with_gnss(rec, xy, images, ctrl, names, ci, self_cal, adjust_kw, opt
     fa2, cal2, steps2 = _adjust_block(rec, xy, both, ctrl, self_cal, compute_covariance=len(both) <= 2500, **adjust_kw)
     release_free_heap()
     v = fa2.tie_residuals
-    rms2 = float(np.sqrt(np.nanmean(np.sum(v**2, axis=1)))) if len(v) else float("nan")
+    rms2 = _tie_rms(v)
     far2 = _gnss_far_share(rec, both, ctrl)
     rot = (np.asarray(fa2.rotation_std_deg, float)[added] if fa2.rotation_std_deg is not None
            else np.full((len(added), 3), np.nan))
@@ -2024,7 +2030,7 @@ def _extend_with_gnss(rec, xy, images, ctrl, names, ci, self_cal, adjust_kw, opt
 
         for i in added:
             vi = v[fa2.tie_obs_image == i] if len(v) else np.zeros((0, 2))
-            ri = float(np.sqrt(np.nanmean(np.sum(vi**2, axis=1)))) if len(vi) else float("nan")
+            ri = _tie_rms(vi)
             if len(vi) < MIN_CENTRE_RESECTION_POINTS or not ri <= max(2.0 * rms2, 1.0):
                 why = f"{names[i]} keeps {len(vi)} tie observations at {ri:.2f} px RMS (the block {rms2:.2f} px)"
                 break

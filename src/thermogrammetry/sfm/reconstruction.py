@@ -37,6 +37,7 @@ import numpy as np
 
 from .._memory import release_free_heap
 from ..errors import ConfigError
+from ..geometry.rotations import nearest_rotation
 from ..results import HasOutcome, Outcome, Termination
 from .tracks import Tracks
 from .._validate import config_keys
@@ -295,26 +296,44 @@ def bundle_adjust(rec: Reconstruction, xy_by_image, images, *, free_intrinsics=(
 class _Builder:
     def __init__(self, cameras, image_camera, xy_by_image, tracks: Tracks, pair_counts: dict, opt: ReconstructionOptions,
                  on_progress: Callable | None):
+        n, nT = len(xy_by_image), tracks.n_tracks
+        rec = Reconstruction(
+            Outcome(Termination.CONVERGED), [c for c in cameras], np.asarray(image_camera, np.int64),
+            np.tile(np.eye(3), (n, 1, 1)), np.zeros((n, 3)), np.zeros(n, bool), np.full(n, -1),
+            np.full((nT, 3), np.nan), tracks, np.ones(len(tracks.track), bool), [ImageStatus() for _ in range(n)])
+        self._attach(rec, xy_by_image, opt, pair_counts, on_progress)
+
+    @classmethod
+    def around(cls, rec: Reconstruction, xy_by_image, opt: ReconstructionOptions) -> "_Builder":
+        """A builder that goes on from an existing reconstruction (its points belong to the component of the
+        registered images that observe them)."""
+        self = cls.__new__(cls)
+        self._attach(rec, xy_by_image, opt, {}, None)
+        tr = rec.tracks
+        seen = rec.obs_valid & rec.registered[tr.image] & np.isfinite(rec.points[tr.track]).all(1)
+        self.point_comp[tr.track[seen]] = rec.component[tr.image[seen]]
+        return self
+
+    def _attach(self, rec: Reconstruction, xy_by_image, opt, pair_counts, on_progress):
+        tracks = rec.tracks
         self.opt = opt
         self.n = len(xy_by_image)
         self.xy = xy_by_image
         self.tr = tracks
         self.pair_counts = dict(pair_counts)
         self.on_progress = on_progress
-        nT = tracks.n_tracks
-        self.rec = Reconstruction(
-            Outcome(Termination.CONVERGED), [c for c in cameras], np.asarray(image_camera, np.int64),
-            np.tile(np.eye(3), (self.n, 1, 1)), np.zeros((self.n, 3)), np.zeros(self.n, bool), np.full(self.n, -1),
-            np.full((nT, 3), np.nan), tracks, np.ones(len(tracks.track), bool), [ImageStatus() for _ in range(self.n)])
-        self.rays = _rays(self.rec.cameras, self.rec.image_camera, xy_by_image)
-        # observation lookup per image
-        self.obs_of_image = [np.nonzero(tracks.image == i)[0] for i in range(self.n)]
-        self.obs_of_track_start = np.searchsorted(tracks.track, np.arange(nT + 1))
+        self.rec = rec
+        self.rays = _rays(rec.cameras, rec.image_camera, xy_by_image)
+        # observation lookup per image (ascending observation indices per image, as np.nonzero(image == i) gives)
+        order = np.argsort(tracks.image, kind="stable")
+        starts = np.searchsorted(tracks.image[order], np.arange(self.n + 1))
+        self.obs_of_image = [order[starts[k]:starts[k + 1]] for k in range(self.n)]
+        self.obs_of_track_start = np.searchsorted(tracks.track, np.arange(tracks.n_tracks + 1))
         self.failed_attempts = np.zeros(self.n, np.int64)
         self.last_count = np.zeros(self.n, np.int64)
         # component whose images triangulated each point (-1: none): a later component's images never use another
         # component's points, which are in that component's frame
-        self.point_comp = np.full(nT, -1, np.int64)
+        self.point_comp = np.full(tracks.n_tracks, -1, np.int64)
 
     def exclude_foreign(self, i, comp):
         """Observations of image ``i`` (registered in ``comp``) of points of other components: not used."""
@@ -654,19 +673,13 @@ def reconstruct(cameras, image_camera, xy_by_image, tracks: Tracks, pair_counts:
 MIN_CENTRE_RESECTION_POINTS = 6
 
 
-def _kabsch(b: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """R minimising sum |b_k - R a_k|^2 (rows of unit vectors), det R = +1."""
-    U, _, Vt = np.linalg.svd(b.T @ a)
-    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    return U @ np.diag([1.0, 1.0, d]) @ Vt
-
-
 def rotation_from_directions(b: np.ndarray, a: np.ndarray, threshold_rad: float, *, seed: int = 0,
                              max_samples: int = 2000) -> tuple[np.ndarray | None, np.ndarray]:
     """Camera rotation from directions known in both frames: ``b_k ≈ R a_k`` (a resection with a known centre).
 
     Two-point RANSAC (every pair when there are at most ``max_samples`` of them, else a seeded sample), the
-    rotation of each sample from its two directions and their cross product (Kabsch), refined on the inliers.
+    rotation of each sample from its two directions and their cross product
+    (:func:`~thermogrammetry.geometry.rotations.nearest_rotation`, Kabsch), refined on the inliers.
 
     Parameters
     ----------
@@ -695,11 +708,7 @@ def rotation_from_directions(b: np.ndarray, a: np.ndarray, threshold_rad: float,
     i, j, ca, cb, na, nb = i[ok], j[ok], ca[ok], cb[ok], na[ok], nb[ok]
     A = np.stack([a[i], a[j], ca / na[:, None]], axis=1)  # (S, 3, 3) rows
     B = np.stack([b[i], b[j], cb / nb[:, None]], axis=1)
-    U, _, Vt = np.linalg.svd(np.einsum("sik,sil->skl", B, A))
-    D = np.sign(np.linalg.det(U @ Vt))
-    D[D == 0] = 1.0
-    U[:, :, 2] *= D[:, None]
-    Rs = U @ Vt
+    Rs = nearest_rotation(np.einsum("sik,sil->skl", B, A))
     cos_thr = np.cos(threshold_rad)
     # inlier counts of every sample, in chunks of samples (K x S dot products)
     best, best_n = -1, -1
@@ -714,7 +723,7 @@ def rotation_from_directions(b: np.ndarray, a: np.ndarray, threshold_rad: float,
     for _ in range(3):  # refine on the inliers, then take the inliers of the refined rotation
         if inl.sum() < 2:
             break
-        R = _kabsch(b[inl], a[inl])
+        R = nearest_rotation(b[inl].T @ a[inl])
         new = (np.einsum("nk,nk->n", a @ R.T, b) >= cos_thr)
         if np.array_equal(new, inl):
             break
@@ -750,17 +759,7 @@ def register_with_known_centres(rec: Reconstruction, xy_by_image, block_images, 
     block_images = np.asarray(block_images, np.int64)
     comp = int(rec.component[block_images[0]])
     tr = rec.tracks
-    b = _Builder.__new__(_Builder)
-    b.opt, b.n, b.xy, b.tr, b.rec = opt, len(xy_by_image), xy_by_image, tr, rec
-    b.pair_counts, b.on_progress = {}, None
-    b.rays = _rays(rec.cameras, rec.image_camera, xy_by_image)
-    order = np.argsort(tr.image, kind="stable")
-    starts = np.searchsorted(tr.image[order], np.arange(b.n + 1))
-    b.obs_of_image = [order[starts[k]:starts[k + 1]] for k in range(b.n)]
-    b.obs_of_track_start = np.searchsorted(tr.track, np.arange(tr.n_tracks + 1))
-    b.point_comp = np.full(tr.n_tracks, -1, np.int64)
-    seen = rec.obs_valid & rec.registered[tr.image] & np.isfinite(rec.points[tr.track]).all(1)
-    b.point_comp[tr.track[seen]] = rec.component[tr.image[seen]]
+    b = _Builder.around(rec, xy_by_image, opt)
     cand = [int(i) for i in candidates if not rec.registered[i] and np.isfinite(centres[i]).all()]
     added: list[int] = []
     why: dict[int, str] = {}
