@@ -2507,11 +2507,14 @@ _TASK_STEPS = ("inputs", "features", "matching")
 
 
 def _release_task_state() -> None:
-    """After the steps that run tasks: this process's feature cache, the cluster's and the tasks' freed objects
+    """After the steps that run tasks: this process's feature cache and matching work arrays, the cluster's and the tasks' freed objects
     (``gc``), and the heap's free pages (:func:`thermogrammetry._memory.release_free_heap`)."""
     import gc
 
+    from ..sfm.matching import release_scratch
+
     _NPZ_CACHE.clear()
+    release_scratch()
     gc.collect()
     release_free_heap()
 

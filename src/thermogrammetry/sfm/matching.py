@@ -21,6 +21,7 @@ Nistér, D. (2004). An efficient solution to the five-point relative pose proble
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -147,6 +148,26 @@ def select_pairs(n_images: int, centers=None, *, options: MatchOptions | None = 
     return sorted(pairs)
 
 
+_SCRATCH = threading.local()
+
+
+def _scratch(n: int, slot: int) -> np.ndarray:
+    """A float32 work array of ``n`` elements, reused by the calls of this thread (``slot`` tells apart the arrays that
+    one call uses at the same time). It grows to the largest request and is freed by :func:`release_scratch`."""
+    bufs = getattr(_SCRATCH, "bufs", None)
+    if bufs is None:
+        bufs = _SCRATCH.bufs = {}
+    buf = bufs.get(slot)
+    if buf is None or buf.size < n:
+        buf = bufs[slot] = np.empty(n, np.float32)
+    return buf[:n]
+
+
+def release_scratch() -> None:
+    """Free this thread's matching work arrays (after the matching step)."""
+    _SCRATCH.bufs = {}
+
+
 def _unit_rows(d: np.ndarray, tol: float = 1e-3) -> bool:
     n = np.einsum("ij,ij->i", d, d, dtype=np.float64) if len(d) else np.ones(0)
     return bool(np.all(np.abs(n - 1.0) < tol))
@@ -199,15 +220,17 @@ def match_descriptors(d1: np.ndarray, d2: np.ndarray, *, ratio: float = 0.85) ->
             dsec = np.sqrt(np.maximum(2.0 - 2.0 * s2, 0.0))
             return np.where(dmin < ratio * dsec, j, -1)
 
-        S = a @ b.T
+        # the products go into this thread's scratch arrays: a fresh 36 MB product per pair (3000 x 3000) is mapped
+        # and zeroed page by page on first touch, which cost as much as the product itself (M3T flight: 17 -> 10 ms)
+        S = np.matmul(a, b.T, out=_scratch(len(a) * len(b), 0).reshape(len(a), len(b)))
         m12 = best_rows(S)
-        # the mutual check needs the reverse match only of the columns that some row chose: those columns of
-        # the same product, gathered transposed so that the reduction runs along contiguous rows again
-        # (identical result; 25-40 % less work than a second product on SIFT sets)
+        # the mutual check needs the reverse match only of the columns that some row chose: a second product of those
+        # descriptors, reduced along its contiguous rows (each dot product is the same sum as in S; 5 ms where gathering
+        # S's columns through NumPy's strided indexing took 13-30 ms)
         cols = np.unique(m12[m12 >= 0])
         m21 = np.full(len(b), -1, np.int64)
         if len(cols):
-            m21[cols] = best_rows(np.ascontiguousarray(S[:, cols].T))
+            m21[cols] = best_rows(np.matmul(b[cols], a.T, out=_scratch(len(cols) * len(a), 1).reshape(len(cols), len(a))))
     else:
         # squared Euclidean distances by one matrix product (float64 accumulation of float32 inputs)
         a = np.asarray(d1, np.float32)
