@@ -75,6 +75,10 @@ def test_wrongly_resected_images_are_left_out_of_a_block_that_contradicts_its_gn
     added = s["blocks"][0].get("added_at_gnss", [])
     assert {"T02", "T03", "T04"} <= set(added) and s["images_oriented"] >= 25
     assert max(errs[k] for k in added) < 2.0
+    # the rejected blocks' entries say where their images went: every moved image is one block 1 added, and the
+    # moved ones are among the rejected blocks' images (the two arcs: 11 stations)
+    moved = [nm for b in s["blocks"] if b.get("rejected") for nm in (b.get("moved_to_blocks") or {}).get("1", [])]
+    assert moved and set(moved) <= set(added) and len(moved) == len(set(moved)) <= 11
 
 
 @pytest.mark.slow

@@ -23,7 +23,8 @@ Outputs (OUT): ``cameras.json`` (:mod:`thermogrammetry.io.oriented`), ``survey.j
 largest first), ``reprojection_rms_px`` (root mean square of the residual vector length of the tie
 observations, px), ``gcps`` / ``checkpoints`` (``n, rmse_x.., mae_x.., min_x.., max_x..`` in metres; n = 0
 and nulls when none), ``crs``, ``seconds`` and more detail (per image, per step, camera; per block ``blocks``:
-datum, σ0, self-calibration and its steps, ``added_at_gnss``: images added at their GNSS positions). Rig mode
+datum, σ0, self-calibration and its steps, ``added_at_gnss``: images added at their GNSS positions; a rejected
+block's ``rejected`` reason and ``moved_to_blocks``: block -> its images that a later pass added there). Rig mode
 (``--rig``) adds ``rig`` (file, pairs, blocks with R*, t, σ, own observations per thermal image, or the reason an
 estimate was refused; ``rig_only``: thermal images posed by the rig alone) and ``images_rig_only``; those images
 count in ``images_oriented`` (R*, t given, or estimated from enough evidence) and carry ``rig_only: true`` and a
@@ -1426,6 +1427,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     results = []
     oriented = np.zeros(len(names), bool)
     second_pass: list = []  # accepted GNSS blocks that may take images left over at the end (_extend_with_gnss)
+    rejected_at: dict = {}  # index in results of a rejected block -> its images (the second pass may move them)
     fa_all = []
     rig_master, rig_enabled, rig_out, tie_out = {}, {}, [], []
     rig_only: dict[int, str] = {}  # oriented rig views without observations of their own -> reason
@@ -1618,6 +1620,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             notes.append(f"block {ci + 1}: {why}")
             results.append({"block": ci + 1, "images": len(images), "datum": str(datum),
                             "rejected": f"in block {ci + 1} ({len(images)} images) rejected: {why}"})
+            rejected_at[len(results) - 1] = set(int(i) for i in images)
             continue
         n_own = len(images)
         extendable = geo and datum.from_gnss and rigv is None and not np.any(ctrl.lever_arm_m)
@@ -1655,6 +1658,11 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                       "reason": fa2.result.reason, "self_calibration": sorted({n for v in cal2.values() for n in v}),
                       "self_calibration_steps": steps2,
                       "added_at_gnss": r.get("added_at_gnss", []) + [names[i] for i in images2[n_own:]]})
+            for k_rej, members in rejected_at.items():
+                # the rejected block's entry says where its images went (it still counts them as its own)
+                moved = [names[i] for i in images2[n_own:] if int(i) in members]
+                if moved:
+                    results[k_rej].setdefault("moved_to_blocks", {})[str(ci + 1)] = moved
     if not fa_all:
         crs = None
     georeferenced = any(g for *_, g in fa_all)

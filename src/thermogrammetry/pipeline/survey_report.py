@@ -71,11 +71,15 @@ def write_survey_report(project) -> None:
             f3 = lambda v: ", ".join(f"{x:+.3f}" for x in v)  # noqa: E731
             return (f"{f3(o['offset_m'])} ± {', '.join(f'{x:.3f}' for x in o['std_m'])}" + (f"; applied {f3(o['applied_m'])}" if any(o["applied_m"]) else "; not applied"))
 
+        def _moved(b):
+            m = b.get("moved_to_blocks") or {}
+            return "".join(f"; {len(v)} of its images later added to block {k} at their GNSS positions" for k, v in m.items())
+
         parts.append("<table><tr><th>block</th><th>images</th><th>datum</th><th>σ0</th><th>termination</th>"
                      "<th>self-calibrated</th><th>GCP − GNSS offset (m)</th></tr>" + "".join(
             f"<tr><td>{b['block']}</td><td>{b['images']}</td><td class=l>{html.escape(str(b['datum']))}</td>"
             f"<td>{_f(b.get('sigma0'), '{:.3f}')}</td>"
-            f"<td class=l>{html.escape(b.get('termination') or b.get('rejected', ''))}</td>"
+            f"<td class=l>{html.escape(b.get('termination') or b.get('rejected', ''))}{html.escape(_moved(b))}</td>"
             f"<td class=l>{html.escape(_selfcal(b))}</td><td class=l>{html.escape(_offset(b))}</td></tr>"
             for b in s["blocks"]) + "</table>")
     bad = [im for im in s["images"] if not im["oriented"]]
