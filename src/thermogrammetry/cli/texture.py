@@ -38,6 +38,10 @@ def texture(
     levelling: str = typer.Option("none", "--levelling", help="none, or offsets: per-image offsets from overlaps (alters values)."),
     rig: Optional[Path] = typer.Option(None, "--rig", help="rig.json: thermal frames + cam_thermal_from_cam_rgb for oriented RGB images."),
     texel_size: Optional[float] = typer.Option(None, "--texel-size", help="Texel size in metres (default: half the surface pixel size)."),
+    fit_poses: str = typer.Option("auto", "--fit-poses", help="auto: refine the survey's poses so that its tie points "
+                                  "(SURVEY_DIR/colmap) lie on the mesh, kept only when they meet it and the fit converges "
+                                  "without bending the block (texture.json pose_fit, cameras_fitted.json). off: the poses "
+                                  "of cameras.json as they are."),
 ) -> None:
     """Texture a mesh with temperatures: best image per face, occlusion by ray casting, source of every texel."""
     from rich.console import Console
@@ -54,7 +58,8 @@ def texture(
         cfg = TextureConfig(texel_size_m=texel_size)
         if out.exists() and not out.is_dir():
             raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
-        d = run_texture(survey_dir, mesh, out, unit=None if u is None else u.value, correct=correct, levelling=lev.value, rig_path=rig, config=cfg)
+        d = run_texture(survey_dir, mesh, out, unit=None if u is None else u.value, correct=correct, levelling=lev.value, rig_path=rig, config=cfg,
+                        fit_poses=fit_poses)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2)
@@ -63,6 +68,14 @@ def texture(
                   f"of the {vis} visible), {d['texels_textured']}/{d['texels_total']} texels; wrote {out}", highlight=False)
     if d.get("unit") == "counts":
         console.print("values: raw sensor counts (frames have no documented conversion), labelled as counts", highlight=False)
+    pf = d.get("pose_fit") or {}
+    if pf.get("applied"):
+        md, rc = pf["median_distance_m"], pf["rotation_change_deg"]
+        console.print(f"poses fitted to the mesh: {pf['points_on_surface']} tie points, median distance to the mesh "
+                      f"{md['before']:.3f} -> {md['after']:.3f} m, rotations changed by {rc['median']:.2f} deg (median, "
+                      f"max {rc['max']:.2f}); cameras_fitted.json", highlight=False)
+    elif pf.get("reason") and not str(pf["reason"]).startswith("off"):
+        console.print(f"poses not fitted to the mesh: {pf['reason']}", highlight=False)
     if d.get("mesh_winding"):
         console.print(f"mesh: {d['mesh_winding']['reason']}", highlight=False)
     if d["skipped"]:

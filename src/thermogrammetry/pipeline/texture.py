@@ -9,7 +9,8 @@ Reads through :class:`~thermogrammetry.io.oriented.OrientedCameras`, calls
     source_texture.tif           int32 image index (texture.json "index"), -1 = none
     angle_texture.tif            float32 viewing angle of the source image (degrees)
     vertices.ply                 per-vertex temperature_k
-    texture.json                 counts, index -> image name, unit, offsets, what altered the values
+    texture.json                 counts, index -> image name, unit, offsets, what altered the values, pose_fit
+    cameras_fitted.json          the poses used, when they were fitted to the mesh (``fit_poses="auto"``)
     report.html                  coverage, views per face, offsets, a rendered view in °C
     viewer.html                  the GLB in a self-contained WebGL page (offline, no libraries)
 
@@ -28,6 +29,12 @@ the rig's relative orientation (seed 002 eq. 4–5); its frames are read by the 
 format documents a conversion, float TIFFs without a unit tag as kelvin, else raw counts, with the same
 counts outputs as above).
 
+Poses fitted to the mesh (``fit_poses="auto"``, the default; :mod:`thermogrammetry.sfm.meshfit`): the survey's tie
+points (``SURVEY_DIR/colmap``) are made to lie on the mesh in one bundle adjustment (intrinsics held, the survey's
+camera centres as priors with their σ), which removes what the survey's datum left free (a ring of stations at one
+height turns in common about a horizontal axis). Kept only when the mesh and the tie points meet and the fit
+converges without bending the block; ``texture.json`` ``pose_fit`` says what happened either way. Never in rig mode.
+
 Mesh winding: the texture needs each triangle's normal (right-hand rule) towards the images. When no face
 faces any image but the reversed mesh does (a plane fitted to a sparse cloud has an arbitrary normal sign),
 every triangle's vertex order is reversed and ``texture.json`` says so (``mesh_winding``).
@@ -40,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataFileError, InvalidInputError, ThermogrammetryError, UnsupportedFormatError
+from ..errors import ConfigError, DataFileError, InvalidInputError, ThermogrammetryError, UnsupportedFormatError
 
 __all__ = ["read_mesh", "frames_unit", "load_views", "check_views_unit", "load_rig_views", "run_texture", "texture_report_html"]
 
@@ -221,7 +228,7 @@ def _default_viewpoint(result, views):
     return C, target
 
 
-def texture_report_html(result, views, skipped, unit: str) -> str:
+def texture_report_html(result, views, skipped, unit: str, pose_fit: dict | None = None) -> str:
     """The report page. ``unit``: unit of the written texture (``K``, ``C`` or ``counts``); the result holds kelvin
     for temperature frames (shown in °C) and the frames' raw counts for count frames (shown as "raw counts")."""
     import html
@@ -274,6 +281,18 @@ def texture_report_html(result, views, skipped, unit: str) -> str:
     corr = "<p><b>Per-texel angle/emissivity/transmission correction applied.</b></p>" if result.config.correct else ""
     vis = s.get("faces_visible", s["faces_seen"])
     share = s.get("faces_visible_textured", s["faces_textured"]) / max(vis, 1)
+    pf = pose_fit or {}
+    if pf.get("applied"):
+        md, rc, cc = pf["median_distance_m"], pf["rotation_change_deg"], pf["center_change_m"]
+        fit_note = (f"<p><b>Poses fitted to the mesh</b> ({pf['points_on_surface']} of the survey's {pf['points']} tie "
+                    f"points on its surface, σ {pf['surface_sigma_m'] * 100:.1f} cm): their median distance to the mesh "
+                    f"{md['before'] * 100:.1f} → {md['after'] * 100:.1f} cm; rotations changed by {rc['median']:.2f}° "
+                    f"(median; max {rc['max']:.2f}°), centres by {cc['median'] * 100:.1f} cm (max {cc['max'] * 100:.1f}); "
+                    "the poses used are in cameras_fitted.json.</p>")
+    elif pf.get("reason"):
+        fit_note = f"<p>Poses as in cameras.json (not fitted to the mesh: {html.escape(str(pf['reason']))}).</p>"
+    else:
+        fit_note = ""
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>thermogrammetry texture</title>
 <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}</style></head><body>
 <h1>Thermal texture</h1>
@@ -285,7 +304,7 @@ def texture_report_html(result, views, skipped, unit: str) -> str:
 <tr><th>texels textured / inside faces</th><td>{s['texels_textured']} / {s['texels_total']}</td></tr>
 <tr><th>texel size</th><td>{s['texel_size_m'] * 100:.2f} cm ({s['texture_size'][0]} × {s['texture_size'][1]})</td></tr></table>
 <p>Untextured texels are NaN (source −1) in the TIFFs: nothing is filled.</p>
-{counts_note}{lev_note}{corr}
+{counts_note}{lev_note}{corr}{fit_note}
 <h2>Rendered view (colour scale in {'raw counts' if counts else '°C'})</h2>{figs[0] if rv is not None else '<p>(no view)</p>'}
 <h2>Views per face</h2>{figs[-1]}
 <h2>Images</h2><table><tr><th>index</th><th>image</th><th>texels</th><th>texels occluded</th><th>offset ({vu})</th></tr>{rows}</table>
@@ -385,12 +404,89 @@ def orient_mesh_to_views(V, F, views, cfg):
                 "(the written OBJ/GLB/PLY carry the reversed order)")
 
 
+def survey_tie_points(survey_dir, cameras, names):
+    """The survey's tie points and their observations in ``names`` (its COLMAP export, ``SURVEY_DIR/colmap``).
+
+    Returns ``(TiePoints, None)``, or ``(None, reason)`` when the survey folder has no such export (a
+    ``cameras.json`` from elsewhere) or it shares no image with ``names``.
+    """
+    from ..io.colmap import read_colmap_images, read_colmap_points3d
+    from ..sfm.meshfit import TiePoints
+
+    folder = Path(survey_dir) / "colmap"
+    if not (folder / "images.txt").is_file() or not (folder / "points3D.txt").is_file():
+        return None, f"{folder}: no COLMAP export with the survey's tie points (images.txt, points3D.txt)"
+    ims = read_colmap_images(folder / "images.txt")
+    pts = read_colmap_points3d(folder / "points3D.txt")
+    index = {n: k for k, n in enumerate(names)}
+    row = {int(i): r for r, i in enumerate(pts.ids)}
+    op, oi, oxy = [], [], []
+    for im in ims.values():
+        k = index.get(im.name, index.get(Path(im.name).stem))
+        if k is None:
+            continue
+        ok = np.flatnonzero(im.point3d_ids >= 0)
+        ok = ok[[int(p) in row for p in im.point3d_ids[ok]]]
+        if not len(ok):
+            continue
+        op.append(np.array([row[int(p)] for p in im.point3d_ids[ok]], np.int64))
+        oi.append(np.full(len(ok), k, np.int64))
+        oxy.append(im.xy_px[ok])
+    if not op:
+        return None, f"{folder}: no tie point observed in the textured images"
+    return TiePoints(pts.xyz, np.concatenate(op), np.concatenate(oi), np.concatenate(oxy)), None
+
+
+def fit_views_to_mesh(survey_dir, cameras, views, V, F, *, tie_sigma_px: float | None = None):
+    """Refine the views' poses so that the survey's tie points lie on the mesh (:mod:`thermogrammetry.sfm.meshfit`).
+
+    Returns ``(views, record)``: the views with the fitted poses when the fit was kept (else unchanged), and what
+    ``texture.json`` records under ``pose_fit`` (``applied``, ``reason``, the figures).
+    """
+    from dataclasses import replace as dc_replace
+
+    from ..geometry import Pose
+    from ..sfm.meshfit import MeshFitOptions, fit_poses_to_mesh
+
+    names = [v.name for v in views]
+    ties, why = survey_tie_points(survey_dir, cameras, names)
+    if ties is None:
+        return views, {"applied": False, "reason": why}
+    ims = [cameras.image(n) for n in names]
+    opt = MeshFitOptions(tie_sigma_px=float(tie_sigma_px) if tie_sigma_px and np.isfinite(tie_sigma_px) else 1.0)
+    res = fit_poses_to_mesh(names, cameras.cameras, [im.camera_id for im in ims], [(im.R, im.t) for im in ims],
+                            [im.center_std for im in ims], ties, V, F, opt)
+    record = {"applied": bool(res.applied), "reason": res.reason, **res.figures}
+    if not res.applied:
+        return views, record
+    out = []
+    for v in views:
+        if v.name in res.poses:
+            R, t = res.poses[v.name]
+            v = dc_replace(v, pose=Pose(R, t))
+        out.append(v)
+    return out, record
+
+
+def _survey_tie_sigma(survey_dir) -> float | None:
+    """The survey's tie-point reprojection RMS (``survey.json``), or None."""
+    try:
+        v = json.loads((Path(survey_dir) / "survey.json").read_text(encoding="utf-8")).get("reprojection_rms_px")
+        return float(v) if v is not None and np.isfinite(float(v)) and float(v) > 0 else None
+    except (OSError, ValueError, TypeError):
+        return None
+
+
 def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, correct: bool = False, levelling: str = "none",
-                rig_path=None, config=None, progress=None) -> dict:
+                rig_path=None, config=None, progress=None, fit_poses: str = "auto") -> dict:
     """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict.
 
     ``unit``: ``"K"`` or ``"C"`` for kelvin frames (default ``"K"``); must stay ``None`` for frames in raw counts
     (the texture then holds counts, labelled as such; :class:`InvalidInputError` otherwise, as for ``correct``).
+    ``fit_poses``: ``"auto"`` (default) refines the poses so that the survey's tie points lie on the mesh
+    (:func:`fit_views_to_mesh`; kept only when the mesh and the tie points meet and the fit converges without
+    bending the block; ``texture.json`` ``pose_fit`` says what happened, ``cameras_fitted.json`` holds the poses
+    used); ``"off"``: the survey's poses as they are.
     """
     from dataclasses import replace
 
@@ -414,6 +510,9 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     else:
         frame_unit = frames_unit(cameras)
         views, skipped = load_views(cameras, unit=frame_unit or "K")
+    fit_poses = str(fit_poses).lower()
+    if fit_poses not in ("auto", "off"):
+        raise ConfigError(f"fit_poses={fit_poses!r}: expected 'auto' or 'off'")
     counts = check_views_unit(views, skipped, frame_unit, survey_dir, unit, "texture")
     if counts:
         if correct:
@@ -425,6 +524,12 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     cfg = config or TextureConfig()
     cfg = replace(cfg, correct=bool(correct), levelling=levelling)
     cfg, clean_note = clean_radius_from_poses(cfg, cameras, views)  # only ever widens the configured radius
+    if fit_poses == "off":
+        pose_fit = {"applied": False, "reason": "off (fit_poses)"}
+    elif rig_path is not None:
+        pose_fit = {"applied": False, "reason": "rig mode: the thermal poses follow the RGB images through the rig"}
+    else:
+        views, pose_fit = fit_views_to_mesh(survey_dir, cameras, views, V, F, tie_sigma_px=_survey_tie_sigma(survey_dir))
     F, winding_note = orient_mesh_to_views(V, F, views, cfg)
     check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs)
     result = texture_mesh(V, F, views, cfg)
@@ -461,6 +566,17 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
             data16, mapping = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="uint16")
             store.write_bytes("temperature_texture_u16.tif", data16)
             u16_info = {"scale": mapping.scale, "offset": mapping.offset, "unit": u.value, "nodata_code": 0}
+    if pose_fit.get("applied"):
+        fitted = {v.name: v.pose for v in views}
+        doc = cameras.to_dict()
+        for im in doc["images"]:
+            if im["name"] in fitted:
+                pz = fitted[im["name"]]
+                im["cam_from_world"] = {"R": np.asarray(pz.R).tolist(), "t": np.asarray(pz.t).tolist()}
+                im["center"] = np.asarray(pz.center).tolist()
+            if im.get("frame"):  # the frames stay in the survey folder: their paths from here
+                im["frame"] = str(cameras.frame_path(im["name"]).resolve())
+        store.write_text("cameras_fitted.json", json.dumps(doc, indent=1) + "\n")
     store.write_bytes("source_texture.tif", tx.int32_tiff_bytes(result.source))
     store.write_bytes("angle_texture.tif", tx.float32_tiff_bytes(result.angle_deg))
     store.write_bytes("vertices.ply", tx.ply_bytes(V, F, result.vertex_temperature_k,
@@ -468,12 +584,13 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     extra = {"skipped": [{"image": n, "reason": r} for n, r in skipped],
              "uint16_mapping": u16_info,
              "rig": None if rig_path is None else str(rig_path),
-             "clean_radius_px": {"value": int(cfg.clean_radius_px), "reason": clean_note or "default"}}
+             "clean_radius_px": {"value": int(cfg.clean_radius_px), "reason": clean_note or "default"},
+             "pose_fit": pose_fit}
     if winding_note:
         extra["mesh_winding"] = {"reversed": True, "reason": winding_note}
     if counts:
         extra["preview_palette"] = palette
     text = tx.texture_json(result, unit_out, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
     store.write_text("texture.json", text)
-    store.write_text("report.html", texture_report_html(result, views, skipped, unit_out))
+    store.write_text("report.html", texture_report_html(result, views, skipped, unit_out, pose_fit))
     return json.loads(text)

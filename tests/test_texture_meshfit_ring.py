@@ -1,0 +1,89 @@
+"""Issue 12 with estimated poses on a held-out-like ring: the survey's poses fitted to the mesh being textured.
+
+48 terrestrial stations around ``synthetic.building`` (seed 3, facade detail, an occluder 7 m in front of a wall,
+1 m of ground; RTK GNSS 3/5 cm and the camera file; ``survey`` with its defaults, nothing from the truth). The
+survey's rotations are 0.78 deg RMS off, 0.5 deg of it one common rotation about a horizontal world axis (centres
+on their GNSS: a ring at one height hardly fixes that mode). The texture is taken from noise-free renderings of the
+stations placed at the estimated poses -- the survey's, then those fitted to the true mesh by
+``pipeline.texture.fit_views_to_mesh`` -- so that the texel errors measure the pose errors.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from thermogrammetry.geometry import Pose
+from thermogrammetry.io.oriented import OrientedCameras
+from thermogrammetry.pipeline.texture import fit_views_to_mesh
+from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
+from thermogrammetry.synthetic.building import (GROUPS, BuildingConfig, apparent_temperature, discontinuity_distance,
+                                                make_building, render_building_thermal, write_building_survey,
+                                                write_building_user_files)
+
+
+def _texels(sc, views, true_c):
+    res = texture_mesh(sc.vertices, sc.faces, views, TextureConfig(texel_size_m=0.04, clean_radius_px=3))
+    sel, tx = res.texel_selection, res.texels
+    ok = sel.source >= 0
+    P, F = tx.points[ok], tx.face[ok]
+    C = np.array(true_c)[sel.source[ok]]
+    err = np.abs(sel.temperature_k[ok] - apparent_temperature(sc, P, F, C))
+    v = C - P
+    dist = np.linalg.norm(v, axis=1)
+    cos_t = np.abs(np.einsum("ij,ij->i", sc.face_normals[F], v / dist[:, None]))
+    foot = dist / sc.thermal.K[0, 0] / np.maximum(cos_t, 0.2)
+    clean = (discontinuity_distance(sc, P, sc.face_group[F]) > 2.0 * foot) & (sc.face_group[F] == GROUPS.index("wall"))
+    return res, err[clean]
+
+
+@pytest.mark.slow
+def test_poses_fitted_to_the_mesh_texture_the_ring_within_the_targets(tmp_path):
+    from thermogrammetry.cli.main import main
+    from thermogrammetry.pipeline.project import FolderProject
+
+    sc = make_building(BuildingConfig(facade_detail=True, n_stations=48, seed=3, occluder_x_m=7.0, ground_margin_m=1.0))
+    project = FolderProject(tmp_path)
+    write_building_survey(project, sc)
+    write_building_user_files(project, sc)
+    out = tmp_path / "out"
+    assert main(["survey", str(tmp_path / "frames"), "-o", str(out), "--input-unit", "K", "--camera",
+                 str(tmp_path / "camera.json"), "--gnss", str(tmp_path / "gnss.csv"), "--workers", "0"]) == 0
+    cameras = OrientedCameras.load(out)
+    est = {im.name: im for im in cameras}
+    views, true_views, true_c = [], [], []
+    for k, (name, pose) in enumerate(sc.stations):
+        img = render_building_thermal(sc, k, sensor=False)["image_k"]
+        true_views.append(TextureView(name, sc.thermal, pose, img))
+        if name in est:
+            views.append(TextureView(name, sc.thermal, Pose(est[name].R, est[name].t), img))
+            true_c.append(pose.center)
+    sigma = json.loads((out / "survey.json").read_text())["reprojection_rms_px"]
+    fitted, record = fit_views_to_mesh(out, cameras, views, sc.vertices, sc.faces, tie_sigma_px=sigma)
+    assert record["applied"], record["reason"]
+    # the tie points come onto the surface (measured median distance 5.4 -> 1.0 cm) without bending the block
+    assert record["median_distance_m"]["after"] < 0.4 * record["median_distance_m"]["before"]
+    assert record["tie_median_px"]["after"] <= 1.25 * record["tie_median_px"]["before"]
+    truth = dict(sc.stations)
+
+    def rot_rms(vs):
+        a = [np.degrees(np.arccos(np.clip((np.trace(v.pose.R @ truth[v.name].R.T) - 1) / 2, -1, 1))) for v in vs]
+        return float(np.sqrt(np.mean(np.square(a))))
+
+    r0, r1 = rot_rms(views), rot_rms(fitted)
+    assert r1 < 0.85 * r0  # measured 0.78 -> 0.56 deg RMS (the common 0.5 deg about world Y -> 0.2)
+    ref, _ = _texels(sc, true_views, [p.center for _, p in sc.stations])
+    vis = ref.face_visible
+    res0, e0 = _texels(sc, views, true_c)
+    res1, e1 = _texels(sc, fitted, true_c)
+    share0, share1 = np.mean(e0 <= 0.2), np.mean(e1 <= 0.2)
+    # clean wall texels within 0.2 K of the noise-free truth: measured 91.3 % with the survey's poses, 97.1 % fitted;
+    # median 0.051 -> 0.026 K. Issue 12's "within 0.2 K" (every texel) still fails for ~3 %: the per-camera
+    # rotation errors that remain (0.3-0.4 deg, the GNSS noise of the centres traded against rotation)
+    assert share0 < 0.95 and share1 > 0.95
+    assert np.median(e1) < 0.035 and np.median(e1) < 0.7 * np.median(e0)
+    # visible faces (from the 48 true stations) textured: measured 97.4 % -> 97.7 % (98.4 % with the true poses)
+    assert np.mean(res1.faces_textured[vis]) >= np.mean(res0.faces_textured[vis]) - 0.002
+    assert np.mean(res1.faces_textured[vis]) > 0.97
