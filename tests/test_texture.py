@@ -483,3 +483,51 @@ def test_min_clean_radius_fallback_textures_silhouette_faces(scene, views):
     err = b.temperature_k[new] - apparent_temperature(scene, fb.texels.points[new], fb.texels.face[new], C)
     assert new.sum() > 100 and np.max(np.abs(err)) < 0.05
     assert fb.summary()["faces_textured_at_min_clean_radius"] == int(gained.sum())
+
+
+@pytest.mark.parametrize("radius", [1, 4])
+def test_clean_pixel_shortcut_equals_the_pixel_by_pixel_test(scene, views, radius):
+    """usable_in_view passes texels whose whole window of pixels sees their own plane (or face) without testing each
+    pixel: the same verdict as testing every pixel of the window (the rule as first written)."""
+    from dataclasses import replace
+
+    from thermogrammetry.products.texture import (_face_geometry, _intersector, build_atlas, pixel_surfaces, plane_ids,
+                                                  rasterize_atlas, usable_in_view)
+
+    V, F = np.asarray(scene.vertices, float), np.asarray(scene.faces, np.int64)
+    cfg = TextureConfig(texel_size_m=0.08, clean_radius_px=radius)
+    tx = rasterize_atlas(build_atlas(V, F, 0.08), V, F)
+    inter = _intersector(V, F)
+    planes = plane_ids(V, F)
+    assert len(np.unique(planes)) < len(F)  # walls of several coplanar triangles: the plane shortcut has work to do
+    normals, _, _ = _face_geometry(V, F)
+    n_checked = 0
+    for view in views[::7]:
+        with_planes = pixel_surfaces(inter, V, F, view, planes)
+        faces_only = replace(with_planes, plane_of_face=None)
+        u1, xy, *_ = usable_in_view(inter, V, F, view, with_planes, tx.points, tx.face, cfg)
+        u2, *_ = usable_in_view(inter, V, F, view, faces_only, tx.points, tx.face, cfg)
+        # reference: conditions 1-3 from a zero-radius call, then every pixel of the window tested
+        base, *_ = usable_in_view(inter, V, F, view, faces_only, tx.points, tx.face, replace(cfg, clean_radius_px=0,
+                                                                                              surface_tol_m=np.inf,
+                                                                                              normal_tol_deg=180.0))
+        idx = np.flatnonzero(base)
+        w, h = view.camera.image_size
+        x0, y0 = np.floor(xy[idx, 0]).astype(int), np.floor(xy[idx, 1]).astype(int)
+        n = normals[tx.face[idx]]
+        d0 = np.einsum("ij,ij->i", n, tx.points[idx])
+        ref = np.zeros(len(tx.points), bool)
+        ok = np.ones(len(idx), bool)
+        for dy in range(-radius, 2 + radius):
+            for dx in range(-radius, 2 + radius):
+                yy, xx = np.clip(y0 + dy, 0, h - 1), np.clip(x0 + dx, 0, w - 1)
+                p = with_planes.points_at(yy, xx)
+                pf = with_planes.face[yy, xx]
+                off = np.abs(np.einsum("ij,ij->i", n, p) - d0)
+                agree = np.einsum("ij,ij->i", n, normals[np.maximum(pf, 0)]) >= np.cos(np.deg2rad(cfg.normal_tol_deg))
+                ok &= np.isfinite(off) & (off <= cfg.surface_tol_m) & (pf >= 0) & agree
+        ref[idx] = ok
+        np.testing.assert_array_equal(u1, ref)
+        np.testing.assert_array_equal(u2, ref)
+        n_checked += int(ref.sum()) + int((base & ~ref).sum())
+    assert n_checked > 10_000

@@ -472,7 +472,7 @@ def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None,
     estimated from a sample of at most ``LEVELLING_SAMPLE_CELLS`` cells; they alter the values).
     The cells are selected and sampled ``chunk_cells`` at a time (each image's value is held for one chunk only).
     """
-    from .texture import (Levelling, TextureConfig, _intersector, _levelling_sample, local_origin, pixel_surfaces,
+    from .texture import (Levelling, TextureConfig, _intersector, _levelling_sample, local_origin, pixel_surfaces, plane_ids,
                           select_in_chunks, view_in_frame)
 
     lev_mode = Levelling(levelling)
@@ -514,7 +514,8 @@ def plane_mosaic(views, plane: FacadePlane, grid: FacadeGrid, *, occluders=None,
 
     scores = face_view_scores(V, F, views, max_angle_deg=cfg.max_angle_deg, border_fraction=cfg.border_fraction)
     inter = _intersector(V, F)
-    surfaces = [pixel_surfaces(inter, V, F, v) for v in views]
+    planes = plane_ids(V, F)
+    surfaces = [pixel_surfaces(inter, V, F, v, planes) for v in views]
     K = len(views)
     N = h * w
     fr = face.ravel()

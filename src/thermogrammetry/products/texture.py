@@ -74,7 +74,7 @@ from .._validate import config_keys
 from .correction import CorrectionConfig
 
 __all__ = ["Levelling", "TextureConfig", "TextureView", "TextureResult", "face_view_scores", "scores_at",
-           "any_face_seen", "build_atlas", "rasterize_atlas", "PixelSurface", "pixel_surfaces", "usable_in_view", "select_and_sample",
+           "any_face_seen", "build_atlas", "rasterize_atlas", "PixelSurface", "pixel_surfaces", "plane_ids", "usable_in_view", "select_and_sample",
            "select_in_chunks", "estimate_offsets", "texture_mesh", "thermal_poses_from_rig", "local_origin", "view_in_frame"]
 
 
@@ -532,6 +532,9 @@ class PixelSurface:
     offsets: np.ndarray
     center: np.ndarray
     face: np.ndarray
+    #: (n_faces,) int64, the plane of each face (:func:`plane_ids`, shared by the surfaces of one mesh) or None (each
+    #: face its own): lets :func:`usable_in_view` pass texels whose pixels all see their own plane without testing each
+    plane_of_face: np.ndarray | None = None
 
     def points_at(self, rows, cols) -> np.ndarray:
         """(N, 3) float64 hit points of pixels ``(rows, cols)`` (NaN where the ray hits nothing)."""
@@ -564,8 +567,25 @@ def _intersector(V, F):
         return mesh.ray
 
 
-def pixel_surfaces(intersector, vertices, faces, view: TextureView) -> PixelSurface:
-    """Cast the ray of every pixel centre of ``view`` against the whole mesh."""
+def plane_ids(vertices, faces) -> np.ndarray:
+    """(n_faces,) int64: faces that lie in one plane share an id (unit normal and offset equal after rounding to 1e-9;
+    faces of a triangulated CAD wall, not the nearly coplanar faces of a scanned mesh, which keep ids of their own)."""
+    V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
+    normals, _, _ = _face_geometry(V, F)
+    d = np.einsum("ij,ij->i", normals, V[F[:, 0]])
+    key = np.round(np.column_stack([normals, d]), 9)
+    key[~np.all(np.isfinite(key), axis=1)] = np.nan  # degenerate faces: each its own (NaN rows never compare equal)
+    ok = np.all(np.isfinite(key), axis=1)
+    ids = np.arange(len(F), dtype=np.int64) + len(F)
+    if ok.any():
+        _, inv = np.unique(key[ok], axis=0, return_inverse=True)
+        ids[ok] = inv.ravel()
+    return ids
+
+
+def pixel_surfaces(intersector, vertices, faces, view: TextureView, plane_of_face: np.ndarray | None = None) -> PixelSurface:
+    """Cast the ray of every pixel centre of ``view`` against the whole mesh (``plane_of_face``: see
+    :class:`PixelSurface`)."""
     V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
     w, h = view.camera.image_size
     gy, gx = np.mgrid[0:h, 0:w].astype(float)
@@ -575,7 +595,28 @@ def pixel_surfaces(intersector, vertices, faces, view: TextureView) -> PixelSurf
     o = np.broadcast_to(view.pose.center, d.shape).copy()
     tri, dist = _ray_first(intersector, V, F, o, d)
     off = (dist[:, None] * d).astype(np.float32)
-    return PixelSurface(off.reshape(h, w, 3), np.asarray(view.pose.center, np.float64), tri.astype(np.int32).reshape(h, w))
+    return PixelSurface(off.reshape(h, w, 3), np.asarray(view.pose.center, np.float64), tri.astype(np.int32).reshape(h, w),
+                        plane_of_face)
+
+
+def _window_face_range(face: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest face (or plane) index (-1 = none) over the window of rows ``y - r .. y + r + 1`` and columns
+    ``x - r .. x + r + 1`` of every pixel ``(y, x)``, the image's border replicated (float32 holds face indices below
+    2**24 exactly; larger meshes get an exact sliding minimum/maximum instead)."""
+    import cv2
+
+    k = 2 * r + 2
+    if face.size and int(face.max()) < 2**24:
+        f = face.astype(np.float32)
+        kernel = np.ones((k, k), np.uint8)
+        lo = cv2.erode(f, kernel, anchor=(r, r), borderType=cv2.BORDER_REPLICATE)
+        hi = cv2.dilate(f, kernel, anchor=(r, r), borderType=cv2.BORDER_REPLICATE)
+        return lo.astype(np.int64), hi.astype(np.int64)
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    # scipy's window of even size k centred at k // 2 = r + 1: origin -1 shifts it to y - r .. y + r + 1
+    return (minimum_filter(face, size=k, mode="nearest", origin=-1).astype(np.int64),
+            maximum_filter(face, size=k, mode="nearest", origin=-1).astype(np.int64))
 
 
 def usable_in_view(intersector, vertices, faces, view: TextureView, surface: PixelSurface, points, face_index,
@@ -624,17 +665,35 @@ def usable_in_view(intersector, vertices, faces, view: TextureView, surface: Pix
         x0 = np.floor(xy[idx, 0]).astype(np.int64)
         y0 = np.floor(xy[idx, 1]).astype(np.int64)
         clean = np.ones(len(idx), bool)
-        d0 = np.einsum("ij,ij->i", n[idx], X[idx])
         cmin = np.cos(np.deg2rad(cfg.normal_tol_deg))
-        for dy in range(-r, 2 + r):
-            for dx in range(-r, 2 + r):
-                yy = np.clip(y0 + dy, 0, h - 1)
-                xx = np.clip(x0 + dx, 0, w - 1)
-                p = surface.points_at(yy, xx)
-                pf = surface.face[yy, xx]
-                off = np.abs(np.einsum("ij,ij->i", n[idx], p) - d0)
-                agree = np.einsum("ij,ij->i", n[idx], normals[np.maximum(pf, 0)]) >= cmin
-                clean &= np.isfinite(off) & (off <= cfg.surface_tol_m) & (pf >= 0) & agree
+        # a pixel that sees the texel's own plane is clean (its point lies in that plane, its normal is the texel's).
+        # Texels whose whole window of pixels sees their own plane are therefore clean: the smallest and largest plane
+        # index over each window (rows y0 - r .. y0 + r + 1, columns alike, borders replicated as np.clip does) by a
+        # morphological erosion and dilation. Only the texels of mixed windows are tested pixel by pixel, and there
+        # only the pixels that see another plane or nothing (the same result as testing every pixel)
+        pof = surface.plane_of_face
+        plane_img = surface.face.astype(np.int64) if pof is None else np.where(surface.face >= 0, pof[np.maximum(surface.face, 0)], -1)
+        own = fi[idx] if pof is None else pof[fi[idx]]
+        lo, hi = _window_face_range(plane_img, r)
+        rest = np.flatnonzero((lo[y0, x0] != own) | (hi[y0, x0] != own))
+        if len(rest):
+            y0r, x0r, own_r = y0[rest], x0[rest], own[rest]
+            ni = n[idx[rest]]
+            d0 = np.einsum("ij,ij->i", ni, X[idx[rest]])
+            ok = np.ones(len(rest), bool)
+            for dy in range(-r, 2 + r):
+                yy = np.clip(y0r + dy, 0, h - 1)
+                for dx in range(-r, 2 + r):
+                    xx = np.clip(x0r + dx, 0, w - 1)
+                    pf = surface.face[yy, xx]
+                    k = np.flatnonzero((plane_img[yy, xx] != own_r) & ok)
+                    if not len(k):
+                        continue
+                    p = surface.points_at(yy[k], xx[k])
+                    off = np.abs(np.einsum("ij,ij->i", ni[k], p) - d0[k])
+                    agree = np.einsum("ij,ij->i", ni[k], normals[np.maximum(pf[k], 0)]) >= cmin
+                    ok[k] &= np.isfinite(off) & (off <= cfg.surface_tol_m) & (pf[k] >= 0) & agree
+            clean[rest] = ok
         usable[idx] = clean
     return usable, xy, cos_t, dist, occluded, in_view
 
@@ -997,7 +1056,8 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     atlas = build_atlas(V, F, ts, max_texture_px=cfg.max_texture_px, padding=cfg.padding_texels)
     texels = rasterize_atlas(atlas, V, F)
     inter = _intersector(V, F)
-    surfaces = [pixel_surfaces(inter, V, F, v) for v in views]
+    planes = plane_ids(V, F)
+    surfaces = [pixel_surfaces(inter, V, F, v, planes) for v in views]
     K = len(views)
     levelling = cfg.levelling is Levelling.OFFSETS
     # levelling needs every usable view's value: kept for a seeded sample of texels only (2 per wanted pair)
