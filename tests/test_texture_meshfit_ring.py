@@ -73,7 +73,7 @@ def test_poses_fitted_to_the_mesh_texture_the_ring_within_the_targets(tmp_path):
         return float(np.sqrt(np.mean(np.square(a))))
 
     r0, r1 = rot_rms(views), rot_rms(fitted)
-    assert r1 < 0.85 * r0  # measured 0.78 -> 0.56 deg RMS (the common 0.5 deg about world Y -> 0.2)
+    assert r1 < 0.85 * r0  # measured 0.78 -> 0.59 deg RMS (the common 0.5 deg about world Y -> 0.2)
     ref, _ = _texels(sc, true_views, [p.center for _, p in sc.stations])
     vis = ref.face_visible
     res0, e0 = _texels(sc, views, true_c)
