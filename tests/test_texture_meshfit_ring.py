@@ -87,3 +87,16 @@ def test_poses_fitted_to_the_mesh_texture_the_ring_within_the_targets(tmp_path):
     # visible faces (from the 48 true stations) textured: measured 97.4 % -> 97.7 % (98.4 % with the true poses)
     assert np.mean(res1.faces_textured[vis]) >= np.mean(res0.faces_textured[vis]) - 0.002
     assert np.mean(res1.faces_textured[vis]) > 0.97
+    # the texture verb does the same by default: its texture.json says so, cameras_fitted.json holds the same poses
+    # (to rounding, 1.5e-10: the verb lists the images in the order of cameras.json, not of the stations)
+    import trimesh
+
+    mesh = tmp_path / "building.ply"
+    trimesh.Trimesh(sc.vertices, sc.faces, process=False).export(mesh)
+    assert main(["texture", str(out), "--mesh", str(mesh), "-o", str(tmp_path / "tex")]) == 0
+    tj = json.loads((tmp_path / "tex" / "texture.json").read_text())
+    assert tj["pose_fit"]["applied"] and tj["pose_fit"]["points_on_surface"] == record["points_on_surface"]
+    fit_cams = {c["name"]: c for c in json.loads((tmp_path / "tex" / "cameras_fitted.json").read_text())["images"]}
+    for v in fitted:
+        np.testing.assert_allclose(np.array(fit_cams[v.name]["cam_from_world"]["R"]), v.pose.R, rtol=0, atol=1e-8)
+    assert OrientedCameras.load(tmp_path / "tex" / "cameras_fitted.json").read_frame(views[0].name).shape == (240, 320)
