@@ -45,9 +45,8 @@ def main(argv=None) -> int:
     from thermogrammetry.pipeline.project import FolderProject
     from thermogrammetry.pipeline.texture import fit_views_to_mesh, run_texture
     from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
-    from thermogrammetry.synthetic.building import (GROUPS, BuildingConfig, apparent_temperature, discontinuity_distance,
-                                                    make_building, render_building_thermal, write_building_survey,
-                                                    write_building_user_files)
+    from thermogrammetry.synthetic.building import (BuildingConfig, clean_wall_texel_errors, make_building,
+                                                    render_building_thermal, write_building_survey, write_building_user_files)
 
     kw = dict(facade_detail=True, n_stations=args.stations, seed=args.seed)
     if args.seed == 3:
@@ -84,17 +83,7 @@ def main(argv=None) -> int:
 
         def evaluate(vs, centres):
             res = texture_mesh(sc.vertices, sc.faces, vs, TextureConfig(texel_size_m=0.04, clean_radius_px=3))
-            sel, tx = res.texel_selection, res.texels
-            ok = sel.source >= 0
-            P, F = tx.points[ok], tx.face[ok]
-            C = np.array(centres)[sel.source[ok]]
-            err = np.abs(sel.temperature_k[ok] - apparent_temperature(sc, P, F, C))
-            v = C - P
-            dist = np.linalg.norm(v, axis=1)
-            cos_t = np.abs(np.einsum("ij,ij->i", sc.face_normals[F], v / dist[:, None]))
-            foot = dist / sc.thermal.K[0, 0] / np.maximum(cos_t, 0.2)
-            clean = (discontinuity_distance(sc, P, sc.face_group[F]) > 2.0 * foot) & (sc.face_group[F] == GROUPS.index("wall"))
-            return res, err[clean]
+            return res, clean_wall_texel_errors(sc, res, centres)
 
         def rot(vs):
             a = np.array([np.degrees(np.arccos(np.clip((np.trace(v.pose.R @ truth[v.name].R.T) - 1) / 2, -1, 1))) for v in vs])

@@ -27,9 +27,8 @@ import pytest
 
 from thermogrammetry.geometry import Pose
 from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
-from thermogrammetry.synthetic.building import (GROUPS, BuildingConfig, apparent_temperature, discontinuity_distance,
-                                                make_building, render_building_thermal, write_building_survey,
-                                                write_building_user_files)
+from thermogrammetry.synthetic.building import (BuildingConfig, clean_wall_texel_errors, make_building,
+                                                render_building_thermal, write_building_survey, write_building_user_files)
 
 N_STATIONS = 64
 
@@ -82,17 +81,7 @@ def test_texture_from_survey_poses(ring):
         views.append(TextureView(name, sc.thermal, Pose(np.array(c["cam_from_world"]["R"]), np.array(c["cam_from_world"]["t"])), img))
         true_c.append(pose.center)
     res = texture_mesh(sc.vertices, sc.faces, views, TextureConfig(texel_size_m=0.04, clean_radius_px=3))
-    sel, tx = res.texel_selection, res.texels
-    ok = sel.source >= 0
-    P, F = tx.points[ok], tx.face[ok]
-    C = np.array(true_c)[sel.source[ok]]
-    err = np.abs(sel.temperature_k[ok] - apparent_temperature(sc, P, F, C))
-    v = C - P
-    dist = np.linalg.norm(v, axis=1)
-    cos_t = np.abs(np.einsum("ij,ij->i", sc.face_normals[F], v / dist[:, None]))
-    foot = dist / sc.thermal.K[0, 0] / np.maximum(cos_t, 0.2)
-    clean = (discontinuity_distance(sc, P, sc.face_group[F]) > 2.0 * foot) & (sc.face_group[F] == GROUPS.index("wall"))
-    e = err[clean]
+    e = clean_wall_texel_errors(sc, res, true_c)
     assert len(e) > 100_000
     assert np.median(e) < 0.03  # measured 0.017 K
     assert np.percentile(e, 99) < 0.2  # measured 0.12 K

@@ -57,7 +57,8 @@ from .sensor import SensorEffects, apply_sensor_effects
 from .._validate import config_keys
 
 __all__ = ["BuildingConfig", "BuildingScene", "make_building", "render_building_thermal", "apparent_temperature",
-           "write_building_survey", "write_building_user_files", "surface_temperature", "discontinuity_distance"]
+           "write_building_survey", "write_building_user_files", "surface_temperature", "discontinuity_distance",
+           "clean_wall_texel_errors"]
 
 GROUPS = ("wall", "roof", "ground", "occluder")
 
@@ -313,6 +314,30 @@ def discontinuity_distance(scene: BuildingScene, points, group) -> np.ndarray:
             best = np.minimum(best, np.where(outside > 0, outside, np.maximum(inside_d, 0.0)))
     out[wall] = best
     return out
+
+
+def clean_wall_texel_errors(scene: BuildingScene, result, view_centers) -> np.ndarray:
+    """|texel - truth| (K) of the textured wall texels of a texture of this scene that lie at least two pixel
+    footprints from a temperature edge (window, frame, door: :func:`discontinuity_distance`).
+
+    Parameters
+    ----------
+    scene : BuildingScene
+    result : thermogrammetry.products.texture.TextureResult
+    view_centers : (K, 3) array, the TRUE centre of each of the texture's views (the truth is the apparent
+        temperature seen from there: :func:`apparent_temperature`; footprints use the scene's camera)
+    """
+    sel, tx = result.texel_selection, result.texels
+    ok = sel.source >= 0
+    P, F = tx.points[ok], tx.face[ok]
+    C = np.asarray(view_centers, float)[sel.source[ok]]
+    err = np.abs(sel.temperature_k[ok] - apparent_temperature(scene, P, F, C))
+    v = C - P
+    dist = np.linalg.norm(v, axis=1)
+    cos_t = np.abs(np.einsum("ij,ij->i", scene.face_normals[F], v / dist[:, None]))
+    foot = dist / scene.thermal.K[0, 0] / np.maximum(cos_t, 0.2)
+    clean = (discontinuity_distance(scene, P, scene.face_group[F]) > 2.0 * foot) & (scene.face_group[F] == GROUPS.index("wall"))
+    return err[clean]
 
 
 def _ring_point(u, L, D, H, r):
