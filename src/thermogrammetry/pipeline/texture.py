@@ -413,7 +413,8 @@ def survey_tie_points(survey_dir, cameras, names):
     from ..io.colmap import read_colmap_images, read_colmap_points3d
     from ..sfm.meshfit import TiePoints
 
-    folder = Path(survey_dir) / "colmap"
+    base = Path(survey_dir)
+    folder = (base.parent if base.is_file() else base) / "colmap"  # SURVEY_DIR may name its cameras.json
     if not (folder / "images.txt").is_file() or not (folder / "points3D.txt").is_file():
         return None, f"{folder}: no COLMAP export with the survey's tie points (images.txt, points3D.txt)"
     ims = read_colmap_images(folder / "images.txt")
@@ -471,7 +472,8 @@ def fit_views_to_mesh(survey_dir, cameras, views, V, F, *, tie_sigma_px: float |
 def _survey_tie_sigma(survey_dir) -> float | None:
     """The survey's tie-point reprojection RMS (``survey.json``), or None."""
     try:
-        v = json.loads((Path(survey_dir) / "survey.json").read_text(encoding="utf-8")).get("reprojection_rms_px")
+        base = Path(survey_dir)
+        v = json.loads(((base.parent if base.is_file() else base) / "survey.json").read_text(encoding="utf-8")).get("reprojection_rms_px")
         return float(v) if v is not None and np.isfinite(float(v)) and float(v) > 0 else None
     except (OSError, ValueError, TypeError):
         return None
