@@ -78,7 +78,7 @@ def main(argv=None) -> int:
                 true_c.append(pose.center)
         sigma = json.loads((out / "survey.json").read_text())["reprojection_rms_px"]
         t0 = time.perf_counter()
-        fitted, record = fit_views_to_mesh(out, cameras, views, sc.vertices, sc.faces, tie_sigma_px=sigma)
+        fitted, record = fit_views_to_mesh(cameras, views, sc.vertices, sc.faces, tie_sigma_px=sigma)
         t_fit = time.perf_counter() - t0
 
         def evaluate(vs, centres):

@@ -53,10 +53,10 @@ def test_poses_fitted_to_the_mesh_texture_the_ring_within_the_targets(tmp_path):
     # SURVEY_DIR given as its cameras.json: the same tie points (the COLMAP export beside it)
     from thermogrammetry.pipeline.texture import survey_tie_points
 
-    t_dir, _ = survey_tie_points(out, cameras, [v.name for v in views])
-    t_file, why = survey_tie_points(out / "cameras.json", cameras, [v.name for v in views])
+    t_dir, _ = survey_tie_points(out, [v.name for v in views])
+    t_file, why = survey_tie_points(OrientedCameras.load(out / "cameras.json").root, [v.name for v in views])
     assert why is None and len(t_file.obs_xy) == len(t_dir.obs_xy) > 1000
-    fitted, record = fit_views_to_mesh(out, cameras, views, sc.vertices, sc.faces, tie_sigma_px=sigma)
+    fitted, record = fit_views_to_mesh(cameras, views, sc.vertices, sc.faces, tie_sigma_px=sigma)
     assert record["applied"], record["reason"]
     # the tie points come onto the surface (measured median distance 5.4 -> 1.0 cm) without bending the block
     assert record["median_distance_m"]["after"] < 0.4 * record["median_distance_m"]["before"]

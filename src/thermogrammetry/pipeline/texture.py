@@ -404,8 +404,9 @@ def orient_mesh_to_views(V, F, views, cfg):
                 "(the written OBJ/GLB/PLY carry the reversed order)")
 
 
-def survey_tie_points(survey_dir, cameras, names):
-    """The survey's tie points and their observations in ``names`` (its COLMAP export, ``SURVEY_DIR/colmap``).
+def survey_tie_points(survey_dir, names):
+    """The survey's tie points and their observations in ``names`` (its COLMAP export, ``survey_dir/colmap``;
+    ``survey_dir`` is the folder of its cameras.json, :attr:`OrientedCameras.root`).
 
     Returns ``(TiePoints, None)``, or ``(None, reason)`` when the survey folder has no such export (a
     ``cameras.json`` from elsewhere) or it shares no image with ``names``.
@@ -413,8 +414,7 @@ def survey_tie_points(survey_dir, cameras, names):
     from ..io.colmap import read_colmap_images, read_colmap_points3d
     from ..sfm.meshfit import TiePoints
 
-    base = Path(survey_dir)
-    folder = (base.parent if base.is_file() else base) / "colmap"  # SURVEY_DIR may name its cameras.json
+    folder = Path(survey_dir) / "colmap"
     if not (folder / "images.txt").is_file() or not (folder / "points3D.txt").is_file():
         return None, f"{folder}: no COLMAP export with the survey's tie points (images.txt, points3D.txt)"
     ims = read_colmap_images(folder / "images.txt")
@@ -438,8 +438,9 @@ def survey_tie_points(survey_dir, cameras, names):
     return TiePoints(pts.xyz, np.concatenate(op), np.concatenate(oi), np.concatenate(oxy)), None
 
 
-def fit_views_to_mesh(survey_dir, cameras, views, V, F, *, tie_sigma_px: float | None = None):
-    """Refine the views' poses so that the survey's tie points lie on the mesh (:mod:`thermogrammetry.sfm.meshfit`).
+def fit_views_to_mesh(cameras, views, V, F, *, tie_sigma_px: float | None = None):
+    """Refine the views' poses so that the survey's tie points lie on the mesh (:mod:`thermogrammetry.sfm.meshfit`);
+    the tie points are those of the COLMAP export beside ``cameras``' file (:attr:`OrientedCameras.root`).
 
     Returns ``(views, record)``: the views with the fitted poses when the fit was kept (else unchanged), and what
     ``texture.json`` records under ``pose_fit`` (``applied``, ``reason``, the figures).
@@ -450,7 +451,9 @@ def fit_views_to_mesh(survey_dir, cameras, views, V, F, *, tie_sigma_px: float |
     from ..sfm.meshfit import MeshFitOptions, fit_poses_to_mesh
 
     names = [v.name for v in views]
-    ties, why = survey_tie_points(survey_dir, cameras, names)
+    if cameras.root is None:
+        return views, {"applied": False, "reason": "the cameras were not read from a survey folder (no tie points)"}
+    ties, why = survey_tie_points(cameras.root, names)
     if ties is None:
         return views, {"applied": False, "reason": why}
     ims = [cameras.image(n) for n in names]
@@ -470,10 +473,9 @@ def fit_views_to_mesh(survey_dir, cameras, views, V, F, *, tie_sigma_px: float |
 
 
 def _survey_tie_sigma(survey_dir) -> float | None:
-    """The survey's tie-point reprojection RMS (``survey.json``), or None."""
+    """The survey's tie-point reprojection RMS (``survey_dir/survey.json``), or None."""
     try:
-        base = Path(survey_dir)
-        v = json.loads(((base.parent if base.is_file() else base) / "survey.json").read_text(encoding="utf-8")).get("reprojection_rms_px")
+        v = json.loads((Path(survey_dir) / "survey.json").read_text(encoding="utf-8")).get("reprojection_rms_px")
         return float(v) if v is not None and np.isfinite(float(v)) and float(v) > 0 else None
     except (OSError, ValueError, TypeError):
         return None
@@ -531,7 +533,7 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     elif rig_path is not None:
         pose_fit = {"applied": False, "reason": "rig mode: the thermal poses follow the RGB images through the rig"}
     else:
-        views, pose_fit = fit_views_to_mesh(survey_dir, cameras, views, V, F, tie_sigma_px=_survey_tie_sigma(survey_dir))
+        views, pose_fit = fit_views_to_mesh(cameras, views, V, F, tie_sigma_px=_survey_tie_sigma(cameras.root))
     F, winding_note = orient_mesh_to_views(V, F, views, cfg)
     check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs)
     result = texture_mesh(V, F, views, cfg)

@@ -574,8 +574,7 @@ def plane_ids(vertices, faces) -> np.ndarray:
     normals, _, _ = _face_geometry(V, F)
     d = np.einsum("ij,ij->i", normals, V[F[:, 0]])
     key = np.round(np.column_stack([normals, d]), 9)
-    key[~np.all(np.isfinite(key), axis=1)] = np.nan  # degenerate faces: each its own (NaN rows never compare equal)
-    ok = np.all(np.isfinite(key), axis=1)
+    ok = np.all(np.isfinite(key), axis=1)  # degenerate faces (no normal): each an id of its own
     ids = np.arange(len(F), dtype=np.int64) + len(F)
     if ok.any():
         _, inv = np.unique(key[ok], axis=0, return_inverse=True)

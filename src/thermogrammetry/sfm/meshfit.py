@@ -321,10 +321,8 @@ def fit_poses_to_mesh(names, cameras, image_camera, poses, centers_std, ties: Ti
     cam_of = {key: pb.add_camera(cameras[key], fixed=True) for key in keys}
     views = [pb.add_pose(Pose(np.asarray(R), np.asarray(t)), fixed=not bool(fit[i])) for i, (R, t) in enumerate(poses)]
     pid = pb.add_points(P)
-    for i in range(n):
-        o = np.flatnonzero(oi == i)
-        if len(o):
-            pb.add_image_points(cam_of[image_camera[i]], views[i], pid[op[o]], oxy[o], sigma_px=opt.tie_sigma_px)
+    for i, o in _by_image(oi):
+        pb.add_image_points(cam_of[image_camera[i]], views[i], pid[op[o]], oxy[o], sigma_px=opt.tie_sigma_px)
     # the datum: the survey's camera centres with their σ
     extent = float(np.max(np.ptp(C, axis=0))) if n > 1 else 1.0
     std = np.array([np.maximum(np.nan_to_num(np.asarray(s, float), nan=0.01 * extent), opt.min_center_sigma_m)
@@ -373,9 +371,16 @@ def fit_poses_to_mesh(names, cameras, image_camera, poses, centers_std, ties: Ti
 def _reprojection(cameras, image_camera, poses, P, op, oi, oxy) -> np.ndarray:
     """Reprojection residuals (px) of the tie observations with the given poses and points."""
     out = np.zeros((len(op), 2))
-    for i in np.unique(oi):
-        o = np.flatnonzero(oi == i)
+    for i, o in _by_image(oi):
         R, t = poses[i]
         Xc = P[op[o]] @ np.asarray(R).T + np.asarray(t)
         out[o] = cameras[image_camera[i]].project(Xc) - oxy[o]
     return out
+
+
+def _by_image(oi):
+    """``(image, observation indices)`` for each image that has observations, by one stable sort (not a scan of all
+    observations per image)."""
+    order = np.argsort(oi, kind="stable")
+    cuts = np.flatnonzero(np.diff(oi[order])) + 1
+    return [(int(oi[g[0]]), g) for g in np.split(order, cuts) if len(g)]
