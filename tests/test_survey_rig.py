@@ -195,6 +195,10 @@ def test_rig_estimation_refused_without_evidence(block, estimated_two):
     s = json.loads((out / "survey.json").read_text())
     rb = s["rig"]["blocks"][0]
     assert rb["estimated"] is False and "only 2 thermal frame(s)" in rb["refused"]
+    # fewer than 3 co-oriented pairs: the image registration was tried first and refused (10 featureless frames
+    # share no edge with their RGB partners), with its reason
+    reg = s["rig"]["registration"]
+    assert reg["success"] is False and "2 of 12 pair(s) show edges in common" in reg["reason"], reg["reason"]
     st = {im["name"]: im for im in s["images"]}
     assert all(st[f"{k:04d}_rgb"]["oriented"] for k in range(12))
     assert st["0000_ir"]["oriented"] and st["0011_ir"]["oriented"]

@@ -1436,7 +1436,10 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                                plan_rig_blocks, rig_estimate_accepted, rig_estimation_evidence, rig_report, start_rig)
 
         rig_master, nts, rig_unpaired = pair_rig_images(inp.rig, inputs["images"])
-        comps, rig_enabled, nts2 = plan_rig_blocks(rec, inp.rig, rig_master, comps)
+        rig_used, rig_reg, nts_reg = _rig_by_registration(project, rec, inp.rig, rig_master, names, comps,
+                                                          thermal_camera_given=camera is not None)
+        nts += nts_reg
+        comps, rig_enabled, nts2 = plan_rig_blocks(rec, rig_used, rig_master, comps)
         notes += nts + nts2 + [f"rig: {len(rig_master)} RGB/thermal pair(s) from {inp.rig.source}"]
     # intrinsics: a given thermal camera (--camera or the rig's) is held fixed, other sensors self-calibrated
     rgb_cam = getattr(inp.rig, "rgb_camera", None)
@@ -1474,7 +1477,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             continue
         rigv = None
         if ci in rig_enabled:
-            rigv, nts = start_rig(rec, inp.rig, rig_master, images, S.scale if geo else 1.0)
+            rigv, nts = start_rig(rec, rig_used, rig_master, images, S.scale if geo else 1.0)
             notes += [f"block {ci + 1}: {x}" for x in nts]
         gnss_off = None
         if geo:
@@ -1695,7 +1698,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             if not oriented[s_]:
                 rec.status[s_].reason = f"{why}; on its own: {rec.status[s_].reason or 'not oriented'}"
         r_only = sorted(k for k in rig_only if oriented[k])
-        extra["rig"] = {"file": inp.rig.source, "pairs": len(rig_master), "fixed": not inp.rig.estimate,
+        extra["rig"] = {"file": inp.rig.source, "pairs": len(rig_master), "fixed": not rig_used.estimate,
+                        **({"registration": rig_reg} if rig_reg else {}),
                         "thermal_unpaired": [names[k] for k in sorted(rig_unpaired)], "blocks": rig_out,
                         "rig_only": [names[k] for k in r_only],
                         "rig_only_counted": (
@@ -2125,6 +2129,79 @@ def _rig_refuse(rec, snap, rigv, block_images, names, why, ci, S=None) -> np.nda
         rec.R[k] = rec.R[k] @ S.R.T
         rec.t[k] = -np.einsum("nij,nj->ni", rec.R[k], Cn)
     return np.unique(np.concatenate([block_images, np.asarray(keep, np.int64)]))
+
+
+def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: list, comps: list, *,
+                         thermal_camera_given: bool) -> tuple:
+    """R*, t by image registration where the block cannot estimate it from tie points (:mod:`..sfm.rigreg`).
+
+    Runs when the rig file asks for an estimate and fewer than ``RIG_EST_MIN_FRAMES`` thermal images were
+    oriented together with their RGB partners in the largest block that holds RGB partners (low-texture thermal
+    frames: their ties do not reach the RGB block). The pairs of that block are registered on the edges both bands
+    see; an accepted estimate is held fixed in the final adjustment (``RigFile.registered``), and the thermal
+    camera's focal length is scaled by the estimated factor unless the thermal camera was given. A refused
+    estimate changes nothing (the reason is in the notes and in ``survey.json`` ``rig.registration``).
+
+    Returns (rig to use, registration summary or None, notes).
+    """
+    from dataclasses import replace as dc_replace
+
+    from ..geometry.rotations import axis_angle_from_matrix
+    from ..sfm.rig import RIG_EST_MIN_FRAMES, _co_pairs
+    from ..sfm.rigreg import pair_samples, register_rig
+
+    if not rig.estimate or not master:
+        return rig, None, []
+    block = next((c for c in comps if any(m in set(np.asarray(c).tolist()) for m in master.values())), None)
+    if block is None:
+        return rig, None, []
+    co = _co_pairs(rec, master, block)
+    if len(co) >= RIG_EST_MIN_FRAMES:
+        return rig, None, []
+    t0 = time.perf_counter()
+    inb = set(np.asarray(block).tolist())
+    pairs_im = [(s, m) for s, m in sorted(master.items(), key=lambda x: x[1]) if m in inb and rec.registered[m]]
+    if not pairs_im:
+        return rig, None, []
+    tcam_k = int(rec.image_camera[pairs_im[0][0]])
+    tcam = rec.cameras[tcam_k]
+    obs_img, obs_trk = rec.tracks.image, rec.tracks.track
+    has_pt = np.isfinite(rec.points).all(axis=1)
+    samples, why = [], []
+    for s_, m_ in pairs_im:
+        sel = (obs_img == m_) & rec.obs_valid & has_pt[obs_trk]
+        Xc = rec.points[obs_trk[sel]] @ rec.R[m_].T + rec.t[m_]
+        p_, w_ = pair_samples(names[m_], _read_frame(project, names[m_]), _read_frame(project, names[s_]),
+                              rec.cameras[int(rec.image_camera[m_])], tcam, Xc)
+        samples.append(p_)
+        if w_:
+            why.append(w_)
+    reg = register_rig(samples, tcam, R0=rig.R)
+    summary = {**reg.summary(), "seconds": round(time.perf_counter() - t0, 2), "skipped_pairs": why,
+               "ncc": {k: round(v, 4) for k, v in reg.ncc.items()},
+               "pair_offsets_deg": {k: round(v, 3) for k, v in reg.pair_offsets_deg.items()}}
+    head = (f"rig: {len(co)} thermal image(s) oriented with their RGB partners (< {RIG_EST_MIN_FRAMES}): R*, t by "
+            f"image registration of {len(pairs_im)} pair(s)")
+    if not reg.success:
+        return rig, summary, [f"{head} refused: {reg.reason}"]
+    notes = [f"{head}: {len(reg.pairs_used)} pair(s) agree, rotation {np.degrees(np.linalg.norm(axis_angle_from_matrix(reg.R))):.2f} deg "
+             f"(σ {', '.join(f'{x:.3f}' for x in reg.rotation_std_deg)} deg, spread {reg.spread_deg:.2f} deg), "
+             f"thermal focal x {reg.focal_scale:.4f}; held fixed in the adjustment"]
+    if not thermal_camera_given and abs(reg.focal_scale - 1.0) > 1e-9:
+        K = tcam.K
+        rec.cameras[tcam_k] = tcam.with_params(_scaled_focal_params(tcam, reg.focal_scale))
+        notes.append(f"rig: thermal focal length {np.sqrt(K[0, 0] * K[1, 1]):.1f} -> "
+                     f"{np.sqrt(K[0, 0] * K[1, 1]) * reg.focal_scale:.1f} px from the registration")
+    return dc_replace(rig, R=reg.R, t=reg.t, estimate=False, registered=summary), summary, notes
+
+
+def _scaled_focal_params(camera, scale: float) -> np.ndarray:
+    """The camera's parameter vector with its focal length(s) multiplied by ``scale``."""
+    p = np.array(camera.params, float)
+    for k, n in enumerate(camera.param_names):
+        if n in ("fx", "fy", "c_mm"):
+            p[k] *= scale
+    return p
 
 
 def _rig_scale_local(rec, images, rig, master, rigv) -> list:

@@ -104,6 +104,9 @@ class RigFile:
     notes: str = ""
     source: str = "rig.json"
     rgb_camera: object = None
+    #: set when R, t come from :func:`thermogrammetry.sfm.rigreg.register_rig` (its summary): t is then in the
+    #: model units of the orientation (scaled to the CRS with the block's similarity) and R, t are held fixed
+    registered: dict | None = None
 
     @property
     def relative(self):
@@ -508,7 +511,13 @@ def start_rig(rec, rig: RigFile, master: dict, images, scale: float = 1.0) -> tu
     """
     notes = []
     co = _co_pairs(rec, master, images)
-    if rig.R is not None:
+    if rig.registered is not None:
+        r = rig.registered
+        R0, t0 = rig.R.copy(), rig.t.copy() * scale
+        how = (f"image registration of {r['pairs_used']} of {r['pairs']} RGB/thermal pairs (rotation σ "
+               f"{', '.join(f'{x:.3f}' for x in r['rotation_std_deg'])} deg, spread {r['spread_deg']:.2f} deg; "
+               f"t {'from the parallax between pairs' if r['t_determined'] else 'not determined (pairs at one depth), held at 0'})")
+    elif rig.R is not None:
         R0, t0, how = rig.R.copy(), rig.t.copy(), f"{rig.source}"
         if co:
             R1, t1, spread = relative_from_poses(rec.R[[m for _, m in co]], rec.t[[m for _, m in co]], rec.R[[s for s, _ in co]],
