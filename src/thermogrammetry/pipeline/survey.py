@@ -26,9 +26,11 @@ and nulls when none), ``crs``, ``seconds`` and more detail (per image, per step,
 datum, σ0, self-calibration and its steps, ``added_at_gnss``: images added at their GNSS positions; a rejected
 block's ``rejected`` reason and ``moved_to_blocks``: block -> its images that a later pass added there). Rig mode
 (``--rig``) adds ``rig`` (file, pairs, blocks with R*, t, σ, own observations per thermal image, or the reason an
-estimate was refused; ``rig_only``: thermal images posed by the rig alone) and ``images_rig_only``; those images
-count in ``images_oriented`` (R*, t given, or estimated from enough evidence) and carry ``rig_only: true`` and a
-``reason`` in ``images`` (see :mod:`thermogrammetry.sfm.rig`).
+estimate was refused; ``rig_only``: thermal images posed by the rig alone; ``registration``: R*, t and the thermal
+focal scale from image registration when the rig is to be estimated and < 3 thermal frames tie to their RGB
+partners -- success or the reason, σ, spread, NCC and offset per pair, see :mod:`thermogrammetry.sfm.rigreg`) and
+``images_rig_only``; those images count in ``images_oriented`` (R*, t given, estimated from enough evidence, or
+registered) and carry ``rig_only: true`` and a ``reason`` in ``images`` (see :mod:`thermogrammetry.sfm.rig`).
 
 Tie-point coordinates follow the pixel-centre convention (:mod:`thermogrammetry.sfm.keypoints`: OpenCV's SIFT
 offset of +0.25 px removed).
@@ -1431,16 +1433,6 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     fa_all = []
     rig_master, rig_enabled, rig_out, tie_out = {}, {}, [], []
     rig_only: dict[int, str] = {}  # oriented rig views without observations of their own -> reason
-    if inp.rig is not None:
-        from ..sfm.rig import (RIG_MIN_OWN_OBSERVATIONS, attach_rig_images, own_observations, pair_rig_images,
-                               plan_rig_blocks, rig_estimate_accepted, rig_estimation_evidence, rig_report, start_rig)
-
-        rig_master, nts, rig_unpaired = pair_rig_images(inp.rig, inputs["images"])
-        rig_used, rig_reg, nts_reg = _rig_by_registration(project, rec, inp.rig, rig_master, names, comps,
-                                                          thermal_camera_given=camera is not None)
-        nts += nts_reg
-        comps, rig_enabled, nts2 = plan_rig_blocks(rec, rig_used, rig_master, comps)
-        notes += nts + nts2 + [f"rig: {len(rig_master)} RGB/thermal pair(s) from {inp.rig.source}"]
     # intrinsics: a given thermal camera (--camera or the rig's) is held fixed, other sensors self-calibrated
     rgb_cam = getattr(inp.rig, "rgb_camera", None)
     self_cal = opt.self_calibrate if camera is None and rgb_cam is None else {
@@ -1452,6 +1444,18 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     focal_known = {k: _focal_from_exif(inputs, rec, k) for k in range(len(meta["camera_ids"]))}
     self_cal, lt_note = _low_texture_self_calibration(project, meta["camera_ids"], self_cal, focal_known)
     notes += [lt_note] if lt_note else []
+    if inp.rig is not None:
+        from ..sfm.rig import (RIG_MIN_OWN_OBSERVATIONS, attach_rig_images, own_observations, pair_rig_images,
+                               plan_rig_blocks, rig_estimate_accepted, rig_estimation_evidence, rig_report, start_rig)
+
+        rig_master, nts, rig_unpaired = pair_rig_images(inp.rig, inputs["images"])
+        rig_used, rig_reg, nts_reg, self_cal = _rig_by_registration(
+            project, rec, inp.rig, rig_master, names, comps, thermal_camera_given=camera is not None, xy=xy, ctrl=ctrl,
+            self_cal=self_cal, adjust_kw=dict(focal_known=focal_known, tie_sigma_px=opt.tie_sigma_px,
+                                              max_error_px=opt.reconstruction.max_error_px))
+        nts += nts_reg
+        comps, rig_enabled, nts2 = plan_rig_blocks(rec, rig_used, rig_master, comps)
+        notes += nts + nts2 + [f"rig: {len(rig_master)} RGB/thermal pair(s) from {inp.rig.source}"]
     lt_seq = _low_texture_sequence_used(project)
     lt_verdict = project.read_json("work/low_texture.json") if project.exists("work/low_texture.json") else {}
     if lt_verdict.get("why"):
@@ -1704,8 +1708,9 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                         "rig_only": [names[k] for k in r_only],
                         "rig_only_counted": (
                             "thermal images posed only through the rig (no or too few observations of their own) are "
-                            "counted in images_oriented: R*, t is given by the rig file (calibrated) or was estimated in "
-                            "their block from >= 3 spread thermal frames with a converged adjustment and finite σ; "
+                            "counted in images_oriented: R*, t is given by the rig file (calibrated), was estimated in "
+                            "their block from >= 3 spread thermal frames with a converged adjustment and finite σ, or "
+                            "was registered on the edges of >= 3 agreeing RGB/thermal pairs (rig.registration); "
                             "when that evidence is missing R*, t is not estimated and they are not oriented")}
         extra["images_rig_only"] = len(r_only)
     if t_ids:
@@ -2132,17 +2137,23 @@ def _rig_refuse(rec, snap, rigv, block_images, names, why, ci, S=None) -> np.nda
 
 
 def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: list, comps: list, *,
-                         thermal_camera_given: bool) -> tuple:
+                         thermal_camera_given: bool, xy, ctrl, self_cal, adjust_kw: dict) -> tuple:
     """R*, t by image registration where the block cannot estimate it from tie points (:mod:`..sfm.rigreg`).
 
     Runs when the rig file asks for an estimate and fewer than ``RIG_EST_MIN_FRAMES`` thermal images were
     oriented together with their RGB partners in the largest block that holds RGB partners (low-texture thermal
-    frames: their ties do not reach the RGB block). The pairs of that block are registered on the edges both bands
-    see; an accepted estimate is held fixed in the final adjustment (``RigFile.registered``), and the thermal
-    camera's focal length is scaled by the estimated factor unless the thermal camera was given. A refused
-    estimate changes nothing (the reason is in the notes and in ``survey.json`` ``rig.registration``).
+    frames: their ties do not reach the RGB block). The RGB images of that block are first adjusted on their own
+    (self-calibrating, in the model frame: the registration measures the thermal camera against the RGB camera's
+    rays, so these must be close to the final ones -- with the orientation's RGB focal length the thermal one came
+    out 2.5 % off on the frescoes); the pairs are sampled in that state, ``rec`` is put back as the orientation left
+    it (the final adjustment starts from there with its datum: a 12-frame nadir block adjusted without datum first
+    then failed its final adjustment), and the pairs are registered on the edges both bands see. An accepted estimate is held
+    fixed in the final adjustment (``RigFile.registered``), and so is the thermal camera, its focal length scaled by
+    the estimated factor unless it was given (a few thermal ties of their own must not self-calibrate it: k1 = -1.4
+    from 58 observations on the frescoes). A refused estimate changes nothing but the RGB pre-adjustment (the reason
+    is in the notes and in ``survey.json`` ``rig.registration``).
 
-    Returns (rig to use, registration summary or None, notes).
+    Returns (rig to use, registration summary or None, notes, self-calibration to use).
     """
     from dataclasses import replace as dc_replace
 
@@ -2151,18 +2162,31 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
     from ..sfm.rigreg import pair_samples, register_rig
 
     if not rig.estimate or not master:
-        return rig, None, []
+        return rig, None, [], self_cal
     block = next((c for c in comps if any(m in set(np.asarray(c).tolist()) for m in master.values())), None)
     if block is None:
-        return rig, None, []
+        return rig, None, [], self_cal
     co = _co_pairs(rec, master, block)
     if len(co) >= RIG_EST_MIN_FRAMES:
-        return rig, None, []
+        return rig, None, [], self_cal
     t0 = time.perf_counter()
     inb = set(np.asarray(block).tolist())
     pairs_im = [(s, m) for s, m in sorted(master.items(), key=lambda x: x[1]) if m in inb and rec.registered[m]]
     if not pairs_im:
-        return rig, None, []
+        return rig, None, [], self_cal
+    rgb_block = np.array([i for i in np.asarray(block).tolist() if i not in master], np.int64)
+    snap = _rig_snapshot(rec)
+    fa0, _, steps0 = _adjust_block(rec, xy, rgb_block, ctrl, self_cal, georeferenced=False, compute_covariance=False,
+                                   **adjust_kw)
+    pre = [f"rig: the {len(rgb_block)} RGB image(s) adjusted on their own before the registration "
+           f"({fa0.result.termination.value}, σ0 {float(fa0.result.sigma0):.2f})"] + [f"rig: {x}" for x in steps0]
+    release_free_heap()
+    if fa0.result.termination.value != "converged" or not (float(fa0.result.sigma0) < 3.0):
+        # (a 12-frame nadir block without datum: stopped at its iteration limit with σ0 518) sampled in the
+        # orientation's state instead
+        _restore(rec, snap)
+        pre.append("rig: the registration samples the orientation's state instead (that adjustment did not converge "
+                   "to a σ0 below 3)")
     tcam_k = int(rec.image_camera[pairs_im[0][0]])
     tcam = rec.cameras[tcam_k]
     obs_img, obs_trk = rec.tracks.image, rec.tracks.track
@@ -2176,6 +2200,9 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
         samples.append(p_)
         if w_:
             why.append(w_)
+    # the block goes back to the orientation's state (the final adjustment starts from it, with its datum)
+    _restore(rec, snap)
+    del snap
     reg = register_rig(samples, tcam, R0=rig.R)
     summary = {**reg.summary(), "seconds": round(time.perf_counter() - t0, 2), "skipped_pairs": why,
                "ncc": {k: round(v, 4) for k, v in reg.ncc.items()},
@@ -2183,16 +2210,19 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
     head = (f"rig: {len(co)} thermal image(s) oriented with their RGB partners (< {RIG_EST_MIN_FRAMES}): R*, t by "
             f"image registration of {len(pairs_im)} pair(s)")
     if not reg.success:
-        return rig, summary, [f"{head} refused: {reg.reason}"]
-    notes = [f"{head}: {len(reg.pairs_used)} pair(s) agree, rotation {np.degrees(np.linalg.norm(axis_angle_from_matrix(reg.R))):.2f} deg "
+        return rig, summary, pre + [f"{head} refused: {reg.reason}"], self_cal
+    notes = pre + [f"{head}: {len(reg.pairs_used)} pair(s) agree, rotation {np.degrees(np.linalg.norm(axis_angle_from_matrix(reg.R))):.2f} deg "
              f"(σ {', '.join(f'{x:.3f}' for x in reg.rotation_std_deg)} deg, spread {reg.spread_deg:.2f} deg), "
              f"thermal focal x {reg.focal_scale:.4f}; held fixed in the adjustment"]
     if not thermal_camera_given and abs(reg.focal_scale - 1.0) > 1e-9:
         K = tcam.K
         rec.cameras[tcam_k] = tcam.with_params(_scaled_focal_params(tcam, reg.focal_scale))
         notes.append(f"rig: thermal focal length {np.sqrt(K[0, 0] * K[1, 1]):.1f} -> "
-                     f"{np.sqrt(K[0, 0] * K[1, 1]) * reg.focal_scale:.1f} px from the registration")
-    return dc_replace(rig, R=reg.R, t=reg.t, estimate=False, registered=summary), summary, notes
+                     f"{np.sqrt(K[0, 0] * K[1, 1]) * reg.focal_scale:.1f} px from the registration, held fixed")
+    n_cams = len(rec.cameras)
+    self_cal = {k: (() if k == tcam_k else (self_cal.get(k, ()) if isinstance(self_cal, dict) else self_cal))
+                for k in range(n_cams)}
+    return dc_replace(rig, R=reg.R, t=reg.t, estimate=False, registered=summary), summary, notes, self_cal
 
 
 def _scaled_focal_params(camera, scale: float) -> np.ndarray:

@@ -25,7 +25,11 @@ R*, t is estimated in a block only with :func:`rig_estimation_evidence`: at leas
 thermal frames with ``RIG_EST_MIN_OBSERVATIONS`` observations each whose partners span at least
 ``RIG_EST_MIN_SPREAD`` of the block, and after the adjustment a converged solve with finite σ of all six
 rig parameters; otherwise the estimate is refused with the reason and the thermal frames without an
-orientation of their own stay unoriented (a guessed R*, t is not an orientation).
+orientation of their own stay unoriented (a guessed R*, t is not an orientation). Where fewer than
+``RIG_EST_MIN_FRAMES`` thermal frames tie to their partners at all (low-texture thermal frames), the survey first
+tries :mod:`thermogrammetry.sfm.rigreg`: R*, t from registering the edges both bands see over all pairs, accepted
+with its own evidence (>= 3 agreeing pairs, per-pair rotations within 0.5°) and then held fixed
+(``RigFile.registered``).
 
 The rig file (one schema, shared with the ``texture`` verb)::
 

@@ -160,13 +160,14 @@ class RigRegistration(HasOutcome):
     pairs_used: list = field(default_factory=list)
     t_determined: bool = False
     evaluations: int = 0
+    n_pairs: int = 0
 
     def summary(self) -> dict:
         """JSON-ready figures."""
         return {"success": bool(self.success), "reason": self.reason, "R": np.asarray(self.R).tolist(),
                 "t": np.asarray(self.t).tolist(), "focal_scale": float(self.focal_scale),
                 "rotation_std_deg": [float(x) for x in self.rotation_std_deg], "spread_deg": float(self.spread_deg),
-                "pairs_used": len(self.pairs_used), "pairs": len(self.ncc), "t_determined": bool(self.t_determined),
+                "pairs_used": len(self.pairs_used), "pairs": int(self.n_pairs), "t_determined": bool(self.t_determined),
                 "ncc_median": float(np.median(list(self.ncc.values()))) if self.ncc else None,
                 "evaluations": int(self.evaluations)}
 
@@ -285,7 +286,7 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 class _Objective:
     """Mean NCC over the pairs for a parameter vector (rotation vector deg, t / depth, log focal scale)."""
 
-    def __init__(self, pairs, thermal_camera, blur, depth_ref):
+    def __init__(self, pairs, thermal_camera, blur, depth_ref, stride: int = 1):
         self.pairs = pairs
         self.cam = thermal_camera
         self.blur = float(blur)
@@ -294,18 +295,18 @@ class _Objective:
         self.c = np.array([K[0, 2], K[1, 2]])
         w, h = thermal_camera.image_size
         self.w, self.h = int(w), int(h)
-        self.X = np.concatenate([p.points_cam for p in pairs])
-        self.g = np.concatenate([p.rgb_structure[self.blur] for p in pairs]).astype(np.float64)
-        self.pid = np.concatenate([np.full(len(p.points_cam), k) for k, p in enumerate(pairs)])
+        self.X = np.concatenate([p.points_cam[::stride] for p in pairs])
+        self.g = np.concatenate([p.rgb_structure[self.blur][::stride] for p in pairs]).astype(np.float64)
+        self.pid = np.concatenate([np.full(len(p.points_cam[::stride]), k) for k, p in enumerate(pairs)])
         self.stack = np.concatenate([p.thermal_structure[self.blur] for p in pairs]).astype(np.float32)
         self.n = np.bincount(self.pid, minlength=len(pairs)).astype(float)
         self.evaluations = 0
 
-    def per_pair(self, p, which=None) -> np.ndarray:
+    def per_pair(self, p) -> np.ndarray:
         self.evaluations += 1
         R = matrix_from_axis_angle(np.deg2rad(p[:3]))
         t = np.asarray(p[3:6]) * self.depth_ref
-        X, g, pid = (self.X, self.g, self.pid) if which is None else (self.X[which], self.g[which], self.pid[which])
+        X, g, pid = self.X, self.g, self.pid
         Xt = X @ R.T + t
         front = Xt[:, 2] > 1e-9
         uv = np.full((len(X), 2), -1e9)
@@ -324,8 +325,7 @@ class _Objective:
             va, vb = saa - sa * sa / cnt, sbb - sb * sb / cnt
             ncc = cov / np.sqrt(va * vb)
         # a pair that sees too little of the thermal frame (< 20 % of its samples) scores nothing
-        n_ref = self.n if which is None else np.bincount(pid, minlength=m).astype(float)
-        ncc[~np.isfinite(ncc) | (cnt < 0.2 * np.maximum(n_ref, 1))] = 0.0
+        ncc[~np.isfinite(ncc) | (cnt < 0.2 * np.maximum(self.n, 1))] = 0.0
         return ncc
 
     def __call__(self, p) -> float:
@@ -370,6 +370,14 @@ def register_rig(pairs: list, thermal_camera, *, R0=None, t0=None,
     -------
     RigRegistration
     """
+    usable = [p for p in pairs if p is not None]
+    out = _register_rig(usable, thermal_camera, R0=R0, t0=t0, options=options)
+    out.n_pairs = len(usable)
+    return out
+
+
+def _register_rig(pairs: list, thermal_camera, *, R0=None, t0=None,
+                  options: RigRegistrationOptions | None = None) -> RigRegistration:
     opt = options or RigRegistrationOptions()
     pairs = [p for p in pairs if p is not None]
     R0 = np.eye(3) if R0 is None else np.asarray(R0, float)
@@ -386,9 +394,7 @@ def register_rig(pairs: list, thermal_camera, *, R0=None, t0=None,
     blurs = [float(b) for b in opt.blur_px]
     evals = 0
     # 1. pan/tilt grid at the coarsest blur (rotation about the camera's y and x axes), every 4th sample
-    coarse = _Objective(pairs, thermal_camera, blurs[0], depth_ref)
-    sub = np.zeros(len(coarse.X), bool)
-    sub[::4] = True
+    coarse = _Objective(pairs, thermal_camera, blurs[0], depth_ref, stride=4)
     steps = np.arange(-opt.grid_deg, opt.grid_deg + 1e-9, opt.grid_step_deg)
     best, best_x = -np.inf, x0
     for dy in steps:
@@ -396,7 +402,7 @@ def register_rig(pairs: list, thermal_camera, *, R0=None, t0=None,
             x = x0.copy()
             x[0] += dx
             x[1] += dy
-            s = float(np.mean(coarse.per_pair(x, sub)))
+            s = float(np.mean(coarse.per_pair(x)))
             if s > best:
                 best, best_x = s, x
     evals += coarse.evaluations
@@ -424,9 +430,9 @@ def register_rig(pairs: list, thermal_camera, *, R0=None, t0=None,
     offsets = {}
     rvecs = []
     for k in good:
-        sel = fine.pid == k
-        xk, _ = _nelder_mead(lambda y, sel=sel, k=k: -float(fine.per_pair(y, sel)[k]), x, step,
-                             [True] * 3 + [False] * 4, max_iter=200)
+        one = _Objective([pairs[k]], thermal_camera, blurs[-1], depth_ref)
+        xk, _ = _nelder_mead(one, x, step, [True] * 3 + [False] * 4, max_iter=200)
+        evals += one.evaluations
         Rk = matrix_from_axis_angle(np.deg2rad(xk[:3]))
         d = axis_angle_from_matrix(Rk @ matrix_from_axis_angle(np.deg2rad(x[:3])).T)
         rvecs.append(np.degrees(d))
