@@ -16,7 +16,10 @@ Checks, per thermal run:
   pair lands within a few px (R* and the rig base leave ~2-5 px); a pair matched on the wrong structure sits
   at 20-150 px (shuffled matches: ~140 px);
 - oriented thermal frames: angle between the thermal and RGB relative rotations of every pair of frames in
-  one block (R* cancels to first order).
+  one block (R* cancels to first order);
+- the RGB + thermal rig run (``--rgb VisJPG --rig rig.json`` with ``estimate: true``): thermal frames oriented through
+  R*, t registered on the edges both bands see (``sfm.rigreg``), the registration's figures, and the RMS of the
+  thermal frames' own tie points under it.
 
 pycolmap (SIFT, exhaustive matching, incremental mapping on the CPU) gets the same thermal frames as 8-bit
 PNGs stretched per frame between the 0.5 and 99.5 percentiles (what a user would feed it; COLMAP reduces
@@ -279,6 +282,35 @@ def synthetic(args) -> int:
             shutil.rmtree(work, ignore_errors=True)
 
 
+def _rig_rows(rig: dict, ref: dict) -> None:
+    """The RGB + thermal rig run (``--rgb VisJPG --rig rig.json``, ``estimate: true``): R*, t by image registration."""
+    label = "RGB + thermal rig, R* registered"
+    if "error" in rig:
+        print(f"{label:<38} FAILED: {rig['error'][:200]}")
+        return
+    sv = rig["survey"]
+    th = [im for im in sv["images"] if im.get("sensor") == "thermal"]
+    n_th = sum(bool(im["oriented"]) for im in th)
+    print(f"{label:<38}{n_th:>6}/{len(th):<2}{str(sv['components']):>14}{'':>10}{'':>11}{'':>17}{rig['code']:>6}"
+          f"{rig['wall']:>8.0f}")
+    reg = sv.get("rig", {}).get("registration")
+    if not reg:
+        print("    (no registration: the rig was estimated from tie points or not at all)")
+        return
+    if not reg["success"]:
+        print(f"    registration refused: {reg['reason']}")
+        return
+    ang = float(np.degrees(np.arccos(np.clip((np.trace(np.array(reg["R"])) - 1) / 2, -1, 1))))
+    print(f"    registration: {reg['pairs_used']}/{reg['pairs']} pairs agree, R* {ang:.2f} deg, σ "
+          f"{', '.join(f'{x:.3f}' for x in reg['rotation_std_deg'])} deg, spread {reg['spread_deg']:.2f} deg, "
+          f"t {np.round(reg['t'], 3).tolist()} (model units), thermal focal x {reg['focal_scale']:.4f}, "
+          f"median NCC {reg['ncc_median']:.3f}, {reg['seconds']:.0f} s")
+    own = [(im["name"], im["tie_points"], im["rms_px"]) for im in th if im.get("tie_points")]
+    if own:
+        print("    thermal frames with tie points of their own under the registered rig (RMS px): "
+              + ", ".join(f"{n[:12]} {k} pts {r:.2f}" for n, k, r in own))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", default=None)
@@ -319,6 +351,10 @@ def main(argv=None) -> int:
                 rows.append((f"thermogrammetry, --low-texture {mode}", None, run))
                 continue
             rows.append((f"thermogrammetry, --low-texture {mode}", evaluate(run, ref), run))
+        rig_json = work / "rig.json"
+        rig_json.write_text(json.dumps({"format": "thermogrammetry/rig", "estimate": True,
+                                        "pairing": {"rgb_suffix": "-visible", "thermal_suffix": "-radiometric"}}))
+        rig = _survey(base / "RadTIFF", work / "rig", "--rgb", str(base / "VisJPG"), "--rig", str(rig_json))
         col = None if args.no_colmap else _colmap(base / "RadTIFF")
         s = rgb["survey"]
         n = 40
@@ -346,6 +382,7 @@ def main(argv=None) -> int:
             else:
                 print(f"{'pycolmap CPU (8-bit PNG)':<38}{col['registered']:>6}/{n:<2}{str(col['models']) + ' model(s)':>14}"
                       f"{'':>10}{'':>11}{'':>17}{'':>6}{col['wall']:>8.0f}")
+        _rig_rows(rig, ref)
         print("\nverified = thermal pairs that passed our geometric verification; consistent = their median epipolar "
               "distance under the RGB motion < 5 px;\nrot err = angle between thermal and RGB relative rotations of "
               "the oriented thermal frames (same block).")

@@ -271,3 +271,29 @@ def test_low_texture_fallback_leaves_the_rgb_images_alone(block, fixed_blank):
     s = json.loads((out / "survey.json").read_text())
     assert s["images_oriented"] == 24 and s["components"] == [24]
     assert 9 / 12 < sv.LOW_TEXTURE_SHARE  # the premise: the fallback was triggered
+
+
+def test_rig_registered_when_the_thermal_frames_do_not_tie(block, monkeypatch):
+    """The registration path of the survey (sfm.rigreg), forced on this block by requiring more co-oriented thermal
+    frames than it has (on real low-texture frames -- the frescoes -- fewer than 3 tie at all). R*, t start from
+    nothing (identity, 0); the block is flown at one height, so t is not determined and stays 0 (the true base is
+    0.10 m): R* absorbs that parallax, 0.11-0.12 deg in tests/test_rigreg.py. Bounds: R* within 0.2 deg of the
+    truth; every thermal frame's rotation within 0.25 deg (R* error plus the RGB pose's σ ~0.03 deg) and its centre
+    within 0.2 m (the unestimated 0.10 m base plus the GNSS datum)."""
+    monkeypatch.setattr("thermogrammetry.sfm.rig.RIG_EST_MIN_FRAMES", 100)
+    rig = write_rig_json(block["root"] / "rig_reg.json", estimate=True, extra=_cams(block))
+    code, out = _run(block, "out_reg", rig)
+    assert code == 0
+    s = json.loads((out / "survey.json").read_text())
+    reg = s["rig"]["registration"]
+    assert reg["success"] is True, reg["reason"]
+    assert reg["pairs_used"] == 12 and reg["t_determined"] is False and reg["focal_scale"] == 1.0  # camera given
+    R = np.array(reg["R"])
+    err = np.degrees(np.linalg.norm(axis_angle_from_matrix(R @ block["rig"].R.T)))
+    assert err < 0.2, err
+    rb = s["rig"]["blocks"][0]
+    assert rb["estimated"] is False and "image registration" in rb["start"]
+    assert s["images_oriented"] == 24
+    for name, sensor, dC, _sC, dr, _sr in _pose_errors(block, out):
+        if sensor == "thermal":
+            assert np.linalg.norm(dr) < 0.25 and np.linalg.norm(dC) < 0.2, (name, dr, dC)

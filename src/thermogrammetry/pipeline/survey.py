@@ -2159,7 +2159,7 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
 
     from ..geometry.rotations import axis_angle_from_matrix
     from ..sfm.rig import RIG_EST_MIN_FRAMES, _co_pairs
-    from ..sfm.rigreg import pair_samples, register_rig
+    from ..sfm.rigreg import RigRegistrationOptions, pair_samples, register_rig
 
     if not rig.estimate or not master:
         return rig, None, [], self_cal
@@ -2203,7 +2203,7 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
     # the block goes back to the orientation's state (the final adjustment starts from it, with its datum)
     _restore(rec, snap)
     del snap
-    reg = register_rig(samples, tcam, R0=rig.R)
+    reg = register_rig(samples, tcam, R0=rig.R, options=RigRegistrationOptions(estimate_focal=not thermal_camera_given))
     summary = {**reg.summary(), "seconds": round(time.perf_counter() - t0, 2), "skipped_pairs": why,
                "ncc": {k: round(v, 4) for k, v in reg.ncc.items()},
                "pair_offsets_deg": {k: round(v, 3) for k, v in reg.pair_offsets_deg.items()}}

@@ -584,7 +584,14 @@ def _parallel_ray_points(rec, obs) -> np.ndarray:
     amax = ray_spread_deg(t, len(rec.points), C, rec.points[t])
     seen = np.zeros(len(rec.points), bool)
     seen[t] = True
-    return np.flatnonzero(seen & (2.0 * amax < MIN_FINAL_TRI_ANGLE_DEG))
+    # seen from one projection centre only (an RGB image and its thermal partner through a rig of zero base): the
+    # adjustment moves such a point onto the centre, where its "rays" point anywhere
+    lo = np.full((len(rec.points), 3), np.inf)
+    hi = np.full((len(rec.points), 3), -np.inf)
+    np.minimum.at(lo, t, C)
+    np.maximum.at(hi, t, C)
+    one_centre = seen & (np.max(hi - lo, axis=1) <= 1e-7 * max(float(np.ptp(C, axis=0).max()), 1e-300))
+    return np.flatnonzero(seen & ((2.0 * amax < MIN_FINAL_TRI_ANGLE_DEG) | one_centre))
 
 
 def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_calibrate=(), tie_sigma_px: float = 1.0,
@@ -715,7 +722,10 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
                             function_tolerance=1e-8 if not robust else 1e-3)
         res = solve(pb, opt)
         if (not res.success and not drop_parallel and round_ < 4
-                and any(w in str(res.reason) for w in ("point's normal block is singular", "undetermined"))):
+                and any(w in str(res.reason) for w in ("point's normal block is singular", "undetermined",
+                                                       # a singular point block seen only by the precision step: a
+                                                       # point observed from one centre (rig of zero base)
+                                                       "precision step failed"))):
             notes.append(f"final adjustment (round {round_ + 1}) stopped: {res.reason}; solved again without the points "
                          f"whose rays meet at less than {MIN_FINAL_TRI_ANGLE_DEG:g}°")
             drop_parallel = True
@@ -827,7 +837,8 @@ def _add_manual_ties(pb, rec, manual_ties, in_block, view, cam_block) -> dict:
     """Manual tie points (measured by hand in RGB and thermal images) as unknown points of ``pb``.
 
     Returns tie index -> (problem point index, list of manual_ties rows used); ties seen in fewer than 2
-    images of the block, or whose rays do not intersect in front of the cameras, are left out.
+    images of the block, from one projection centre only, or whose rays do not intersect in front of the
+    cameras, are left out.
     """
     from .reconstruction import triangulate_tracks
 
@@ -847,6 +858,11 @@ def _add_manual_ties(pb, rec, manual_ties, in_block, view, cam_block) -> dict:
         X, _ = triangulate_tracks(np.array([0]), np.zeros(len(ii), int), Rs, ts, rays)
         X = X[0]
         if not np.isfinite(X).all() or np.any(np.einsum("kij,j->ki", Rs, X)[:, 2] + ts[:, 2] <= 0):
+            continue
+        # seen from one projection centre only (an RGB image and its thermal partner through a rig of zero base):
+        # no intersection, a singular point block
+        C = -np.einsum("kji,kj->ki", Rs, ts)
+        if np.ptp(C, axis=0).max() <= 1e-6 * float(np.linalg.norm(X - C[0])):
             continue
         pi = int(pb.add_points(X[None, :])[0])
         for r, i in zip(rows, ii):
