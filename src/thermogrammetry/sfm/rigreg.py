@@ -20,7 +20,8 @@ once, with the RGB images already oriented:
   NCC over the pairs.
 
 The search: a grid over the rig's pan and tilt (``grid_deg``, coarse blur) from the start, then
-Nelder-Mead over rotation, translation (as a fraction of the median scene depth) and focal scale at each
+Nelder-Mead over rotation, the translation across the optical axis (as a fraction of the median scene depth;
+along the axis it is held: its magnification traded freely with the focal scale) and the focal scale at each
 blur of ``blur_px``. Then every pair alone (rotation only, t and s held): the rotation of each pair about
 the joint one gives the spread of the estimate (1.4826 x median angle) and its σ (spread / sqrt(n) per
 axis). The estimate is refused -- a result with its reason, never a guess -- when fewer than
@@ -28,7 +29,15 @@ axis). The estimate is refused -- a result with its reason, never a guess -- whe
 spread exceeds ``max_spread_deg`` or when the solution lies on the border of the grid.
 
 What it does not do: the translation comes from the parallax between near and far pairs; a block at one
-depth leaves it tied to the rotation (``t`` is then reported with that caveat through ``t_determined``).
+depth (inverse depths within 30 % of each other) leaves it tied to the rotation: t is then held at its start
+(``t_determined`` False) and R absorbs the parallax (0.11 deg for a 0.1 m base at 50 m in tests/test_rigreg.py).
+Thermal distortion is held at the start camera's; the registration runs on the structure, not on the
+temperatures, so raw counts do as well as kelvin.
+
+Measured: the synthetic rig block of ``tests/rig_block.py`` (t given), rotation within 0.05 deg and focal scale
+within 0.1 % of the truth; the real frescoes (``shared/data/rgb_thermal_frescoes``, 40 Workswell pairs), 33 of 40
+pairs agree, R* 0.95 deg, per-pair spread 0.42 deg, σ 0.03 / 0.02 / 0.05 deg, two starts 1.2 deg apart end within
+0.05 deg of each other, ~140 s on two cores.
 
 References
 ----------
@@ -107,8 +116,6 @@ class RigPairSamples:
         The pair's name (the RGB image's).
     points_cam : (N, 3) float
         Sample points in the RGB camera frame (model units).
-    rgb_gray : (N,) float
-        The RGB image at the samples (``structures`` gives the structure values per blur).
     rgb_structure : dict blur -> (N,) float32
         RGB structure value at each sample per blur.
     thermal_structure : dict blur -> (H, W) float32
@@ -122,7 +129,6 @@ class RigPairSamples:
     rgb_structure: dict
     thermal_structure: dict
     depth_median: float
-    rgb_gray: np.ndarray | None = None
 
 
 @dataclass
