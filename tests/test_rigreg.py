@@ -107,5 +107,7 @@ def test_too_few_pairs_and_bad_options():
     assert s is None and "a:" in why and "3 oriented point" in why
     with pytest.raises(ConfigError, match="blur_px"):
         RigRegistrationOptions(blur_px=(0.0,))
+    with pytest.raises(ConfigError, match="max_pairs"):
+        RigRegistrationOptions(max_pairs=2, min_pairs=3)
     with pytest.raises(ConfigError, match="max_spread_deg"):
         RigRegistrationOptions(max_spread_deg=-1)

@@ -2192,6 +2192,11 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
     obs_img, obs_trk = rec.tracks.image, rec.tracks.track
     has_pt = np.isfinite(rec.points).all(axis=1)
     samples, why = [], []
+    reg_opt = RigRegistrationOptions(estimate_focal=not thermal_camera_given)
+    if len(pairs_im) > reg_opt.max_pairs:  # evenly over the block (in image order)
+        pick = np.unique(np.round(np.linspace(0, len(pairs_im) - 1, reg_opt.max_pairs)).astype(int))
+        pre.append(f"rig: {len(pick)} of {len(pairs_im)} pairs registered (evenly over the block)")
+        pairs_im = [pairs_im[k] for k in pick]
     for s_, m_ in pairs_im:
         sel = (obs_img == m_) & rec.obs_valid & has_pt[obs_trk]
         Xc = rec.points[obs_trk[sel]] @ rec.R[m_].T + rec.t[m_]
@@ -2203,7 +2208,7 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
     # the block goes back to the orientation's state (the final adjustment starts from it, with its datum)
     _restore(rec, snap)
     del snap
-    reg = register_rig(samples, tcam, R0=rig.R, options=RigRegistrationOptions(estimate_focal=not thermal_camera_given))
+    reg = register_rig(samples, tcam, R0=rig.R, options=reg_opt)
     summary = {**reg.summary(), "seconds": round(time.perf_counter() - t0, 2), "skipped_pairs": why,
                "ncc": {k: round(v, 4) for k, v in reg.ncc.items()},
                "pair_offsets_deg": {k: round(v, 3) for k, v in reg.pair_offsets_deg.items()}}

@@ -74,6 +74,9 @@ class RigRegistrationOptions:
         RGB samples per pair (a seeded random subset of the RGB pixels at the thermal resolution).
     estimate_translation, estimate_focal : bool
         Whether t and the thermal focal scale are estimated (else held at the start / 1).
+    max_pairs : int
+        At most this many pairs are registered (callers pick them evenly over the block: the cost grows with
+        pairs x samples x ~4000 evaluations, ~140 s for 40 pairs).
     min_pairs : int
         Pairs with structure in common needed for an estimate.
     min_ncc : float
@@ -90,6 +93,7 @@ class RigRegistrationOptions:
     samples_per_pair: int = 20000
     estimate_translation: bool = True
     estimate_focal: bool = True
+    max_pairs: int = 40
     min_pairs: int = 3
     min_ncc: float = 0.05
     max_spread_deg: float = 0.5
@@ -101,9 +105,9 @@ class RigRegistrationOptions:
         for k in ("grid_deg", "grid_step_deg", "max_spread_deg"):
             if not (float(getattr(self, k)) > 0):
                 raise ConfigError(f"RigRegistrationOptions.{k}: got {getattr(self, k)!r}, expected > 0")
-        if int(self.samples_per_pair) < 100 or int(self.min_pairs) < 1:
+        if int(self.samples_per_pair) < 100 or int(self.min_pairs) < 1 or int(self.max_pairs) < int(self.min_pairs):
             raise ConfigError(f"RigRegistrationOptions: samples_per_pair {self.samples_per_pair!r} (>= 100) / "
-                              f"min_pairs {self.min_pairs!r} (>= 1)")
+                              f"min_pairs {self.min_pairs!r} (>= 1) / max_pairs {self.max_pairs!r} (>= min_pairs)")
 
 
 @dataclass
