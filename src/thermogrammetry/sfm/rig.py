@@ -284,6 +284,9 @@ class RigViews:
     std: np.ndarray | None = None
     covariance: np.ndarray | None = None
     start: str = ""
+    #: σ (3,) rad of a fixed R_rel known from outside the adjustment (an image registration), same axes as ``std``;
+    #: propagated into the rig views' rotation σ by :func:`slave_std`
+    prior_rotation_std: np.ndarray | None = None
 
 
 def _project_err(cam, R, t, X, xy):
@@ -399,8 +402,9 @@ def attach_rig_images(rec, images, views: RigViews, xy_by_image, *, max_error_px
 def slave_std(views: RigViews, rec, fa, s: int) -> tuple[np.ndarray, np.ndarray]:
     """σ of the centre (m) and rotation (deg) of rig view ``s``, propagated from the master pose and the rig.
 
-    Uses the a-posteriori covariance of ``fa`` (names ``image<m>.wx..Z0`` and ``rig0.wx..tz``); first-order
-    propagation by central differences. NaN when the covariance is not available.
+    Uses the a-posteriori covariance of ``fa`` (names ``image<m>.wx..Z0`` and ``rig0.wx..tz``) and, for a fixed rig
+    registered on image edges, its rotation σ (``views.prior_rotation_std``, independent of the adjustment);
+    first-order propagation by central differences. NaN when the covariance is not available.
     """
     m = views.master[s]
     names = list(fa.param_names or [])
@@ -412,6 +416,7 @@ def slave_std(views: RigViews, rec, fa, s: int) -> tuple[np.ndarray, np.ndarray]
     use_rig = not views.fixed and all(c is not None for c in rig_cols)
     if use_rig:
         cols += rig_cols
+    prior = None if use_rig or views.prior_rotation_std is None else np.asarray(views.prior_rotation_std, float)
     Rm, tm = rec.R[m], rec.t[m]
     Cm = -Rm.T @ tm
     R0, t0 = views.R, views.t
@@ -423,20 +428,25 @@ def slave_std(views: RigViews, rec, fa, s: int) -> tuple[np.ndarray, np.ndarray]
         if use_rig:
             Rr = matrix_from_axis_angle(p[6:9]) @ R0
             tr_ = t0 + p[9:12]
+        elif prior is not None:
+            Rr = matrix_from_axis_angle(p[6:9]) @ R0
         Rs = Rr @ Rm_
         ts = Rr @ (-Rm_ @ Cm_) + tr_
         Cs = -Rs.T @ ts
         w = axis_angle_from_matrix(Rs @ (R0 @ Rm).T)
         return np.concatenate([Cs, w])
 
-    n = len(cols)
+    n = len(cols) + (3 if prior is not None else 0)
     J = np.zeros((6, n))
     for a in range(n):
         h = 1e-6
         d = np.zeros(n)
         d[a] = h
         J[:, a] = (f(d) - f(-d)) / (2 * h)
-    S = fa.covariance[np.ix_(cols, cols)]
+    S = np.zeros((n, n))
+    S[: len(cols), : len(cols)] = fa.covariance[np.ix_(cols, cols)]
+    if prior is not None:  # independent of the adjustment
+        S[len(cols):, len(cols):] = np.diag(prior ** 2)
     C = J @ S @ J.T
     sd = np.sqrt(np.maximum(np.diag(C), 0.0))
     return sd[:3], np.degrees(sd[3:])
@@ -534,7 +544,8 @@ def start_rig(rec, rig: RigFile, master: dict, images, scale: float = 1.0) -> tu
                                              rec.t[[s for s, _ in co]])
         t0 = t0 * scale
         how = f"mean of {len(co)} thermal image(s) oriented with their RGB partners (rotation spread median {float(np.median(spread)):.2f} deg)"
-    return RigViews(dict(master), R0, t0, fixed=not rig.estimate, start=how), notes
+    prior = None if rig.registered is None else np.deg2rad(np.asarray(rig.registered["rotation_std_deg"], float))
+    return RigViews(dict(master), R0, t0, fixed=not rig.estimate, start=how, prior_rotation_std=prior), notes
 
 
 def own_observations(views: RigViews, images, obs_image, manual_obs=()) -> dict:
