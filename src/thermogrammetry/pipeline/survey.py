@@ -2146,12 +2146,12 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
     (self-calibrating, in the model frame: the registration measures the thermal camera against the RGB camera's
     rays, so these must be close to the final ones -- with the orientation's RGB focal length the thermal one came
     out 2.5 % off on the frescoes); the pairs are sampled in that state, ``rec`` is put back as the orientation left
-    it (the final adjustment starts from there with its datum: a 12-frame nadir block adjusted without datum first
-    then failed its final adjustment), and the pairs are registered on the edges both bands see. An accepted estimate is held
-    fixed in the final adjustment (``RigFile.registered``), and so is the thermal camera, its focal length scaled by
+    it (the final adjustment starts from there with its datum), and the pairs are registered on the edges both bands
+    see; when that pre-adjustment does not converge below σ0 3 (a 12-frame nadir block without datum: σ0 518) the
+    orientation's state is sampled instead. An accepted estimate is held fixed in the final adjustment (``RigFile.registered``), and so is the thermal camera, its focal length scaled by
     the estimated factor unless it was given (a few thermal ties of their own must not self-calibrate it: k1 = -1.4
-    from 58 observations on the frescoes). A refused estimate changes nothing but the RGB pre-adjustment (the reason
-    is in the notes and in ``survey.json`` ``rig.registration``).
+    from 58 observations on the frescoes). A refused estimate changes nothing (the reason is in the notes and in
+    ``survey.json`` ``rig.registration``). At most ``RigRegistrationOptions.max_pairs`` pairs, evenly over the block.
 
     Returns (rig to use, registration summary or None, notes, self-calibration to use).
     """
