@@ -37,7 +37,7 @@ temperatures, so raw counts do as well as kelvin.
 Measured: the synthetic rig block of ``tests/rig_block.py`` (t given), rotation within 0.05 deg and focal scale
 within 0.1 % of the truth; the real frescoes (``shared/data/rgb_thermal_frescoes``, 40 Workswell pairs), 33 of 40
 pairs agree, R* 0.95 deg, per-pair spread 0.42 deg, σ 0.03 / 0.02 / 0.05 deg, two starts 1.2 deg apart end within
-0.05 deg of each other, ~140 s on two cores.
+0.06 deg of each other, ~140 s on two cores.
 
 References
 ----------
