@@ -2190,7 +2190,7 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
     tcam_k = int(rec.image_camera[pairs_im[0][0]])
     tcam = rec.cameras[tcam_k]
     obs_img, obs_trk = rec.tracks.image, rec.tracks.track
-    has_pt = np.isfinite(rec.points).all(axis=1)
+    usable_obs = rec.obs_valid & np.isfinite(rec.points).all(axis=1)[obs_trk]
     samples, why = [], []
     reg_opt = RigRegistrationOptions(estimate_focal=not thermal_camera_given)
     if len(pairs_im) > reg_opt.max_pairs:  # evenly over the block (in image order)
@@ -2198,7 +2198,7 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
         pre.append(f"rig: {len(pick)} of {len(pairs_im)} pairs registered (evenly over the block)")
         pairs_im = [pairs_im[k] for k in pick]
     for s_, m_ in pairs_im:
-        sel = (obs_img == m_) & rec.obs_valid & has_pt[obs_trk]
+        sel = usable_obs & (obs_img == m_)
         Xc = rec.points[obs_trk[sel]] @ rec.R[m_].T + rec.t[m_]
         p_, w_ = pair_samples(names[m_], _read_frame(project, names[m_]), _read_frame(project, names[s_]),
                               rec.cameras[int(rec.image_camera[m_])], tcam, Xc)

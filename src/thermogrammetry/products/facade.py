@@ -45,6 +45,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .._sampling import bilinear
 from ..errors import ConfigError, InvalidInputError, ShapeError, TooFewPointsError
 
 __all__ = ["FacadeGrid", "FacadePlane", "FacadeMosaic", "FacadeLevelling", "HomographyFit", "fit_facade_homography",
@@ -355,12 +356,6 @@ def fit_facade_homography(plane_ab, image_xy_px, *, camera=None, iterations: int
     return HomographyFit(H, res, float(np.sqrt(np.mean(np.sum(res**2, axis=1)))), camera)
 
 
-def _bilinear(img, xy):
-    from .texture import _bilinear as b
-
-    return b(img, xy)
-
-
 def _choose(scores_cells, usable, tiles):
     """Per-tile score (mean over the tile's usable cells) then per cell the best usable image."""
     K = scores_cells.shape[0]
@@ -443,7 +438,7 @@ def homography_mosaic(images: Sequence[np.ndarray], fits: Sequence[HomographyFit
         for k in range(K):
             m = best == k
             if np.any(m):
-                T[r0:r0 + bh][m] = _bilinear(images[k], xys[k][m])
+                T[r0:r0 + bh][m] = bilinear(images[k], xys[k][m])
                 res[r0:r0 + bh][m] = fits[k].jacobian_min_sv(A[m], B[m])
         src[r0:r0 + bh] = best
         if sample is not None:
@@ -451,7 +446,7 @@ def homography_mosaic(images: Sequence[np.ndarray], fits: Sequence[HomographyFit
             vals = np.full((int(sm.sum()), K), np.nan, np.float32)
             for k in range(K):
                 u = usable[k][sm]
-                vals[u, k] = _bilinear(images[k], xys[k][sm][u])
+                vals[u, k] = bilinear(images[k], xys[k][sm][u])
             samples.append(vals)
     lev = None
     if sample is not None:

@@ -68,6 +68,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .._sampling import bilinear
 from ..enums import StrChoice
 from ..errors import ConfigError, InvalidInputError, ShapeError
 from .._validate import config_keys
@@ -697,18 +698,6 @@ def usable_in_view(intersector, vertices, faces, view: TextureView, surface: Pix
     return usable, xy, cos_t, dist, occluded, in_view
 
 
-def _bilinear(img, xy):
-    h, w = img.shape
-    x = np.clip(xy[:, 0], 0, w - 1)
-    y = np.clip(xy[:, 1], 0, h - 1)
-    x0 = np.clip(np.floor(x).astype(np.int64), 0, w - 2)
-    y0 = np.clip(np.floor(y).astype(np.int64), 0, h - 2)
-    fx, fy = x - x0, y - y0
-    a = img[y0, x0] * (1 - fx) + img[y0, x0 + 1] * fx
-    b = img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx
-    return a * (1 - fy) + b * fy
-
-
 @dataclass
 class Selection:
     """Per point: ``source`` (N,) view index or −1, ``temperature_k`` (N,), ``angle_deg`` (N,),
@@ -752,7 +741,7 @@ def select_and_sample(intersector, vertices, faces, views, surfaces, scores, poi
         occl[cand, k] = oc
         n_vis[cand[vis]] += 1
         sel = cand[ok]
-        vals = _bilinear(v.image_k, xy[ok]).astype(np.float64)
+        vals = bilinear(v.image_k, xy[ok]).astype(np.float64)
         finite = np.isfinite(vals)
         sel, vals = sel[finite], vals[finite]
         cs, ds = cos_t[ok][finite], d[ok][finite]

@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._sampling import bilinear
 from ..errors import ConfigError
 from ..geometry.rotations import axis_angle_from_matrix, matrix_from_axis_angle
 from ..results import HasOutcome, Outcome, Termination
@@ -280,19 +281,6 @@ def pair_samples(name: str, rgb, thermal, rgb_camera, thermal_camera, points_cam
 
 
 # ------------------------------------------------------------------------------------------------
-def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``img`` (H, W) bilinear at pixel positions (x, y) inside [0, W-1] x [0, H-1] (centres at integers)."""
-    h, w = img.shape
-    x0 = np.minimum(np.floor(x).astype(np.int64), w - 2)
-    y0 = np.minimum(np.floor(y).astype(np.int64), h - 2)
-    fx, fy = x - x0, y - y0
-    flat = img.ravel()
-    i = y0 * w + x0
-    top = flat[i] * (1 - fx) + flat[i + 1] * fx
-    bot = flat[i + w] * (1 - fx) + flat[i + w + 1] * fx
-    return top * (1 - fy) + bot * fy
-
-
 class _Objective:
     """Mean NCC over the pairs for a parameter vector (rotation vector deg, t / depth, log focal scale)."""
 
@@ -324,7 +312,7 @@ class _Objective:
             uv[front] = self.cam.project(Xt[front])
         uv = self.c + np.exp(p[6]) * (uv - self.c)
         ok = front & np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] <= self.w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= self.h - 1)
-        v = _bilinear(self.stack, uv[ok, 0], uv[ok, 1] + pid[ok] * self.h)
+        v = bilinear(self.stack, np.column_stack([uv[ok, 0], uv[ok, 1] + pid[ok] * self.h]))
         a, k = g[ok], pid[ok]
         m = len(self.pairs)
         cnt = np.bincount(k, minlength=m).astype(float)
@@ -389,7 +377,6 @@ def register_rig(pairs: list, thermal_camera, *, R0=None, t0=None,
 def _register_rig(pairs: list, thermal_camera, *, R0=None, t0=None,
                   options: RigRegistrationOptions | None = None) -> RigRegistration:
     opt = options or RigRegistrationOptions()
-    pairs = [p for p in pairs if p is not None]
     R0 = np.eye(3) if R0 is None else np.asarray(R0, float)
     t0 = np.zeros(3) if t0 is None else np.asarray(t0, float)
     if len(pairs) < int(opt.min_pairs):
@@ -426,14 +413,14 @@ def _register_rig(pairs: list, thermal_camera, *, R0=None, t0=None,
     free = np.array([True] * 3 + [t_free, t_free, False] + [bool(opt.estimate_focal)])
     step = np.array([0.5, 0.5, 0.5, 0.01, 0.01, 0.01, 0.01])
     x = best_x
-    res = None
+    res = fine = None
     for b in blurs:
-        f = _Objective(pairs, thermal_camera, b, depth_ref)
-        x, res = _nelder_mead(f, x, step, free)
-        evals += f.evaluations
+        fine = _Objective(pairs, thermal_camera, b, depth_ref)  # the last one is the finest
+        x, res = _nelder_mead(fine, x, step, free)
         step = step / 2
-    fine = _Objective(pairs, thermal_camera, blurs[-1], depth_ref)
+        evals += fine.evaluations
     ncc = fine.per_pair(x)
+    evals += 1
     names = [p.name for p in pairs]
     good = [k for k in range(len(pairs)) if ncc[k] >= opt.min_ncc]
     # 3. each pair alone (rotation only) about the joint solution: the spread and σ of R
@@ -447,7 +434,6 @@ def _register_rig(pairs: list, thermal_camera, *, R0=None, t0=None,
         d = axis_angle_from_matrix(Rk @ matrix_from_axis_angle(np.deg2rad(x[:3])).T)
         rvecs.append(np.degrees(d))
         offsets[names[k]] = float(np.degrees(np.linalg.norm(d)))
-    evals += fine.evaluations
     R = matrix_from_axis_angle(np.deg2rad(x[:3]))
     t = x[3:6] * depth_ref
     out = RigRegistration(Outcome(Termination.CONVERGED, ""), R, t, float(np.exp(x[6])),
