@@ -7,8 +7,10 @@ from noise-free renderings of the stations placed at three sets of poses -- the 
 such), the survey's, and the survey's fitted to the true mesh (``sfm.meshfit`` through
 ``pipeline.texture.fit_views_to_mesh``, what ``thermogrammetry texture`` does by default) -- so that the texel errors
 measure the pose errors alone. Clean wall texels (>= 2 pixel footprints from a window/door edge) against the scene's
-apparent temperature; faces textured among those visible from the true stations. Last, the ``texture`` verb itself
-(``run_texture``, default texel size, poses fitted) on the survey folder: its wall time.
+apparent temperature; faces textured among those visible from the true stations (at clean radius 3 px, no fallback).
+Last, the ``texture`` verb itself (``run_texture``, default texel size, poses fitted to the mesh and then refined
+photometrically on the survey's noisy frames): its poses (``cameras_fitted.json``) as one more row, the share of the
+true-visible faces it textured, its wall time.
 
 Usage::
 
@@ -98,8 +100,17 @@ def main(argv=None) -> int:
         mesh = work / "building.ply"
         trimesh.Trimesh(sc.vertices, sc.faces, process=False).export(mesh)
         t0 = time.perf_counter()
-        run_texture(out, mesh, work / "texture")
+        tj = run_texture(out, mesh, work / "texture")
         t_texture = time.perf_counter() - t0
+        ph = tj["photometric_fit"]
+        if (work / "texture" / "cameras_fitted.json").exists():
+            verb_cams = OrientedCameras.load(work / "texture" / "cameras_fitted.json")
+            verb_views = [TextureView(v.name, v.camera, Pose(verb_cams.image(v.name).R, verb_cams.image(v.name).t), v.image_k)
+                          for v in views]
+            rows.append(("the texture verb's poses (+ photometric on noisy frames)", rot(verb_views),
+                         *evaluate(verb_views, true_c)))
+        textured_verb = np.ones(len(sc.faces), bool)
+        textured_verb[tj["faces_untextured"]] = False
         s = json.loads((out / "survey.json").read_text())
         print(f"\nsynthetic.building seed {args.seed}, {args.stations} stations: survey {s['images_oriented']}/{s['images_total']} "
               f"in {s['components']}, RMS {s['reprojection_rms_px']:.3f} px, {t_survey:.0f} s")
@@ -107,11 +118,16 @@ def main(argv=None) -> int:
         print(f"fit to the mesh: applied {record['applied']} {record.get('reason', '')}; tie points on the surface "
               f"{record.get('points_on_surface')} of {record.get('points')}, median distance {md.get('before', float('nan')):.3f} -> "
               f"{md.get('after', float('nan')):.3f} m, {t_fit:.1f} s\n")
-        print(f"{'poses':<50}{'rot RMS/max deg':>17}{'texels':>9}{'<=0.2 K':>9}{'median K':>10}{'p99 K':>8}{'faces textured':>16}")
+        print(f"{'poses':<58}{'rot RMS/max deg':>17}{'texels':>9}{'<=0.2 K':>9}{'median K':>10}{'p99 K':>8}{'faces textured':>16}")
         for label, (rr, rm), res, e in rows:
-            print(f"{label:<50}{rr:>9.2f}/{rm:<7.2f}{len(e):>9}{100 * np.mean(e <= 0.2):>8.1f}%{np.median(e):>10.3f}"
+            print(f"{label:<58}{rr:>9.2f}/{rm:<7.2f}{len(e):>9}{100 * np.mean(e <= 0.2):>8.1f}%{np.median(e):>10.3f}"
                   f"{np.percentile(e, 99):>8.2f}{100 * np.mean(res.faces_textured[vis]):>15.1f}%")
-        print(f"\nthermogrammetry texture (run_texture, default texel size, poses fitted): {t_texture:.0f} s")
+        print(f"\nphotometric refinement in the verb: applied {ph['applied']} {ph.get('reason', '')}; robust disagreement "
+              f"{ph.get('robust_sigma_before', float('nan')):.4f} -> {ph.get('robust_sigma_after', float('nan')):.4f} K, "
+              f"{ph.get('points')} points, {ph.get('seconds')} s")
+        print(f"thermogrammetry texture (run_texture, default texel size, poses fitted): {t_texture:.0f} s; visible faces "
+              f"(true stations) textured by it: {100 * np.mean(textured_verb[vis]):.1f} % (its clean radius "
+              f"{tj['clean_radius_px']['value']} px, fallback to the configured one)")
         return 0
     finally:
         if not args.keep:

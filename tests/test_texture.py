@@ -531,3 +531,25 @@ def test_clean_pixel_shortcut_equals_the_pixel_by_pixel_test(scene, views, radiu
         np.testing.assert_array_equal(u2, ref)
         n_checked += int(ref.sum()) + int((base & ~ref).sum())
     assert n_checked > 10_000
+
+
+def test_cli_texture_photometric_fit_recorded_and_choices(cli_out, tmp_path, capsys):
+    """True poses and noise-free frames: the photometric refinement finds nothing worth a change and changes nothing
+    (texture.json says why; no cameras_fitted.json: the poses used are those of cameras.json). ``--fit-poses mesh``
+    skips it and says so; an unknown choice lists the valid ones."""
+    from thermogrammetry.cli.main import main
+
+    survey, out = cli_out
+    d = json.loads((out / "texture.json").read_text())
+    ph = d["photometric_fit"]
+    assert ph["applied"] is False and "did not come to agree better" in ph["reason"]
+    # measured 0.000872 -> 0.000867 K (rotations would move by 0.006 deg median): less than the 2 % asked
+    assert ph["robust_sigma_after"] > 0.98 * ph["robust_sigma_before"] and ph["views"] == len(d["index"])
+    assert not (out / "cameras_fitted.json").exists()
+    o2 = tmp_path / "mesh_only"
+    assert main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(o2), "--texel-size", "0.1",
+                 "--fit-poses", "MESH"]) == 0
+    assert json.loads((o2 / "texture.json").read_text())["photometric_fit"] == {"applied": False, "reason": "mesh (fit_poses)"}
+    assert main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "x"),
+                 "--fit-poses", "photo"]) == 2
+    assert "auto, mesh, off" in capsys.readouterr().err

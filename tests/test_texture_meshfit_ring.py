@@ -5,7 +5,8 @@
 survey's rotations are 0.78 deg RMS off, 0.5 deg of it one common rotation about a horizontal world axis (centres
 on their GNSS: a ring at one height hardly fixes that mode). The texture is taken from noise-free renderings of the
 stations placed at the estimated poses -- the survey's, then those fitted to the true mesh by
-``pipeline.texture.fit_views_to_mesh`` -- so that the texel errors measure the pose errors.
+``pipeline.texture.fit_views_to_mesh`` -- so that the texel errors measure the pose errors; last, the ``texture``
+verb's own poses (mesh fit, then the photometric refinement on the survey's noisy frames: ``cameras_fitted.json``).
 """
 
 from __future__ import annotations
@@ -82,8 +83,8 @@ def test_poses_fitted_to_the_mesh_texture_the_ring_within_the_targets(tmp_path):
     # visible faces (from the 48 true stations) textured: measured 97.4 % -> 97.7 % (98.4 % with the true poses)
     assert np.mean(res1.faces_textured[vis]) >= np.mean(res0.faces_textured[vis]) - 0.002
     assert np.mean(res1.faces_textured[vis]) > 0.97
-    # the texture verb does the same by default: its texture.json says so, cameras_fitted.json holds the same poses
-    # (to rounding, 1.5e-10: the verb lists the images in the order of cameras.json, not of the stations)
+    # the texture verb does the same by default, then refines the poses photometrically on the survey's (noisy) frames:
+    # texture.json says so, cameras_fitted.json holds the poses used
     import trimesh
 
     mesh = tmp_path / "building.ply"
@@ -91,7 +92,20 @@ def test_poses_fitted_to_the_mesh_texture_the_ring_within_the_targets(tmp_path):
     assert main(["texture", str(out), "--mesh", str(mesh), "-o", str(tmp_path / "tex")]) == 0
     tj = json.loads((tmp_path / "tex" / "texture.json").read_text())
     assert tj["pose_fit"]["applied"] and tj["pose_fit"]["points_on_surface"] == record["points_on_surface"]
-    fit_cams = {c["name"]: c for c in json.loads((tmp_path / "tex" / "cameras_fitted.json").read_text())["images"]}
-    for v in fitted:
-        np.testing.assert_allclose(np.array(fit_cams[v.name]["cam_from_world"]["R"]), v.pose.R, rtol=0, atol=1e-8)
-    assert OrientedCameras.load(tmp_path / "tex" / "cameras_fitted.json").read_frame(views[0].name).shape == (240, 320)
+    ph = tj["photometric_fit"]
+    assert ph["applied"], ph["reason"]
+    assert ph["robust_sigma_after"] < 0.8 * ph["robust_sigma_before"]
+    fit_cams = OrientedCameras.load(tmp_path / "tex" / "cameras_fitted.json")
+    assert fit_cams.read_frame(views[0].name).shape == (240, 320)
+    verb = [TextureView(v.name, v.camera, Pose(fit_cams.image(v.name).R, fit_cams.image(v.name).t), v.image_k) for v in views]
+    r2 = rot_rms(verb)
+    res2, e2 = _texels(sc, verb, true_c)
+    # measured: rotations 0.59 -> 0.14 deg RMS; clean wall texels within 0.2 K 97.1 % -> 100.0 %, median 0.026 -> 0.009 K,
+    # p99 0.28 -> 0.05 K: issue 12's "within 0.2 K with estimated poses" on this ring
+    assert r2 < 0.5 * r1
+    assert np.mean(e2 <= 0.2) > 0.995 and np.percentile(e2, 99) < 0.12 and np.median(e2) < 0.6 * np.median(e1)
+    # visible faces (from the true stations) textured: the verb's own radius rule (3 sigma of the poses, fallback to the
+    # configured radius) textures 99.6 % of them (measured)
+    textured = np.ones(len(sc.faces), bool)
+    textured[tj["faces_untextured"]] = False
+    assert np.mean(textured[vis]) > 0.98

@@ -40,8 +40,10 @@ def texture(
     texel_size: Optional[float] = typer.Option(None, "--texel-size", help="Texel size in metres (default: half the surface pixel size)."),
     fit_poses: str = typer.Option("auto", "--fit-poses", help="auto: refine the survey's poses so that its tie points "
                                   "(SURVEY_DIR/colmap) lie on the mesh, kept only when they meet it and the fit converges "
-                                  "without bending the block (texture.json pose_fit, cameras_fitted.json). off: the poses "
-                                  "of cameras.json as they are."),
+                                  "without bending the block (texture.json pose_fit, cameras_fitted.json), then refine them "
+                                  "until the images agree on the mesh's temperatures (texture.json photometric_fit; poses "
+                                  "only, no value changed). mesh: the first step only. off: the poses of cameras.json as "
+                                  "they are."),
 ) -> None:
     """Texture a mesh with temperatures: best image per face, occlusion by ray casting, source of every texel."""
     from rich.console import Console

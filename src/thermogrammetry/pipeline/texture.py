@@ -10,7 +10,7 @@ Reads through :class:`~thermogrammetry.io.oriented.OrientedCameras`, calls
     angle_texture.tif            float32 viewing angle of the source image (degrees)
     vertices.ply                 per-vertex temperature_k
     texture.json                 counts, index -> image name, unit, offsets, what altered the values, pose_fit
-    cameras_fitted.json          the poses used, when they were fitted to the mesh (``fit_poses="auto"``)
+    cameras_fitted.json          the poses used, when they were fitted (``fit_poses="auto"`` or ``"mesh"``)
     report.html                  coverage, views per face, offsets, a rendered view in °C
     viewer.html                  the GLB in a self-contained WebGL page (offline, no libraries)
 
@@ -34,6 +34,11 @@ points (``SURVEY_DIR/colmap``) are made to lie on the mesh in one bundle adjustm
 camera centres as priors with their σ), which removes what the survey's datum left free (a ring of stations at one
 height turns in common about a horizontal axis). Kept only when the mesh and the tie points meet and the fit
 converges without bending the block; ``texture.json`` ``pose_fit`` says what happened either way. Never in rig mode.
+Then (``auto``; also in rig mode) the poses are refined photometrically (:mod:`thermogrammetry.products.photofit`):
+points on the mesh seen cleanly by >= 2 images, each view's pose moved until the images agree on their temperatures
+(the survey's σ as priors, the block's mean centre held); kept when the images' robust disagreement falls and no image
+turns by more than 3°; ``texture.json`` ``photometric_fit``. Poses only: no value is changed. ``fit_poses="mesh"``
+runs the first step alone, ``"off"`` neither.
 
 Mesh winding: the texture needs each triangle's normal (right-hand rule) towards the images. When no face
 faces any image but the reversed mesh does (a plane fitted to a sparse cloud has an arbitrary normal sign),
@@ -50,6 +55,10 @@ import numpy as np
 from ..errors import ConfigError, DataFileError, InvalidInputError, ThermogrammetryError, UnsupportedFormatError
 
 __all__ = ["read_mesh", "frames_unit", "load_views", "check_views_unit", "load_rig_views", "run_texture", "texture_report_html"]
+
+#: ``fit_poses`` choices: ``auto`` = tie points onto the mesh, then the photometric refinement; ``mesh`` = the first
+#: only; ``off`` = the poses of cameras.json
+FIT_POSES = ("auto", "mesh", "off")
 
 #: frame units that a texture can be made of: temperatures, or raw sensor counts labelled as such
 TEXTURE_UNITS = ("K", "counts")
@@ -228,7 +237,8 @@ def _default_viewpoint(result, views):
     return C, target
 
 
-def texture_report_html(result, views, skipped, unit: str, pose_fit: dict | None = None) -> str:
+def texture_report_html(result, views, skipped, unit: str, pose_fit: dict | None = None,
+                        photometric_fit: dict | None = None) -> str:
     """The report page. ``unit``: unit of the written texture (``K``, ``C`` or ``counts``); the result holds kelvin
     for temperature frames (shown in °C) and the frames' raw counts for count frames (shown as "raw counts")."""
     import html
@@ -293,6 +303,18 @@ def texture_report_html(result, views, skipped, unit: str, pose_fit: dict | None
         fit_note = f"<p>Poses as in cameras.json (not fitted to the mesh: {html.escape(str(pf['reason']))}).</p>"
     else:
         fit_note = ""
+    ph = photometric_fit or {}
+    if ph.get("applied"):
+        rc, cc = ph["rotation_change_deg"], ph["center_change_m"]
+        vu = "counts" if unit == "counts" else "K"
+        fit_note += (f"<p><b>Poses refined photometrically</b> ({ph['views_refined']} of {ph['views']} images, "
+                     f"{ph['points']} surface points seen cleanly by ≥ 2 images, {ph['samples']} samples): the images' "
+                     f"robust disagreement on the mesh {ph['robust_sigma_before']:.4f} → {ph['robust_sigma_after']:.4f} {vu}; "
+                     f"rotations changed by {rc['median']:.2f}° (median; max {rc['max']:.2f}°), centres by "
+                     f"{cc['median'] * 100:.1f} cm (max {cc['max'] * 100:.1f}), the block's mean centre held. Only the "
+                     "poses changed: every texel is still one image's value.</p>")
+    elif ph.get("reason"):
+        fit_note += f"<p>No photometric pose refinement: {html.escape(str(ph['reason']))}.</p>"
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>thermogrammetry texture</title>
 <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}</style></head><body>
 <h1>Thermal texture</h1>
@@ -472,6 +494,36 @@ def fit_views_to_mesh(cameras, views, V, F, *, tie_sigma_px: float | None = None
     return out, record
 
 
+def photometric_fit_views(cameras, views, V, F, cfg, *, rig: bool = False, progress=None):
+    """Refine the views' poses so that the images agree on the mesh's temperatures
+    (:func:`thermogrammetry.products.photofit.photometric_pose_fit`), with the survey's σ of every view as its priors
+    (none in rig mode: the options' defaults) and a visibility test at the texture's clean radius (at least 3 px).
+
+    Returns ``(views, record)``: the refined views when the refinement was kept (else unchanged) and what
+    ``texture.json`` records under ``photometric_fit``.
+    """
+    from ..products.photofit import PhotoFitOptions, photometric_pose_fit
+
+    rot, cen = [], []
+    for v in views:
+        im = None if rig else _image_or_none(cameras, v.name)
+        rot.append(np.full(3, np.nan) if im is None or im.rotation_std_deg is None else im.rotation_std_deg)
+        cen.append(np.full(3, np.nan) if im is None or im.center_std is None else im.center_std)
+    opt = PhotoFitOptions(clean_radius_px=max(3, int(cfg.clean_radius_px)), max_angle_deg=min(70.0, cfg.max_angle_deg))
+    res = photometric_pose_fit(V, F, views, rotation_std_deg=np.array(rot, float), center_std_m=np.array(cen, float),
+                               options=opt, progress=progress)
+    record = {"applied": bool(res.applied), "reason": res.reason, **res.figures,
+              "note": "poses only: the per-image offsets estimated alongside are not applied to any value"}
+    return (res.views if res.applied else views), record
+
+
+def _image_or_none(cameras, name):
+    try:
+        return cameras.image(name)
+    except (KeyError, ValueError, ThermogrammetryError):
+        return None
+
+
 def _survey_tie_sigma(survey_dir) -> float | None:
     """The survey's tie-point reprojection RMS (``survey_dir/survey.json``), or None."""
     try:
@@ -490,7 +542,8 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     ``fit_poses``: ``"auto"`` (default) refines the poses so that the survey's tie points lie on the mesh
     (:func:`fit_views_to_mesh`; kept only when the mesh and the tie points meet and the fit converges without
     bending the block; ``texture.json`` ``pose_fit`` says what happened, ``cameras_fitted.json`` holds the poses
-    used); ``"off"``: the survey's poses as they are.
+    used), then refines them photometrically (:func:`photometric_fit_views`, ``texture.json`` ``photometric_fit``);
+    ``"mesh"``: the first step only; ``"off"``: the survey's poses as they are.
     """
     from dataclasses import replace
 
@@ -515,8 +568,8 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
         frame_unit = frames_unit(cameras)
         views, skipped = load_views(cameras, unit=frame_unit or "K")
     fit_poses = str(fit_poses).lower()
-    if fit_poses not in ("auto", "off"):
-        raise ConfigError(f"fit_poses={fit_poses!r}: expected 'auto' or 'off'")
+    if fit_poses not in FIT_POSES:
+        raise ConfigError(f"fit_poses={fit_poses!r}: expected one of {', '.join(FIT_POSES)}")
     counts = check_views_unit(views, skipped, frame_unit, survey_dir, unit, "texture")
     if counts:
         if correct:
@@ -536,6 +589,10 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
         views, pose_fit = fit_views_to_mesh(cameras, views, V, F, tie_sigma_px=_survey_tie_sigma(cameras.root))
     F, winding_note = orient_mesh_to_views(V, F, views, cfg)
     check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs)
+    if fit_poses == "auto":
+        views, photo_fit = photometric_fit_views(cameras, views, V, F, cfg, rig=rig_path is not None, progress=progress)
+    else:
+        photo_fit = {"applied": False, "reason": f"{fit_poses} (fit_poses)"}
     result = texture_mesh(V, F, views, cfg)
     if not np.any(result.faces_textured):
         check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs, textured=0)
@@ -570,7 +627,7 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
             data16, mapping = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="uint16")
             store.write_bytes("temperature_texture_u16.tif", data16)
             u16_info = {"scale": mapping.scale, "offset": mapping.offset, "unit": u.value, "nodata_code": 0}
-    if pose_fit.get("applied"):
+    if pose_fit.get("applied") or photo_fit.get("applied"):
         fitted = {v.name: v.pose for v in views}
         doc = cameras.to_dict()
         for im in doc["images"]:
@@ -589,12 +646,12 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
              "uint16_mapping": u16_info,
              "rig": None if rig_path is None else str(rig_path),
              "clean_radius_px": {"value": int(cfg.clean_radius_px), "reason": clean_note or "default"},
-             "pose_fit": pose_fit}
+             "pose_fit": pose_fit, "photometric_fit": photo_fit}
     if winding_note:
         extra["mesh_winding"] = {"reversed": True, "reason": winding_note}
     if counts:
         extra["preview_palette"] = palette
     text = tx.texture_json(result, unit_out, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
     store.write_text("texture.json", text)
-    store.write_text("report.html", texture_report_html(result, views, skipped, unit_out, pose_fit))
+    store.write_text("report.html", texture_report_html(result, views, skipped, unit_out, pose_fit, photo_fit))
     return json.loads(text)
