@@ -483,6 +483,18 @@ def test_min_clean_radius_fallback_textures_silhouette_faces(scene, views):
     err = b.temperature_k[new] - apparent_temperature(scene, fb.texels.points[new], fb.texels.face[new], C)
     assert new.sum() > 100 and np.max(np.abs(err)) < 0.05
     assert fb.summary()["faces_textured_at_min_clean_radius"] == int(gained.sum())
+    # down to 0 px (what the verb asks): the radii are tried from the largest down, so the faces gained at 1 px or above
+    # keep texels at least as clean, and no face textured before is lost
+    fb0 = texture_mesh(scene.vertices, scene.faces, views,
+                       TextureConfig(texel_size_m=TEXEL_M, clean_radius_px=4, min_clean_radius_px=0))
+    assert np.all(fb0.faces_textured[fb.faces_textured])
+    assert np.mean(fb0.faces_textured[fb0.face_visible]) >= share_fb
+    c = fb0.texel_selection
+    assert np.array_equal(a.source[was], c.source[was]) and np.array_equal(a.temperature_k[was], c.temperature_k[was])
+    new0 = (c.source >= 0) & ~was & (b.source >= 0)
+    err0 = c.temperature_k[new0] - apparent_temperature(scene, fb0.texels.points[new0], fb0.texels.face[new0],
+                                                        np.array([v.pose.center for v in views])[c.source[new0]])
+    assert new0.sum() > 100 and np.max(np.abs(err0)) < 0.05
 
 
 @pytest.mark.parametrize("radius", [1, 4])

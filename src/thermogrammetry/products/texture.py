@@ -98,7 +98,8 @@ class TextureConfig:
     surface_tol_m: float = 0.05
     normal_tol_deg: float = 30.0
     clean_radius_px: int = 1
-    # faces with no texel usable at clean_radius_px take texels usable at this smaller radius (None: no fallback)
+    # faces with no texel usable at clean_radius_px take texels usable at the largest smaller radius down to this one
+    # (None: no fallback)
     min_clean_radius_px: int | None = None
     levelling: Levelling = Levelling.NONE
     offsets_max_pairs: int = 200_000
@@ -909,8 +910,8 @@ class TextureResult:
     texels_total : number of texel centres inside triangles
     face_visible : (F,) bool, faces with a texel that some image sees (inside, within ``max_angle_deg``, not
         occluded: conditions 1–3), textured or not -- the denominator of the coverage
-    face_min_radius : (F,) bool, faces textured only at ``config.min_clean_radius_px`` (none was clean at
-        ``clean_radius_px``)
+    face_min_radius : (F,) bool, faces textured only below ``clean_radius_px`` (none of their texels was clean at it;
+        they took texels at the largest smaller radius, down to ``config.min_clean_radius_px``)
     """
 
     vertices: np.ndarray
@@ -1055,12 +1056,14 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     faces_min_radius = np.zeros(len(F), bool)
     if cfg.min_clean_radius_px is not None and cfg.min_clean_radius_px < cfg.clean_radius_px:
         # a face that no image sees cleanly at the wide radius (small faces along a silhouette) takes the texels
-        # that are clean at the smaller one, rather than none: recorded per face
-        has = np.bincount(texels.face[sel.source >= 0], minlength=len(F)) > 0
-        redo = np.flatnonzero(~has[texels.face] & (sel.n_visible > 0))
-        if len(redo):
+        # that are clean at the largest smaller radius down to min_clean_radius_px, rather than none: recorded per face
+        for rr in range(int(cfg.clean_radius_px) - 1, int(cfg.min_clean_radius_px) - 1, -1):
+            has = np.bincount(texels.face[sel.source >= 0], minlength=len(F)) > 0
+            redo = np.flatnonzero(~has[texels.face] & (sel.n_visible > 0))
+            if not len(redo):
+                break
             s2, _, _ = select_in_chunks(inter, V, F, views, surfaces, scores, texels.points[redo], texels.face[redo],
-                                        replace(cfg, clean_radius_px=int(cfg.min_clean_radius_px)))
+                                        replace(cfg, clean_radius_px=rr))
             sel.source[redo], sel.temperature_k[redo], sel.angle_deg[redo] = s2.source, s2.temperature_k, s2.angle_deg
             sel.distance_m[redo], sel.n_usable[redo] = s2.distance_m, s2.n_usable
             faces_min_radius[texels.face[redo[s2.source >= 0]]] = True
