@@ -13,7 +13,8 @@ import pytest
 
 from thermogrammetry.errors import ConfigError, InvalidInputError
 from thermogrammetry.geometry import Pose
-from thermogrammetry.products.photofit import PhotoFitOptions, _rotvec_to_matrix, photometric_pose_fit
+from thermogrammetry.geometry.rotations import matrix_from_axis_angle
+from thermogrammetry.products.photofit import PhotoFitOptions, photometric_pose_fit
 from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
 from thermogrammetry.synthetic.building import (BuildingConfig, clean_wall_texel_errors, make_building,
                                                 render_building_thermal)
@@ -35,7 +36,7 @@ def disturbed(views):
     rng = np.random.default_rng(5)
     out = []
     for v in views:
-        R = _rotvec_to_matrix(np.deg2rad(0.5) * rng.standard_normal(3)) @ v.pose.R
+        R = matrix_from_axis_angle(np.deg2rad(0.5) * rng.standard_normal(3)) @ v.pose.R
         C = v.pose.center + 0.03 * rng.standard_normal(3)
         out.append(TextureView(v.name, v.camera, Pose(R, -R @ C), v.image_k))
     return out

@@ -10,18 +10,26 @@ temperatures (Zhou and Koltun's colour map optimisation [1]_ with the geometry h
     minimise  sum_k sum_p rho( I_k(pi_k(X_p)) + o_k - T_p )  +  sum_k |D_k^-1 (xi_k - xi_k0)|^2
 
 over the view parameters ``xi_k = (omega_k, C_k)`` (a rotation about the camera centre, ``R_k = exp([omega_k]x) R_k0``,
-and the centre) and the offsets ``o_k``, alternated with ``T_p`` = the Huber-weighted mean of the point's samples;
-``rho`` is Huber's loss at 1.345 robust sigmas, ``D_k`` the survey's σ of the view's rotation and centre (so that
-directions the images do not determine stay where the survey put them). ``pi_k`` is the camera model with its
-distortion; the derivative of a sample with respect to ``xi_k`` is analytic: the image gradient (central
-differences of the blurred image) times ``d pi / d X_cam`` (the camera's ``project_point_jacobian``) times
-``d X_cam / d xi = [-[X_cam]x, -R]``. Coarse to fine over Gaussian blurs (``blurs_px``, the first one wide enough for
-the start's pose error).
+and the centre), the offsets ``o_k`` and the points' temperatures ``T_p``, jointly: Levenberg-Marquardt on the
+camera system reduced by the Schur complement over the ``T_p`` (their normal block is diagonal; the reduced matrix is
+summed from dense 7 x 7 products per pair of views over their shared points). ``rho`` is Huber's loss at 1.345 robust
+sigmas (fixed per level), ``D_k`` the survey's σ of the view's rotation and centre (so that directions the images do
+not determine stay where the survey put them), and the block's mean centre is held at the start's (a common shift of
+every camera along the walls moves every view's samples alike and is nearly invisible to the images; the survey's
+GNSS/GCP datum fixes it). ``pi_k`` is the camera model with its distortion; the derivative of a sample with respect to
+``xi_k`` is analytic: the image gradient (central differences of the blurred image) times ``d pi / d X_cam`` (the
+camera's ``project_point_jacobian``) times ``d X_cam / d xi = [-[X_cam]x, -R]``. Coarse to fine over Gaussian blurs
+(``blurs_px`` for the median view, scaled per view by its footprint so that every view blurs the surface by one width:
+a blur in pixels smooths near and far views differently and the fit bends the poses to match).
+
+The result is kept only when the images' robust disagreement at the finest level (1.4826 MAD of the samples about
+the points' mean values, at the start and at the end) falls by ``min_improvement`` and no view turns by more than
+``max_rotation_change_deg``; otherwise nothing changes and the reason says why.
 
 Which samples: visibility by ray casting against the whole mesh with the texture's rules
 (:func:`thermogrammetry.products.texture.usable_in_view`, the clean radius covering the start's error), computed
-once at the start poses; points seen by fewer than two images, and views with fewer than ``min_samples`` samples
-with gradient, do not take part (those views keep their poses).
+once at the start poses; points seen by fewer than two images do not take part, and views with fewer than
+``min_samples`` samples keep their poses (only their offsets are estimated).
 
 The step changes poses only, never a temperature: the texture is then taken from the images as always.
 
@@ -44,6 +52,7 @@ import numpy as np
 from .._sampling import bilinear
 from .._validate import config_keys
 from ..errors import ConfigError, InvalidInputError
+from ..geometry.rotations import axis_angle_from_matrix, matrix_from_axis_angle, skew
 
 __all__ = ["PhotoFitOptions", "PhotoFitResult", "photometric_pose_fit"]
 
@@ -111,23 +120,6 @@ class PhotoFitResult:
     views: list
     offsets: np.ndarray
     figures: dict = field(default_factory=dict)
-
-
-def _skew(v):
-    """(N, 3) -> (N, 3, 3) cross-product matrices."""
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
-
-
-def _rotvec_to_matrix(w):
-    th = float(np.linalg.norm(w))
-    K = _skew(np.asarray(w, float)[None])[0]
-    if th < 1e-12:
-        return np.eye(3) + K
-    return np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th**2 * K @ K
 
 
 def _surface_samples(V, F, spacing_m: float, max_points: int, seed: int):
@@ -295,10 +287,9 @@ def photometric_pose_fit(vertices, faces, views: Sequence, *, rotation_std_deg=N
         levels.append({"blur_px": blur, "robust_sigma": [round(float(x), 5) for x in hist], "iterations": it,
                        "cost": round(float(cost), 6)})
     R, C, off = state.R, state.C, state.offsets
-    active_out = active
     # the disagreement at the finest level, before and after, each with the points' robust mean temperatures
-    start = _State(R0, C0, np.zeros(K), None)
-    s_before = prob.robust_sigma(prob.sample(start), prob.robust_mean(prob.sample(start)))
+    s0 = prob.sample(_State(R0, C0, np.zeros(K), None))
+    s_before = prob.robust_sigma(s0, prob.robust_mean(s0))
     fin = prob.sample(state)
     s_after = prob.robust_sigma(fin, prob.robust_mean(fin))
     out = []
@@ -306,11 +297,11 @@ def photometric_pose_fit(vertices, faces, views: Sequence, *, rotation_std_deg=N
     for k, v in enumerate(views):
         t = -R[k] @ (C[k] + origin)
         out.append(replace(v, pose=Pose(R[k], t)))
-        rot_change.append(float(np.degrees(np.linalg.norm(_rotvec_from(R[k] @ R0[k].T)))))
+        rot_change.append(float(np.degrees(np.linalg.norm(axis_angle_from_matrix(R[k] @ R0[k].T)))))
         cen_change.append(float(np.linalg.norm(C[k] - C0[k])))
     rc, cc = np.array(rot_change), np.array(cen_change)
     figures = {"points": int(P), "samples": int(sum(len(i) for i in vis_idx)), "views": K,
-               "views_refined": int(active_out.sum()), "robust_sigma_before": round(float(s_before), 6),
+               "views_refined": int(active.sum()), "robust_sigma_before": round(float(s_before), 6),
                "robust_sigma_after": round(float(s_after), 6), "levels": levels,
                "rotation_change_deg": {"median": round(float(np.median(rc)), 4), "max": round(float(rc.max()), 4)},
                "center_change_m": {"median": round(float(np.median(cc)), 4), "max": round(float(cc.max()), 4)},
@@ -327,16 +318,6 @@ def photometric_pose_fit(vertices, faces, views: Sequence, *, rotation_std_deg=N
                               f"max_rotation_change_deg = {opt.max_rotation_change_deg:g}): a wrong match of the images "
                               "to the mesh is more likely than such a pose error", views, np.zeros(K), figures)
     return PhotoFitResult(True, "", out, off, figures)
-
-
-def _rotvec_from(Rm):
-    """Rotation vector (3,) of a rotation matrix."""
-    c = np.clip((np.trace(Rm) - 1) / 2, -1, 1)
-    th = np.arccos(c)
-    v = np.array([Rm[2, 1] - Rm[1, 2], Rm[0, 2] - Rm[2, 0], Rm[1, 0] - Rm[0, 1]])
-    if th < 1e-9:
-        return 0.5 * v
-    return th / (2 * np.sin(th)) * v
 
 
 @dataclass
@@ -385,6 +366,7 @@ class _Problem:
         return [samples[k][0] + st.offsets[k] - st.T[self.vis[k]] for k in range(self.K)]
 
     def robust_mean(self, samples):
+        """(P,) the mean of each point's samples (the start of its temperature; NaN for a point no view samples)."""
         s_sum = np.zeros(self.P)
         n = np.zeros(self.P)
         for k in range(self.K):
@@ -404,7 +386,7 @@ class _Problem:
         pr = self.prior
         out = []
         for k in range(self.K):
-            dw = _rotvec_from(st.R[k] @ pr.R0[k].T) / pr.rot_sd[k]
+            dw = axis_angle_from_matrix(st.R[k] @ pr.R0[k].T) / pr.rot_sd[k]
             dc = (st.C[k] - pr.C0[k]) / pr.cen_sd[k]
             out.append(np.r_[dw, dc])
         return s * np.concatenate(out)
@@ -442,7 +424,7 @@ class _Problem:
             if self.active[k]:
                 g = np.stack([bilinear(self.imgs[k][1], xy[m]), bilinear(self.imgs[k][2], xy[m])], axis=1).astype(np.float64)
                 Jg = np.einsum("ni,nij->nj", g, J[m])  # d value / d X_cam
-                A = np.column_stack([-np.einsum("nj,njk->nk", Jg, _skew(Xc[m])),  # d X_cam / d omega = -[X_cam]x
+                A = np.column_stack([-np.einsum("nj,njk->nk", Jg, skew(Xc[m])),  # d X_cam / d omega = -[X_cam]x
                                      -Jg @ st.R[k],  # d X_cam / d C = -R
                                      np.ones(len(idx))])
             else:  # only the offset
@@ -461,7 +443,7 @@ class _Problem:
             sl = 7 * k
             pw = (s / pr.rot_sd[k]) ** 2
             pc = (s / pr.cen_sd[k]) ** 2
-            dw = _rotvec_from(st.R[k] @ pr.R0[k].T)
+            dw = axis_angle_from_matrix(st.R[k] @ pr.R0[k].T)
             dc = st.C[k] - pr.C0[k]
             Hvv[sl:sl + 3, sl:sl + 3] += np.eye(3) * pw
             bv[sl:sl + 3] -= pw * dw
@@ -516,7 +498,7 @@ class _Problem:
 
     def apply(self, st: _State, step) -> _State:
         dw, dc, do, dT = step
-        R = [_rotvec_to_matrix(dw[k]) @ st.R[k] for k in range(self.K)]
+        R = [matrix_from_axis_angle(dw[k]) @ st.R[k] for k in range(self.K)]
         C = [st.C[k] + dc[k] for k in range(self.K)]
         return _State(R, C, st.offsets + do, st.T + dT)
 
