@@ -127,7 +127,7 @@ def main(argv=None) -> int:
               f"{ph.get('points')} points, {ph.get('seconds')} s")
         print(f"thermogrammetry texture (run_texture, default texel size, poses fitted): {t_texture:.0f} s; visible faces "
               f"(true stations) textured by it: {100 * np.mean(textured_verb[vis]):.1f} % (its clean radius "
-              f"{tj['clean_radius_px']['value']} px, fallback to the configured one)")
+              f"{tj['clean_radius_px']['value']} px, fallback down to 0 px)")
         return 0
     finally:
         if not args.keep:
