@@ -364,6 +364,11 @@ def test_rig_mode_reads_count_frames_as_counts(tmp_path):
     fin = t[np.isfinite(t)]
     assert 19_300 <= fin.min() and fin.max() <= PATCH  # counts, not kelvin
     assert "°C" not in (out / "report.html").read_text()
+    # the photometric refinement runs in rig mode too; on these three views of flat count patches it finds no better
+    # agreement (measured 0.11 -> 0.89 counts) and changes nothing; rig mode never writes cameras_fitted.json
+    ph = d["photometric_fit"]
+    assert ph["applied"] is False and "did not come to agree better" in ph["reason"] and "poses" not in ph
+    assert not (out / "cameras_fitted.json").exists()
     assert main(["texture", str(folder), "--mesh", str(folder / "mesh.obj"), "-o", str(tmp_path / "outC"), "--rig",
                  str(folder / "rig.json"), "--unit", "C"]) == 2  # no temperature unit for counts
 

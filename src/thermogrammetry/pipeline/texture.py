@@ -10,7 +10,7 @@ Reads through :class:`~thermogrammetry.io.oriented.OrientedCameras`, calls
     angle_texture.tif            float32 viewing angle of the source image (degrees)
     vertices.ply                 per-vertex temperature_k
     texture.json                 counts, index -> image name, unit, offsets, what altered the values, pose_fit
-    cameras_fitted.json          the poses used, when they were fitted (``fit_poses="auto"`` or ``"mesh"``)
+    cameras_fitted.json          the poses used, when they were fitted (``fit_poses="auto"`` or ``"mesh"``; not in rig mode)
     report.html                  coverage, views per face, offsets, a rendered view in °C
     viewer.html                  the GLB in a self-contained WebGL page (offline, no libraries)
 
@@ -37,8 +37,9 @@ converges without bending the block; ``texture.json`` ``pose_fit`` says what hap
 Then (``auto``; also in rig mode) the poses are refined photometrically (:mod:`thermogrammetry.products.photofit`):
 points on the mesh seen cleanly by >= 2 images, each view's pose moved until the images agree on their temperatures
 (the survey's σ as priors, the block's mean centre held); kept when the images' robust disagreement falls and no image
-turns by more than 3°; ``texture.json`` ``photometric_fit``. Poses only: no value is changed. ``fit_poses="mesh"``
-runs the first step alone, ``"off"`` neither.
+turns by more than 3°; ``texture.json`` ``photometric_fit`` (in rig mode also the refined thermal poses, under
+``poses``: the thermal frames are not images of cameras.json, so no cameras_fitted.json is written). Poses only: no
+value is changed. ``fit_poses="mesh"`` runs the first step alone, ``"off"`` neither.
 
 Mesh winding: the texture needs each triangle's normal (right-hand rule) towards the images. When no face
 faces any image but the reversed mesh does (a plane fitted to a sparse cloud has an arbitrary normal sign),
@@ -636,7 +637,11 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
             data16, mapping = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="uint16")
             store.write_bytes("temperature_texture_u16.tif", data16)
             u16_info = {"scale": mapping.scale, "offset": mapping.offset, "unit": u.value, "nodata_code": 0}
-    if pose_fit.get("applied") or photo_fit.get("applied"):
+    if photo_fit.get("applied") and rig_path is not None:
+        # rig mode: the thermal views are not images of cameras.json; their refined poses are listed here instead
+        photo_fit["poses"] = {v.name: {"cam_from_world": {"R": np.asarray(v.pose.R).tolist(), "t": np.asarray(v.pose.t).tolist()},
+                                       "center": np.asarray(v.pose.center).tolist()} for v in views}
+    if (pose_fit.get("applied") or photo_fit.get("applied")) and rig_path is None:
         fitted = {v.name: v.pose for v in views}
         doc = cameras.to_dict()
         for im in doc["images"]:

@@ -305,8 +305,8 @@ def photometric_pose_fit(vertices, faces, views: Sequence, *, rotation_std_deg=N
                "robust_sigma_after": round(float(s_after), 6), "levels": levels,
                "rotation_change_deg": {"median": round(float(np.median(rc)), 4), "max": round(float(rc.max()), 4)},
                "center_change_m": {"median": round(float(np.median(cc)), 4), "max": round(float(cc.max()), 4)},
-               "per_view": [{"rotation_change_deg": round(a, 4), "center_change_m": round(b, 4), "offset": round(float(o), 5)}
-                            for a, b, o in zip(rot_change, cen_change, off)],
+               "per_view": [{"image": v.name, "rotation_change_deg": round(a, 4), "center_change_m": round(b, 4),
+                             "offset": round(float(o), 5)} for v, a, b, o in zip(views, rot_change, cen_change, off)],
                "seconds": round(time.perf_counter() - t_start, 2)}
     if not s_after < (1 - opt.min_improvement) * s_before:
         return PhotoFitResult(False, f"the images did not come to agree better (robust disagreement {s_before:.4g} -> "
