@@ -510,9 +510,10 @@ def photometric_fit_views(cameras, views, V, F, cfg, *, rig: bool = False, progr
     """
     from ..products.photofit import PhotoFitOptions, photometric_pose_fit
 
+    by_name = {} if rig else {im.name: im for im in cameras}
     rot, cen = [], []
     for v in views:
-        im = None if rig else _image_or_none(cameras, v.name)
+        im = by_name.get(v.name)
         rot.append(np.full(3, np.nan) if im is None or im.rotation_std_deg is None else im.rotation_std_deg)
         cen.append(np.full(3, np.nan) if im is None or im.center_std is None else im.center_std)
     opt = PhotoFitOptions(clean_radius_px=max(3, int(cfg.clean_radius_px)), max_angle_deg=min(70.0, cfg.max_angle_deg))
@@ -521,13 +522,6 @@ def photometric_fit_views(cameras, views, V, F, cfg, *, rig: bool = False, progr
     record = {"applied": bool(res.applied), "reason": res.reason, **res.figures,
               "note": "poses only: the per-image offsets estimated alongside are not applied to any value"}
     return (res.views if res.applied else views), record
-
-
-def _image_or_none(cameras, name):
-    try:
-        return cameras.image(name)
-    except (KeyError, ValueError, ThermogrammetryError):
-        return None
 
 
 def _survey_tie_sigma(survey_dir) -> float | None:

@@ -72,7 +72,7 @@ class PhotoFitOptions:
     #: clean radius (px) of the visibility test: samples within it of a silhouette or fold are left out
     clean_radius_px: int = 3
     max_angle_deg: float = 70.0
-    #: views need this many samples (with gradient) to be refined
+    #: views need this many samples (surface points they see cleanly, shared with another view) to be refined
     min_samples: int = 200
     #: σ of the rotation (deg) and centre (m) priors used where a view has none from the survey
     default_rotation_std_deg: float = 1.0
@@ -113,7 +113,7 @@ class PhotoFitResult:
     ``applied`` False with ``reason`` when nothing was changed (the views keep their poses); ``views`` the views with
     the refined poses (or the input ones); ``offsets`` (K,) the per-view additive offsets estimated alongside (NOT
     applied to any temperature: the texture stays as the images give it); ``figures``: samples, points, the robust
-    RMS disagreement before/after per level, per-view rotation and centre changes, seconds."""
+    disagreement (1.4826 MAD) before/after and per level, per-view rotation and centre changes, seconds."""
 
     applied: bool
     reason: str
@@ -122,9 +122,9 @@ class PhotoFitResult:
     figures: dict = field(default_factory=dict)
 
 
-def _surface_samples(V, F, spacing_m: float, max_points: int, seed: int):
-    """Area-weighted, seeded points on the faces: (points (N, 3), face (N,))."""
-    a = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+def _surface_samples(V, F, area, spacing_m: float, max_points: int, seed: int):
+    """Area-weighted (``area`` (F,) m²), seeded points on the faces: (points (N, 3), face (N,))."""
+    a = area
     total = float(a.sum())
     n = int(min(max_points, max(1, total / spacing_m**2)))
     rng = np.random.default_rng(seed)
@@ -156,8 +156,12 @@ def _blurred_with_gradient(img, blur_px: float):
     return a, gx, gy
 
 
+#: Huber's tuning constant (robust sigmas): 95 % efficiency for Gaussian residuals
+HUBER_K = 1.345
+
+
 def _huber_w(r, s):
-    c = 1.345 * s
+    c = HUBER_K * s
     a = np.abs(r)
     return np.where(a <= c, 1.0, c / np.maximum(a, 1e-300))
 
@@ -179,7 +183,7 @@ def photometric_pose_fit(vertices, faces, views: Sequence, *, rotation_std_deg=N
     :class:`PhotoFitResult`
     """
     from ..geometry import Pose
-    from .texture import (TextureConfig, _check_mesh, _intersector, local_origin, pixel_surfaces, plane_ids,
+    from .texture import (TextureConfig, _check_mesh, _face_geometry, _intersector, local_origin, pixel_surfaces, plane_ids,
                           usable_in_view, view_in_frame)
 
     opt = options or PhotoFitOptions()
@@ -208,12 +212,12 @@ def photometric_pose_fit(vertices, faces, views: Sequence, *, rotation_std_deg=N
 
     # samples on the surface, spaced by the median pixel footprint
     foot = []
-    cen = V[F].mean(axis=1)
+    _, area, cen = _face_geometry(V, F)
     for v in lv:
         f = 0.5 * (v.camera.K[0, 0] + v.camera.K[1, 1])
         d = np.linalg.norm(cen - v.pose.center, axis=1)
         foot.append(np.median(d) / f)
-    X, fi = _surface_samples(V, F, opt.spacing_px * float(np.median(foot)), opt.max_points, opt.seed)
+    X, fi = _surface_samples(V, F, area, opt.spacing_px * float(np.median(foot)), opt.max_points, opt.seed)
     inter = _intersector(V, F)
     planes = plane_ids(V, F)
     cfg = TextureConfig(texel_size_m=1.0, clean_radius_px=int(opt.clean_radius_px), max_angle_deg=opt.max_angle_deg)
@@ -261,7 +265,7 @@ def photometric_pose_fit(vertices, faces, views: Sequence, *, rotation_std_deg=N
         prob = _Problem(lv, imgs, Xs, vis_idx, active, prior, pairs)
         samples = prob.sample(state)
         if state.T is None:
-            state.T = prob.robust_mean(samples)
+            state.T = prob.point_means(samples)
         s = prob.robust_sigma(samples, state.T)
         cost = prob.cost(samples, state, s)
         lam = 1e-3
@@ -289,9 +293,9 @@ def photometric_pose_fit(vertices, faces, views: Sequence, *, rotation_std_deg=N
     R, C, off = state.R, state.C, state.offsets
     # the disagreement at the finest level, before and after, each with the points' robust mean temperatures
     s0 = prob.sample(_State(R0, C0, np.zeros(K), None))
-    s_before = prob.robust_sigma(s0, prob.robust_mean(s0))
+    s_before = prob.robust_sigma(s0, prob.point_means(s0))
     fin = prob.sample(state)
-    s_after = prob.robust_sigma(fin, prob.robust_mean(fin))
+    s_after = prob.robust_sigma(fin, prob.point_means(fin))
     out = []
     rot_change, cen_change = [], []
     for k, v in enumerate(views):
@@ -365,7 +369,7 @@ class _Problem:
     def residuals(self, samples, st: _State):
         return [samples[k][0] + st.offsets[k] - st.T[self.vis[k]] for k in range(self.K)]
 
-    def robust_mean(self, samples):
+    def point_means(self, samples):
         """(P,) the mean of each point's samples (the start of its temperature; NaN for a point no view samples)."""
         s_sum = np.zeros(self.P)
         n = np.zeros(self.P)
@@ -382,27 +386,32 @@ class _Problem:
         r = r[np.isfinite(r)]
         return 1.4826 * float(np.median(np.abs(r - np.median(r)))) + 1e-12 if len(r) else 1.0
 
-    def _prior_residuals(self, st: _State, s: float):
+    def _prior_terms(self, st: _State, s: float):
+        """The priors towards the start, in units of the samples' robust σ ``s``: per view the weights (K, 6) and the
+        deviations (K, 6) of (rotation vector of ``R R0^T``, centre); and the block's mean-centre term: the active
+        views, its weights (3,) and the summed centre deviation (3,) (stiff: 1e-3 of the views' mean centre σ)."""
         pr = self.prior
-        out = []
+        w = np.empty((self.K, 6))
+        d = np.empty((self.K, 6))
         for k in range(self.K):
-            dw = axis_angle_from_matrix(st.R[k] @ pr.R0[k].T) / pr.rot_sd[k]
-            dc = (st.C[k] - pr.C0[k]) / pr.cen_sd[k]
-            out.append(np.r_[dw, dc])
-        return s * np.concatenate(out)
+            w[k, :3] = (s / pr.rot_sd[k]) ** 2
+            w[k, 3:] = (s / pr.cen_sd[k]) ** 2
+            d[k, :3] = axis_angle_from_matrix(st.R[k] @ pr.R0[k].T)
+            d[k, 3:] = st.C[k] - pr.C0[k]
+        act = np.flatnonzero(self.active)
+        wm = (s / (1e-3 * np.mean(pr.cen_sd[act], axis=0))) ** 2 / len(act) ** 2 if len(act) else np.zeros(3)
+        dmean = sum((st.C[k] - pr.C0[k] for k in act), np.zeros(3))
+        return w, d, act, wm, dmean
 
     def cost(self, samples, st: _State, s: float) -> float:
-        c = 1.345 * s
+        c = HUBER_K * s
         tot = 0.0
         for r in self.residuals(samples, st):
             a = np.abs(r[np.isfinite(r)])
             tot += float(np.sum(np.where(a <= c, 0.5 * a * a, c * a - 0.5 * c * c)))
-        act = np.flatnonzero(self.active)
-        if len(act):
-            wm = (s / (1e-3 * np.mean(self.prior.cen_sd[act], axis=0))) ** 2 / len(act) ** 2
-            dmean = sum(st.C[k] - self.prior.C0[k] for k in act)
-            tot += 0.5 * float(np.sum(wm * dmean**2))
-        return tot + 0.5 * float(np.sum(self._prior_residuals(st, s) ** 2)) + 0.5 * float(np.sum((1e-3 * st.offsets) ** 2))
+        w, d, _, wm, dmean = self._prior_terms(st, s)
+        tot += 0.5 * float(np.sum(wm * dmean**2))
+        return tot + 0.5 * float(np.sum(w * d**2)) + 0.5 * float(np.sum((1e-3 * st.offsets) ** 2))
 
     def solve(self, samples, st: _State, s: float, lam: float):
         """LM step ``(d_omega (K, 3), d_C (K, 3), d_offsets (K,), d_T (P,))`` or None."""
@@ -438,27 +447,18 @@ class _Problem:
             h = np.zeros((len(self.vis[k]), 7))
             h[m] = -(A * w[:, None])
             hv[k] = h
-        pr = self.prior
+        pw, pd, act, wm, dmean = self._prior_terms(st, s)
         for k in range(K):
             sl = 7 * k
-            pw = (s / pr.rot_sd[k]) ** 2
-            pc = (s / pr.cen_sd[k]) ** 2
-            dw = axis_angle_from_matrix(st.R[k] @ pr.R0[k].T)
-            dc = st.C[k] - pr.C0[k]
-            Hvv[sl:sl + 3, sl:sl + 3] += np.eye(3) * pw
-            bv[sl:sl + 3] -= pw * dw
-            Hvv[sl + 3:sl + 6, sl + 3:sl + 6] += np.diag(pc)
-            bv[sl + 3:sl + 6] -= pc * dc
+            Hvv[sl:sl + 6, sl:sl + 6] += np.diag(pw[k])
+            bv[sl:sl + 6] -= pw[k] * pd[k]
             Hvv[sl + 6, sl + 6] += 1e-6
             bv[sl + 6] -= 1e-6 * st.offsets[k]
             if not self.active[k]:
                 Hvv[sl:sl + 6, sl:sl + 6] += np.eye(6) * 1e12  # held
         # the block's mean centre stays where the start put it (the photometric cost hardly sees a common shift of
         # every camera along the walls: coarse levels drift there; the survey's GNSS/GCP datum fixes it)
-        act = np.flatnonzero(self.active)
         if len(act):
-            wm = (s / (1e-3 * np.mean(pr.cen_sd[act], axis=0))) ** 2 / len(act) ** 2
-            dmean = sum(st.C[k] - pr.C0[k] for k in act)
             ci = (7 * act[:, None] + 3 + np.arange(3)[None, :])  # (n, 3) centre columns
             for a in range(3):
                 Hvv[np.ix_(ci[:, a], ci[:, a])] += wm[a]
