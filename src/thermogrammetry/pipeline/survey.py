@@ -2218,7 +2218,11 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
         return rig, summary, pre + [f"{head} refused: {reg.reason}"], self_cal
     notes = pre + [f"{head}: {len(reg.pairs_used)} pair(s) agree, rotation {np.degrees(np.linalg.norm(axis_angle_from_matrix(reg.R))):.2f} deg "
              f"(σ {', '.join(f'{x:.3f}' for x in reg.rotation_std_deg)} deg, spread {reg.spread_deg:.2f} deg), "
-             f"thermal focal x {reg.focal_scale:.4f}; held fixed in the adjustment"]
+             f"thermal focal x {reg.focal_scale:.4f}"
+             + (f", t {', '.join(f'{x:.3f}' for x in reg.t)} (σ "
+                f"{', '.join('held' if not np.isfinite(x) else f'{x:.3f}' for x in reg.translation_std)}; model units)"
+                if reg.t_determined else ", t held (pairs at one depth)")
+             + "; held fixed in the adjustment"]
     if not thermal_camera_given and abs(reg.focal_scale - 1.0) > 1e-9:
         K = tcam.K
         rec.cameras[tcam_k] = tcam.with_params(_scaled_focal_params(tcam, reg.focal_scale))
