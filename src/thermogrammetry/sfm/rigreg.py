@@ -25,8 +25,9 @@ along the axis it is held: its magnification traded freely with the focal scale)
 blur of ``blur_px``. Then every pair alone (rotation only, t and s held): the rotation of each pair about
 the joint one gives the spread of the estimate (1.4826 x median angle) and its σ (spread / sqrt(n) per
 axis). When t is free, its σ and the focal scale's come from a delete-group jackknife over the used pairs
-(``JACKKNIFE_GROUPS`` folds, each the joint fit at the finest blur without one group of pairs). The estimate is refused -- a result with its reason, never a guess -- when fewer than
-``min_pairs`` pairs show structure in common (their NCC at the joint solution below ``min_ncc``), when the
+(``JACKKNIFE_GROUPS`` folds, each the joint fit at the finest blur without one group of pairs). The estimate
+is refused -- a result with its reason, never a guess -- when fewer than ``min_pairs`` pairs show structure in
+common (their NCC at the joint solution below ``min_ncc``), when the
 spread exceeds ``max_spread_deg`` or when the solution lies on the border of the grid.
 
 What it does not do: the translation comes from the parallax between near and far pairs; a block at one
@@ -346,10 +347,11 @@ class _Objective:
 
 #: groups of the delete-group jackknife that gives the σ of t and of the focal scale (fewer pairs: one per group)
 JACKKNIFE_GROUPS = 6
-#: each fold on every JACKKNIFE_STRIDE-th sample, at most JACKKNIFE_ITERATIONS Nelder-Mead iterations: the folds'
-#: spread comes mostly from the pairs left out (full samples and 300 iterations: 520 s of jackknife on the frescoes'
-#: 33 pairs; every 4th sample inflated σ of t 4-10x on the 5-50 m test block, every 2nd by at most 3x)
-JACKKNIFE_STRIDE = 2
+#: each fold on a subset of about JACKKNIFE_SAMPLES_PER_PAIR samples a pair (every k-th), at most
+#: JACKKNIFE_ITERATIONS Nelder-Mead iterations: the folds' spread comes mostly from the pairs left out (all samples
+#: and 300 iterations: 520 s of jackknife on the frescoes' 33 pairs of 20 000 samples; 2000 a pair inflated σ of t
+#: 4-10x on the 5-50 m test block, 4000 by at most 3x)
+JACKKNIFE_SAMPLES_PER_PAIR = 4000
 JACKKNIFE_ITERATIONS = 150
 
 
@@ -473,10 +475,11 @@ def _register_rig(pairs: list, thermal_camera, *, R0=None, t0=None,
     # did not: 0.011 m reported for a t 0.10 m off, see tests/test_rigreg.py)
     if t_free and len(good) >= 3:
         groups = min(len(good), JACKKNIFE_GROUPS)
+        stride = max(1, int(np.median([len(pairs[k].points_cam) for k in good])) // JACKKNIFE_SAMPLES_PER_PAIR)
         folds = []
         for g in range(groups):
             obj = _Objective([pairs[k] for i, k in enumerate(good) if i % groups != g], thermal_camera, blurs[-1],
-                             depth_ref, stride=JACKKNIFE_STRIDE)
+                             depth_ref, stride=stride)
             folds.append(_nelder_mead(obj, x, step, free, max_iter=JACKKNIFE_ITERATIONS, xatol=1e-5)[0])
             evals += obj.evaluations
         xs = np.array(folds)
