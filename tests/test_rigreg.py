@@ -182,3 +182,34 @@ def test_translation_across_the_axis_with_its_jackknife_sigma(depth_pairs):
     s = r.summary()
     assert s["translation_std"][2] is None and s["translation_std"][0] == pytest.approx(sd[0])
 
+
+
+def test_registered_rig_sigma_reaches_the_thermal_centres():
+    """A fixed registered rig: the thermal view's centre σ carries the registration's σ of t (C_s = C_m − R_sᵀ t, so
+    with an exactly known master pose Cov(C_s) = R_sᵀ diag(σ_t²) R_s) and its rotation σ the registration's σ of R."""
+    from types import SimpleNamespace
+
+    from thermogrammetry.geometry.rotations import matrix_from_axis_angle
+    from thermogrammetry.sfm.rig import RigViews, slave_std
+
+    Rm = matrix_from_axis_angle(np.deg2rad([178.0, 3.0, 40.0]))  # a nadir-looking RGB camera
+    Cm = np.array([2600010.0, 1200020.0, 450.0])
+    Rr = matrix_from_axis_angle(np.deg2rad([0.5, -0.4, 0.3]))
+    tr = np.array([-0.10, -0.02, 0.0])
+    rec = SimpleNamespace(R=np.array([Rm, Rr @ Rm]), t=np.array([-Rm @ Cm, Rr @ (-Rm @ Cm) + tr]))
+    names = [f"image0.{a}" for a in ("wx", "wy", "wz", "X0", "Y0", "Z0")]
+    fa = SimpleNamespace(param_names=names, covariance=np.eye(6) * 1e-16)
+    sd_t = np.array([0.012, 0.003, np.nan])  # along the axis held: not known, modelled as 0
+    sd_r = np.deg2rad([0.03, 0.02, 0.05])
+    c_sd, _ = slave_std(RigViews({1: 0}, Rr, tr, fixed=True, prior_translation_std=sd_t), rec, fa, 1)
+    Rs = Rr @ Rm
+    expect = np.sqrt(np.diag(Rs.T @ np.diag(np.nan_to_num(sd_t) ** 2) @ Rs))
+    np.testing.assert_allclose(c_sd, expect, rtol=1e-6, atol=1e-9)
+    # with the rotation σ as well: the rotation's share of the centre is |t| σ_R (5e-5 m here)
+    c_sd2, r_sd = slave_std(RigViews({1: 0}, Rr, tr, fixed=True, prior_rotation_std=sd_r, prior_translation_std=sd_t),
+                            rec, fa, 1)
+    np.testing.assert_allclose(r_sd, np.degrees(sd_r), rtol=1e-3)
+    assert np.all(np.abs(np.sqrt(np.abs(c_sd2 ** 2 - c_sd ** 2))) < np.linalg.norm(tr) * sd_r.max() * 1.01)
+    # without the translation σ: the master's (~1e-8 m here) and the rotation's share only
+    c0, _ = slave_std(RigViews({1: 0}, Rr, tr, fixed=True, prior_rotation_std=sd_r), rec, fa, 1)
+    assert np.all(c0 < np.linalg.norm(tr) * sd_r.max() * 1.01), c0

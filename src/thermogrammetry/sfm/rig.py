@@ -287,6 +287,9 @@ class RigViews:
     #: σ (3,) rad of a fixed R_rel known from outside the adjustment (an image registration), same axes as ``std``;
     #: propagated into the rig views' rotation σ by :func:`slave_std`
     prior_rotation_std: np.ndarray | None = None
+    #: σ (3,) of a fixed t_rel from the same registration (CRS units; 0 for a component it held), propagated into
+    #: the rig views' centre σ by :func:`slave_std`
+    prior_translation_std: np.ndarray | None = None
 
 
 def _project_err(cam, R, t, X, xy):
@@ -403,8 +406,9 @@ def slave_std(views: RigViews, rec, fa, s: int) -> tuple[np.ndarray, np.ndarray]
     """σ of the centre (m) and rotation (deg) of rig view ``s``, propagated from the master pose and the rig.
 
     Uses the a-posteriori covariance of ``fa`` (names ``image<m>.wx..Z0`` and ``rig0.wx..tz``) and, for a fixed rig
-    registered on image edges, its rotation σ (``views.prior_rotation_std``, independent of the adjustment);
-    first-order propagation by central differences. NaN when the covariance is not available.
+    registered on image edges, its rotation and translation σ (``views.prior_rotation_std``,
+    ``views.prior_translation_std``, independent of the adjustment); first-order propagation by central
+    differences. NaN when the covariance is not available.
     """
     m = views.master[s]
     names = list(fa.param_names or [])
@@ -416,27 +420,31 @@ def slave_std(views: RigViews, rec, fa, s: int) -> tuple[np.ndarray, np.ndarray]
     use_rig = not views.fixed and all(c is not None for c in rig_cols)
     if use_rig:
         cols += rig_cols
-    prior = None if use_rig or views.prior_rotation_std is None else np.asarray(views.prior_rotation_std, float)
-    Rm, tm = rec.R[m], rec.t[m]
-    Cm = -Rm.T @ tm
+    prior = None
+    if not use_rig and (views.prior_rotation_std is not None or views.prior_translation_std is not None):
+        pr = np.zeros(3) if views.prior_rotation_std is None else np.asarray(views.prior_rotation_std, float)
+        pt = np.zeros(3) if views.prior_translation_std is None else np.asarray(views.prior_translation_std, float)
+        prior = np.nan_to_num(np.concatenate([pr, pt]), nan=0.0)
+    Rm = rec.R[m]
     R0, t0 = views.R, views.t
 
     def f(p):
         Rm_ = matrix_from_axis_angle(p[0:3]) @ Rm
-        Cm_ = Cm + p[3:6]
         Rr, tr_ = R0, t0
         if use_rig:
             Rr = matrix_from_axis_angle(p[6:9]) @ R0
             tr_ = t0 + p[9:12]
         elif prior is not None:
             Rr = matrix_from_axis_angle(p[6:9]) @ R0
+            tr_ = t0 + p[9:12]
         Rs = Rr @ Rm_
-        ts = Rr @ (-Rm_ @ Cm_) + tr_
-        Cs = -Rs.T @ ts
+        # C_s = -R_sᵀ t_s with t_s = R_r (-R_m C_m) + t_r, i.e. C_m - R_sᵀ t_r: returned relative to C_m, since
+        # differences of projected-CRS coordinates (~1e6 m) over h = 1e-6 lose four digits
+        dCs = p[3:6] - Rs.T @ tr_
         w = axis_angle_from_matrix(Rs @ (R0 @ Rm).T)
-        return np.concatenate([Cs, w])
+        return np.concatenate([dCs, w])
 
-    n = len(cols) + (3 if prior is not None else 0)
+    n = len(cols) + (6 if prior is not None else 0)
     J = np.zeros((6, n))
     for a in range(n):
         h = 1e-6
@@ -551,8 +559,14 @@ def start_rig(rec, rig: RigFile, master: dict, images, scale: float = 1.0) -> tu
                                              rec.t[[s for s, _ in co]])
         t0 = t0 * scale
         how = f"mean of {len(co)} thermal image(s) oriented with their RGB partners (rotation spread median {float(np.median(spread)):.2f} deg)"
-    prior = None if rig.registered is None else np.deg2rad(np.asarray(rig.registered["rotation_std_deg"], float))
-    return RigViews(dict(master), R0, t0, fixed=not rig.estimate, start=how, prior_rotation_std=prior), notes
+    prior = prior_t = None
+    if rig.registered is not None:
+        prior = np.deg2rad(np.asarray(rig.registered["rotation_std_deg"], float))
+        if rig.registered.get("t_determined"):  # held components: 0 (the registration does not know them either)
+            prior_t = np.array([np.nan if v is None else float(v) * scale
+                                for v in rig.registered.get("translation_std") or [None] * 3])
+    return RigViews(dict(master), R0, t0, fixed=not rig.estimate, start=how, prior_rotation_std=prior,
+                    prior_translation_std=prior_t), notes
 
 
 def own_observations(views: RigViews, images, obs_image, manual_obs=()) -> dict:
