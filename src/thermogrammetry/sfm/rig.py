@@ -545,7 +545,7 @@ def start_rig(rec, rig: RigFile, master: dict, images, scale: float = 1.0) -> tu
         R0, t0 = rig.R.copy(), rig.t.copy() * scale
         how = (f"image registration of {r['pairs_used']} of {r['pairs']} RGB/thermal pairs (rotation σ "
                f"{', '.join(f'{x:.3f}' for x in r['rotation_std_deg'])} deg, spread {r['spread_deg']:.2f} deg; "
-               f"t {_registered_t_text(r, t0, scale) if r['t_determined'] else 'not determined (pairs at one depth), held at 0'})")
+               f"t {_registered_t_text(r, t0, scale) if r['t_determined'] else f'not determined (pairs at one depth), held at its start {np.round(t0, 3).tolist()}'})")
     elif rig.R is not None:
         R0, t0, how = rig.R.copy(), rig.t.copy(), f"{rig.source}"
         if co:
