@@ -1,4 +1,5 @@
-"""Image sampling shared by the layers (sfm, products): one bilinear sampler with the project's pixel convention."""
+"""Image sampling shared by the layers (sfm, dense, products): one bilinear sampler with the project's pixel convention,
+and one fill of no-data pixels by their nearest valid value."""
 
 from __future__ import annotations
 
@@ -17,3 +18,15 @@ def bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
     a = img[y0, x0] * (1 - fx) + img[y0, x0 + 1] * fx
     b = img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx
     return a * (1 - fy) + b * fy
+
+
+def fill_nearest_valid(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(H, W) float32/float64 copy of ``a`` with every invalid pixel set to the value of its nearest valid pixel
+    (L1 distance; OpenCV's labelled distance transform numbers the valid pixels in raster order)."""
+    import cv2
+
+    _, lab = cv2.distanceTransformWithLabels((~valid).view(np.uint8), cv2.DIST_L1, 3,
+                                             labelType=cv2.DIST_LABEL_PIXEL)
+    lut = np.zeros(int(np.count_nonzero(valid)) + 1, np.float64 if a.dtype == np.float64 else np.float32)
+    lut[1:] = a[valid]
+    return lut[lab]

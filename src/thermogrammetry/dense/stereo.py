@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._sampling import fill_nearest_valid
 from ..errors import InvalidInputError
 
 __all__ = ["disparity", "normalise_for_matching", "matching_codes", "disparity_range", "sgbm_matcher"]
@@ -215,18 +216,6 @@ def _thread_pool():
     return _POOL[0]
 
 
-def _fill_nearest_value(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """(H, W) float32/float64 copy of ``a`` with every invalid pixel set to the value of its nearest valid pixel
-    (L1 distance; OpenCV's labelled distance transform numbers the valid pixels in raster order)."""
-    import cv2
-
-    _, lab = cv2.distanceTransformWithLabels((~valid).view(np.uint8), cv2.DIST_L1, 3,
-                                             labelType=cv2.DIST_LABEL_PIXEL)
-    lut = np.zeros(int(np.count_nonzero(valid)) + 1, np.float64 if a.dtype == np.float64 else np.float32)
-    lut[1:] = a[valid]
-    return lut[lab]
-
-
 def matching_codes(left, right, *, window_px: int = 15, clip_sigma: float = 3.0,
                    equalised_weight: float = EQUALISED_WEIGHT):
     """8-bit codes of a rectified pair for SGBM: ``w`` × joint histogram equalisation + (1 − ``w``) × local
@@ -273,7 +262,7 @@ def matching_codes(left, right, *, window_px: int = 15, clip_sigma: float = 3.0,
     # edge at the frame's border for SGBM to lock onto (5 rendered survey pairs of 320x256 px, bad pixels > 1 px:
     # 0.0505 0.0399 0.0424 0.0197 0.0491 -> 0.0441 0.0391 0.0364 0.0109 0.0406, tests/test_dense.py), and the
     # all-valid (fast) paths below
-    Lf, Rf = _run_pair(lambda ab: ab[0] if ab[2] else _fill_nearest_value(ab[0], ab[1]), (L, vl, all_l), (R, vr, all_r))
+    Lf, Rf = _run_pair(lambda ab: ab[0] if ab[2] else fill_nearest_valid(ab[0], ab[1]), (L, vl, all_l), (R, vr, all_r))
     masks = (None if all_l else vl, None if all_r else vr)
     if 0.0 < w < 1.0 and _threaded(Lf):
         # the two local normalisations on the two pool threads while this thread equalises (same values)

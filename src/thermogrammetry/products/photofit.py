@@ -49,7 +49,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .._sampling import bilinear
+from .._sampling import bilinear, fill_nearest_valid
 from .._validate import config_keys
 from ..errors import ConfigError, InvalidInputError
 from ..geometry.rotations import axis_angle_from_matrix, matrix_from_axis_angle, skew
@@ -143,12 +143,9 @@ def _blurred_with_gradient(img, blur_px: float):
     import cv2
 
     a = np.asarray(img, np.float32)
-    bad = ~np.isfinite(a)
-    if bad.any():
-        from scipy.ndimage import distance_transform_edt
-
-        idx = distance_transform_edt(bad, return_distances=False, return_indices=True)
-        a = a[tuple(idx)]
+    valid = np.isfinite(a)
+    if not valid.all():
+        a = fill_nearest_valid(a, valid)
     if blur_px > 0:
         a = cv2.GaussianBlur(a, (0, 0), sigmaX=blur_px, sigmaY=blur_px, borderType=cv2.BORDER_REPLICATE)
     gx = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=1, borderType=cv2.BORDER_REPLICATE) * 0.5
