@@ -293,6 +293,8 @@ def _rig_rows(rig: dict, ref: dict) -> None:
     n_th = sum(bool(im["oriented"]) for im in th)
     print(f"{label:<38}{n_th:>6}/{len(th):<2}{str(sv['components']):>14}{'':>10}{'':>11}{'':>17}{rig['code']:>6}"
           f"{rig['wall']:>8.0f}")
+    from thermogrammetry.sfm.rig import t_with_sigma_text
+
     reg = sv.get("rig", {}).get("registration")
     if not reg:
         print("    (no registration: the rig was estimated from tie points or not at all)")
@@ -303,9 +305,8 @@ def _rig_rows(rig: dict, ref: dict) -> None:
     ang = float(np.degrees(np.arccos(np.clip((np.trace(np.array(reg["R"])) - 1) / 2, -1, 1))))
     print(f"    registration: {reg['pairs_used']}/{reg['pairs']} pairs agree, R* {ang:.2f} deg, σ "
           f"{', '.join(f'{x:.3f}' for x in reg['rotation_std_deg'])} deg, spread {reg['spread_deg']:.2f} deg, "
-          f"t {np.round(reg['t'], 3).tolist()} (model units; "
-          + (f"σ {[None if x is None else round(x, 4) for x in reg.get('translation_std', [None] * 3)]})"
-             if reg.get("t_determined") else "held: pairs at one depth)")
+          + (f"t {t_with_sigma_text(reg['t'], reg['translation_std'])} model units"
+             if reg.get("t_determined") else f"t {np.round(reg['t'], 3).tolist()} held (pairs at one depth)")
           + f", thermal focal x {reg['focal_scale']:.4f}, "
           f"median NCC {reg['ncc_median']:.3f}, {reg['seconds']:.0f} s")
     own = [(im["name"], im["tie_points"], im["rms_px"]) for im in th if im.get("tie_points")]

@@ -2158,7 +2158,7 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
     from dataclasses import replace as dc_replace
 
     from ..geometry.rotations import axis_angle_from_matrix
-    from ..sfm.rig import RIG_EST_MIN_FRAMES, _co_pairs
+    from ..sfm.rig import RIG_EST_MIN_FRAMES, _co_pairs, t_with_sigma_text
     from ..sfm.rigreg import RigRegistrationOptions, pair_samples, register_rig
 
     if not rig.estimate or not master:
@@ -2219,8 +2219,7 @@ def _rig_by_registration(project: ProjectStore, rec, rig, master: dict, names: l
     notes = pre + [f"{head}: {len(reg.pairs_used)} pair(s) agree, rotation {np.degrees(np.linalg.norm(axis_angle_from_matrix(reg.R))):.2f} deg "
              f"(σ {', '.join(f'{x:.3f}' for x in reg.rotation_std_deg)} deg, spread {reg.spread_deg:.2f} deg), "
              f"thermal focal x {reg.focal_scale:.4f}"
-             + (f", t {', '.join(f'{x:.3f}' for x in reg.t)} (σ "
-                f"{', '.join('held' if not np.isfinite(x) else f'{x:.3f}' for x in reg.translation_std)}; model units)"
+             + (f", t {t_with_sigma_text(reg.t, reg.translation_std)} model units"
                 if reg.t_determined else ", t held (pairs at one depth)")
              + "; held fixed in the adjustment"]
     if not thermal_camera_given and abs(reg.focal_scale - 1.0) > 1e-9:

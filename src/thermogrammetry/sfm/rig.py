@@ -525,10 +525,10 @@ def plan_rig_blocks(rec, rig: RigFile, master: dict, comps: list) -> tuple[list,
     return out, enabled, notes
 
 
-def _registered_t_text(r: dict, t: np.ndarray, scale: float) -> str:
-    """``t`` of a registered rig with its σ (``translation_std`` of the registration, model units x ``scale``)."""
-    sd = [np.nan if v is None else float(v) * scale for v in (r.get("translation_std") or [None] * 3)]
-    return (f"from the parallax between pairs: {', '.join(f'{x:.3f}' for x in t)} (σ "
+def t_with_sigma_text(t, sd) -> str:
+    """``"x, y, z (σ a, b, held)"``: a rig translation with its σ per component ("held" where σ is None or NaN)."""
+    sd = [np.nan if v is None else float(v) for v in sd]
+    return (f"{', '.join(f'{x:.3f}' for x in t)} (σ "
             f"{', '.join('held' if not np.isfinite(x) else f'{x:.3f}' for x in sd)})")
 
 
@@ -545,7 +545,10 @@ def start_rig(rec, rig: RigFile, master: dict, images, scale: float = 1.0) -> tu
         R0, t0 = rig.R.copy(), rig.t.copy() * scale
         how = (f"image registration of {r['pairs_used']} of {r['pairs']} RGB/thermal pairs (rotation σ "
                f"{', '.join(f'{x:.3f}' for x in r['rotation_std_deg'])} deg, spread {r['spread_deg']:.2f} deg; "
-               f"t {_registered_t_text(r, t0, scale) if r['t_determined'] else f'not determined (pairs at one depth), held at its start {np.round(t0, 3).tolist()}'})")
+               + (f"t from the parallax between pairs: "
+                  f"{t_with_sigma_text(t0, [None if v is None else v * scale for v in r.get('translation_std') or [None] * 3])})"
+                  if r["t_determined"] else
+                  f"t not determined (pairs at one depth), held at its start {np.round(t0, 3).tolist()})"))
     elif rig.R is not None:
         R0, t0, how = rig.R.copy(), rig.t.copy(), f"{rig.source}"
         if co:
