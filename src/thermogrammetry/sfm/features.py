@@ -8,13 +8,23 @@ pixel convention ((0, 0) is the centre of the top-left pixel), the project's con
 
 Detectors: OpenCV SIFT (default; descriptors converted to RootSIFT, Arandjelović & Zisserman 2012, so
 Euclidean matching compares Hellinger distances) and ORB (oriented FAST + rotated BRIEF, binary,
-Hamming distance) as the measured alternative (``benchmarks/survey.py``). OpenCV 5 moved AKAZE out of
-the main package, and its learned detectors (ALIKED, DISK) need model weights we cannot ship.
+Hamming distance) as the measured alternative (``benchmarks/survey.py``), and ASIFT (:func:`asift_views`:
+SIFT run on simulated views of the frame tilted by t = √2, 2, 2√2 … ≤ ``asift_max_tilt`` and rotated in
+steps of 72°/t, keypoints mapped back to the frame; Morel & Yu 2009) for frames taken 30–60° apart, where
+SIFT's descriptors no longer agree (a hand-held facade or fresco set). OpenCV's own ``cv2.AffineFeature``
+subsamples the tilted view with nearest-neighbour sampling, which moves keypoints by up to (t − 1)/2 px;
+ours warps each view with one exact affine map (pixel centres at integers, OpenCV's convention) after the
+anti-aliasing blur and maps keypoints back through its inverse, after SIFT's own 0.25 px upscale offset is
+removed in the view (:mod:`thermogrammetry.sfm.keypoints`), so ASIFT keypoints come out in the project's
+convention. OpenCV 5 moved AKAZE out of the main package, and its learned detectors (ALIKED, DISK) need
+model weights we cannot ship.
 
 References
 ----------
 Lowe, D. G. (2004). Distinctive image features from scale-invariant keypoints. IJCV 60(2), 91-110.
 Arandjelović, R., Zisserman, A. (2012). Three things everyone should know to improve object retrieval. CVPR.
+Morel, J.-M., Yu, G. (2009). ASIFT: a new framework for fully affine invariant image comparison. SIAM J.
+Imaging Sciences 2(2), 438-469.
 Rublee, E., Rabaud, V., Konolige, K., Bradski, G. (2011). ORB: an efficient alternative to SIFT or SURF. ICCV.
 Zuiderveld, K. (1994). Contrast limited adaptive histogram equalization. Graphics Gems IV, 474-485.
 Harris, J. G., Chiang, Y.-M. (1999). Nonuniformity correction of infrared image sequences using the
@@ -31,12 +41,14 @@ from ..enums import StrChoice
 from ..errors import ConfigError, ShapeError
 from .._validate import config_keys
 
-__all__ = ["Detector", "Enhancement", "FeatureOptions", "Features", "detector_input", "extract_features", "fixed_pattern"]
+__all__ = ["Detector", "Enhancement", "FeatureOptions", "Features", "asift_views", "detector_input", "extract_features",
+           "fixed_pattern"]
 
 
 class Detector(StrChoice):
     SIFT = "sift"
     ORB = "orb"
+    ASIFT = "asift"  # SIFT on simulated affine views (tilts and rotations), for large viewpoint changes
 
 
 class Enhancement(StrChoice):
@@ -66,6 +78,10 @@ class FeatureOptions:
         SIFT contrast threshold (OpenCV default 0.04; lower finds more features on flat thermal frames).
     highpass_sigma_px : float
         Blur removed by ``highpass``.
+    asift_max_tilt : float
+        ASIFT: the largest simulated tilt (views at t = √2^k ≤ this, k ≥ 1, plus the frame itself; 4√2, 41
+        views, as Morel & Yu. Measured on the 40 thermal frescoes frames, 6000 features: t ≤ 2√2 41 verified
+        pairs, 37 consistent with the RGB reference; t ≤ 4√2 61 and 50, 1.7x the feature time).
     local_sigma_px, local_noise_factor : float
         ``local``: ``n = (a − G(a)) / sqrt(G((a − G(a))²) + (k·σ_noise)²)`` with Gaussian ``G`` of σ
         ``local_sigma_px`` and σ_noise estimated from the Laplacian (MAD); mapped as 128 + 40·n. Flat walls
@@ -85,6 +101,7 @@ class FeatureOptions:
     highpass_sigma_px: float = 25.0
     local_sigma_px: float = 8.0
     local_noise_factor: float = 2.0
+    asift_max_tilt: float = 4.0 * 2.0 ** 0.5
 
     def __post_init__(self):
         object.__setattr__(self, "detector", Detector(self.detector))
@@ -94,6 +111,8 @@ class FeatureOptions:
         if not 0 <= self.low_percentile < self.high_percentile <= 100:
             raise ConfigError(f"FeatureOptions: percentiles {self.low_percentile!r}, {self.high_percentile!r}: "
                               "expected 0 <= low < high <= 100")
+        if not (np.isfinite(self.asift_max_tilt) and 1.0 <= self.asift_max_tilt <= 8.0):
+            raise ConfigError(f"FeatureOptions.asift_max_tilt={self.asift_max_tilt!r}: expected a tilt in [1, 8]")
 
     @classmethod
     def from_dict(cls, d: dict) -> "FeatureOptions":
@@ -220,6 +239,8 @@ def extract_features(image, options: FeatureOptions | None = None) -> Features:
     opt = options or FeatureOptions()
     img8, valid = detector_input(image, opt)
     mask = valid.astype(np.uint8) * 255
+    if opt.detector is Detector.ASIFT:
+        return _asift_features(img8, mask, opt)
     if opt.detector is Detector.SIFT:
         det = cv2.SIFT_create(nfeatures=opt.max_features, contrastThreshold=opt.contrast_threshold)
     else:
@@ -240,6 +261,83 @@ def extract_features(image, options: FeatureOptions | None = None) -> Features:
         desc /= np.maximum(desc.sum(axis=1, keepdims=True), 1e-12)  # L1
         desc = np.sqrt(desc)  # RootSIFT: unit L2 norm
     return Features(xy, size, angle, desc)
+
+
+def asift_views(max_tilt: float = 4.0 * 2.0 ** 0.5) -> list[tuple[float, float]]:
+    """The simulated views of ASIFT: (tilt t, rotation φ in degrees) pairs, the frame itself first.
+
+    Tilts t = √2^k ≤ ``max_tilt`` (k ≥ 1); for each, rotations φ = 0, b/t, 2b/t, … < 180° with b = 72°
+    (Morel & Yu 2009, §4: the sampling that keeps neighbouring views within SIFT's own invariance).
+    """
+    views = [(1.0, 0.0)]
+    k = 1
+    while 2.0 ** (k / 2) <= max_tilt * (1 + 1e-9):
+        t = 2.0 ** (k / 2)
+        step = 72.0 / t
+        views += [(t, float(phi)) for phi in np.arange(0.0, 180.0 - 1e-9, step)]
+        k += 1
+    return views
+
+
+def _asift_features(img8: np.ndarray, mask: np.ndarray, opt: FeatureOptions) -> Features:
+    """SIFT on every view of :func:`asift_views`; keypoints mapped back to the frame in the pixel-centre
+    convention (SIFT's 0.25 px upscale offset removed in each view); the ``max_features`` strongest overall,
+    then one keypoint per 0.5 px cell and orientation kept (views overlap: the frame's own keypoints come
+    back from near-identity views)."""
+    import cv2
+
+    from .keypoints import SIFT_UPSCALE_OFFSET_PX
+
+    h, w = img8.shape
+    sift = cv2.SIFT_create(nfeatures=opt.max_features, contrastThreshold=opt.contrast_threshold)
+    xy_all, size_all, ang_all, resp_all, desc_all = [], [], [], [], []
+    corners = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], float)
+    for t, phi in asift_views(opt.asift_max_tilt):
+        if t == 1.0:
+            view, vmask, A = img8, mask, np.array([[1.0, 0, 0], [0, 1.0, 0]])
+        else:
+            c, s_ = np.cos(np.radians(phi)), np.sin(np.radians(phi))
+            rot2 = np.array([[c, -s_], [s_, c]])
+            q = corners @ rot2.T
+            R = np.c_[rot2, -q.min(axis=0)]  # the frame rotated by φ, shifted into view
+            rsize = np.ceil(np.ptp(q, axis=0)).astype(int) + 1
+            rot = cv2.warpAffine(img8, R, (int(rsize[0]), int(rsize[1])), flags=cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_REPLICATE)
+            rmask = cv2.warpAffine(mask, R, (int(rsize[0]), int(rsize[1])), flags=cv2.INTER_NEAREST, borderValue=0)
+            # anti-aliasing before x is compressed by t: σ = 0.8 sqrt(t² − 1) in x (Morel & Yu 2009, §4)
+            rot = cv2.GaussianBlur(rot, (0, 0), sigmaX=0.8 * np.sqrt(t * t - 1.0), sigmaY=0.01)
+            # x' = x / t with pixel centres at integers in both images: one affine map, bilinear
+            S = np.array([[1.0 / t, 0, 0], [0, 1.0, 0]])
+            vsize = (int(np.floor((rsize[0] - 1) / t)) + 1, int(rsize[1]))
+            view = cv2.warpAffine(rot, S, vsize, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            vmask = cv2.warpAffine(rmask, S, vsize, flags=cv2.INTER_NEAREST, borderValue=0)
+            vmask = cv2.erode(vmask, np.ones((3, 3), np.uint8))
+            A = (np.vstack([S, [0, 0, 1]]) @ np.vstack([R, [0, 0, 1]]))[:2]
+        kps, desc = sift.detectAndCompute(view, vmask)
+        if desc is None or not kps:
+            continue
+        p = np.array([k.pt for k in kps], float) - SIFT_UPSCALE_OFFSET_PX
+        Ainv = cv2.invertAffineTransform(A)
+        xy_all.append(p @ Ainv[:, :2].T + Ainv[:, 2])
+        size_all.append(np.array([k.size for k in kps], np.float32) * np.float32(np.sqrt(t)))
+        ang_all.append(np.array([k.angle for k in kps], np.float32))
+        resp_all.append(np.array([k.response for k in kps]))
+        desc_all.append(desc)
+    if not xy_all:
+        return Features(np.zeros((0, 2)), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros((0, 128), np.float32))
+    xy = np.concatenate(xy_all)
+    inside = (xy[:, 0] >= 0) & (xy[:, 0] <= w - 1) & (xy[:, 1] >= 0) & (xy[:, 1] <= h - 1)
+    resp = np.concatenate(resp_all)
+    order = np.argsort(-np.where(inside, resp, -np.inf), kind="stable")[: int(inside.sum())]
+    # the same keypoint seen from near-identity views: keep the strongest per 0.5 px cell and 10° of angle
+    ang = np.concatenate(ang_all)
+    key = np.c_[np.floor(xy[order] * 2.0).astype(np.int64), np.floor(ang[order] / 10.0).astype(np.int64)]
+    _, first = np.unique(key, axis=0, return_index=True)
+    order = order[np.sort(first)][: opt.max_features]
+    desc = np.concatenate(desc_all)[order].astype(np.float32)
+    desc /= np.maximum(desc.sum(axis=1, keepdims=True), 1e-12)
+    desc = np.sqrt(desc)
+    return Features(xy[order], np.concatenate(size_all)[order], ang[order], desc)
 
 
 def fixed_pattern(frames, *, max_frames: int = 60, highpass_sigma_px: float = 0.0) -> np.ndarray | None:
