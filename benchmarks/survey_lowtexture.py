@@ -8,7 +8,8 @@ reference: the thermal camera sits in the same housing, so the relative motion b
 same rigid motion for both sensors up to the unknown rig rotation R* (a degree or two) and the rig's few-cm
 base.
 
-Checks, per thermal run:
+Thermal runs: ``--low-texture off``, ``--low-texture auto`` (the default) and ``--detector asift`` (SIFT on simulated
+tilted views). Checks, per thermal run:
 
 - images oriented, components, and the verified thermal pairs;
 - each verified pair against the RGB relative pose: median epipolar distance (px) of its matches under the
@@ -349,12 +350,11 @@ def main(argv=None) -> int:
             return 1
         ref = _poses(work / "rgb", "-visible")
         rows = []
-        for mode in ("off", "auto"):
-            run = _survey(base / "RadTIFF", work / f"thermal_{mode}", "--low-texture", mode)
-            if "error" in run:
-                rows.append((f"thermogrammetry, --low-texture {mode}", None, run))
-                continue
-            rows.append((f"thermogrammetry, --low-texture {mode}", evaluate(run, ref), run))
+        for label, key, extra in (("thermogrammetry, --low-texture off", "off", ("--low-texture", "off")),
+                                  ("thermogrammetry, --low-texture auto", "auto", ("--low-texture", "auto")),
+                                  ("thermogrammetry, --detector asift", "asift", ("--detector", "asift"))):
+            run = _survey(base / "RadTIFF", work / f"thermal_{key}", *extra)
+            rows.append((label, None if "error" in run else evaluate(run, ref), run))
         rig_json = work / "rig.json"
         rig_json.write_text(json.dumps({"format": "thermogrammetry/rig", "estimate": True,
                                         "pairing": {"rgb_suffix": "-visible", "thermal_suffix": "-radiometric"}}))
