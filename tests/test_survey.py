@@ -391,6 +391,7 @@ def test_float_tiff_without_unit_names_the_flag(tmp_path, capsys):
     (["--lever-arm", "a,b,c"], "expected comma-separated numbers"),
     (["--gnss-sigma", "0.02,-1"], "standard deviations must be > 0"),
     (["--rig", "rig.json"], "rig mode needs the RGB images"),
+    (["--detector", "SURF"], "'SURF' is not a valid Detector; expected one of 'sift', 'orb', 'asift'"),
 ])
 def test_bad_flags_exit_2_with_the_value(tmp_path, capsys, args, msg):
     from thermogrammetry.cli.main import main
