@@ -281,9 +281,10 @@ def asift_views(max_tilt: float = 4.0 * 2.0 ** 0.5) -> list[tuple[float, float]]
 
 def _asift_features(img8: np.ndarray, mask: np.ndarray, opt: FeatureOptions) -> Features:
     """SIFT on every view of :func:`asift_views`; keypoints mapped back to the frame in the pixel-centre
-    convention (SIFT's 0.25 px upscale offset removed in each view); the ``max_features`` strongest overall,
-    then one keypoint per 0.5 px cell and orientation kept (views overlap: the frame's own keypoints come
-    back from near-identity views)."""
+    convention (SIFT's 0.25 px upscale offset removed in each view). Of the keypoints that land in the frame,
+    one per 0.5 px cell and 10° of orientation is kept (the strongest: neighbouring views find the same
+    keypoint), then the ``max_features`` strongest overall. ``angle`` is the orientation in the view the
+    descriptor was computed in, ``size`` its diameter there times √t (the affine map has no single scale)."""
     import cv2
 
     from .keypoints import SIFT_UPSCALE_OFFSET_PX
