@@ -176,11 +176,11 @@ def survey(
                 if min(v) <= 0:
                     raise ThermogrammetryError(f"{flag} {val!r}: standard deviations must be > 0")
                 extra["gnss_sigma_m"] = tuple(v if len(v) == 3 else (v[0], v[0], v[1]))
-        from ..sfm.features import Detector, FeatureOptions
+        from ..sfm.features import ASIFT_MAX_FEATURES, Detector, FeatureOptions
 
         det = Detector(detector)
-        # ASIFT's views share one feature budget: twice SIFT's (measured on the frescoes' thermal frames)
-        extra["features"] = FeatureOptions(detector=det, max_features=6000 if det is Detector.ASIFT else 3000)
+        extra["features"] = (FeatureOptions(detector=det, max_features=ASIFT_MAX_FEATURES) if det is Detector.ASIFT
+                             else FeatureOptions(detector=det))
         if refine_ties.lower() not in ("off", "lsm"):
             raise ThermogrammetryError(f"--refine-ties {refine_ties!r}: expected off or lsm")
         if refine_ties.lower() == "lsm":
