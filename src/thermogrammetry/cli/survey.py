@@ -107,6 +107,9 @@ def survey(
     detector: str = typer.Option("sift", "--detector", help="Tie-point detector: sift (default), asift (SIFT on simulated "
                                  "tilted views, 6000 features: frames taken 30-60° apart, e.g. a hand-held facade; "
                                  "~20x the feature time) or orb."),
+    mapper: str = typer.Option("incremental", "--mapper", help="Orientation from the tie points: incremental (default) or "
+                               "global (rotation averaging over the pairs that close triangles, then camera centres and "
+                               "one bundle adjustment per rigid part: frames whose tracks rarely reach a third frame)."),
 ) -> None:
     """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report.
 
@@ -187,7 +190,7 @@ def survey(
             from ..sfm.lsm import LsmOptions
 
             extra["tie_refinement"] = LsmOptions()
-        opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, **extra, workers=workers if scheduler is None else 0,
+        opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, mapper=mapper, **extra, workers=workers if scheduler is None else 0,
                             scheduler=scheduler)
         inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,
                           str(gcp_measurements) if gcp_measurements else None, str(checkpoints) if checkpoints else None,
