@@ -379,7 +379,7 @@ def position_cameras(images: np.ndarray, R: np.ndarray, obs_image: np.ndarray, o
                     b_idx.append(order[base + q])
         a_idx = np.concatenate(a_idx)
         b_idx = np.concatenate(b_idx)
-        M = np.einsum("kab,kbc,kcd->kad", Pw[a_idx], Ainv[tk[a_idx]], Pw[b_idx])
+        M = Pw[a_idx] @ Ainv[tk[a_idx]] @ Pw[b_idx]
         np.add.at(S, (s[a_idx], slice(None), s[b_idx]), -M)
         S = S.reshape(3 * n, 3 * n)
         S = 0.5 * (S + S.T)
@@ -540,12 +540,24 @@ def _position_part(b: _Builder, imgs: np.ndarray, Rabs: np.ndarray, comp: int, o
         rec.t[i] = -Rabs[i] @ C[k]
         rec.registered[i] = True
         rec.component[i] = comp
-    # points from the positioning where their rays agree; the rest re-triangulated after the adjustment
+    # points from the positioning, adjusted on the essential matrices' inliers; then every observation of the part's
+    # frames is tried again with the adjusted camera: the essential matrices judged them on the starting camera
+    # (no distortion: 1.5 px excludes the corners of a lens with k1 = -0.35, and an adjustment without them
+    # determines neither the distortion nor the focal length well); the reprojection filter (``max_error_px``)
+    # and the adjustment's robust loss judge them now
     ut = np.unique(tr.track[o])
     far = res > 5.0
     rec.obs_valid[o[far]] = False
     rec.points[ut] = X
     b.point_comp[ut] = comp
+    b.ba(comp)  # the loose stopping rule of the incremental orientation's intermediate adjustments
+    of_part = np.nonzero(inpart[tr.image])[0]
+    rec.obs_valid[of_part] = True
+    for i in imgs:
+        b.exclude_foreign(i, comp)
+    b.filter(comp)
+    tids = np.unique(tr.track[of_part])
+    b._triangulate(tids[~np.isfinite(rec.points[tids]).all(1)], comp)
     b.log(f"global: rigid part of {len(imgs)} images positioned from {len(o)} rays on {len(ut)} tracks, "
           f"ray residual median {np.median(res):.2f} deg, {int(far.sum())} above 5 deg")
     for _ in range(3):
