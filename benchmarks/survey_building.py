@@ -72,47 +72,57 @@ def _tracks_rms_true_poses(sc, out: Path) -> float:
 
 
 def main(argv=None) -> int:
-    from scipy.spatial.transform import Rotation
-
-    from thermogrammetry.cli.main import main as tg
-
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--stations", type=int, nargs="+", default=[40, 64, 96])
     ap.add_argument("--detail", action=argparse.BooleanOptionalAction, default=True, help="windows, door, spots")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--refine-ties", default="off", help="passed to survey (off | lsm)")
+    ap.add_argument("--mapper", nargs="+", default=["incremental"], help="passed to survey (incremental | global), one row each")
     a = ap.parse_args(argv)
-    print(f"| stations | facade detail | tie refinement | oriented | survey s | RMS px | tracks vs TRUE poses RMS px | centre RMS x/y/z m "
+    print(f"| stations | facade detail | tie refinement | mapper | oriented | survey s | RMS px | tracks vs TRUE poses RMS px | centre RMS x/y/z m "
           "(vs truth) | rotation RMS / max deg (vs truth) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for n in a.stations:
         with tempfile.TemporaryDirectory(prefix="tg_bench_building_") as tmp:
-            d = Path(tmp)
-            sc = _render(n, a.detail, d)
-            t0 = time.perf_counter()
-            rc = tg(["survey", str(d / "frames"), "-o", str(d / "out"), "--input-unit", "K", "--camera", str(d / "camera.json"),
-                     "--gnss", str(d / "gnss.csv"), "--workers", str(a.workers), "--refine-ties", a.refine_ties])
-            secs = time.perf_counter() - t0
-            if rc != 0 or not (d / "out" / "cameras.json").exists():
-                print(f"| {n} | {a.detail} | {a.refine_ties} | survey exit {rc} | {secs:.0f} | | | | |")
-                continue
-            s = json.loads((d / "out" / "survey.json").read_text())
-            cams = json.loads((d / "out" / "cameras.json").read_text())["images"]
-            truth = dict(sc.stations)
-            dc, ang = [], []
-            for im in cams:
-                p = truth[im["name"]]
-                dc.append(np.array(im["center"]) - p.center)
-                R = np.array(im["cam_from_world"]["R"])
-                ang.append(np.degrees(Rotation.from_matrix(R @ p.R.T).magnitude()))
-            dc, ang = np.array(dc), np.array(ang)
-            cr = "/".join(f"{v:.3f}" for v in np.sqrt(np.mean(dc**2, axis=0))) if len(dc) else "-"
-            rr = f"{np.sqrt(np.mean(ang**2)):.2f} / {ang.max():.2f}" if len(ang) else "-"
-            rms = s["reprojection_rms_px"]
-            tv = _tracks_rms_true_poses(sc, d / "out") if len(dc) else float("nan")
-            print(f"| {n} | {a.detail} | {a.refine_ties} | {s['images_oriented']}/{s['images_total']} {s['components']} | {secs:.0f} | "
-                  f"{rms if rms is None else round(rms, 3)} | {tv:.3f} | {cr} | {rr} |")
+            d0 = Path(tmp)
+            sc = _render(n, a.detail, d0)
+            for mapper in a.mapper:
+                _row(a, n, mapper, sc, d0)
     return 0
+
+
+def _row(a, n: int, mapper: str, sc, d: Path) -> None:
+    """One survey of the rendered ring (``d`` holds frames/, camera.json, gnss.csv) and its row."""
+    import shutil
+
+    from scipy.spatial.transform import Rotation
+
+    from thermogrammetry.cli.main import main as tg
+
+    shutil.rmtree(d / "out", ignore_errors=True)
+    t0 = time.perf_counter()
+    rc = tg(["survey", str(d / "frames"), "-o", str(d / "out"), "--input-unit", "K", "--camera", str(d / "camera.json"),
+             "--gnss", str(d / "gnss.csv"), "--workers", str(a.workers), "--refine-ties", a.refine_ties, "--mapper", mapper])
+    secs = time.perf_counter() - t0
+    if rc != 0 or not (d / "out" / "cameras.json").exists():
+        print(f"| {n} | {a.detail} | {a.refine_ties} | {mapper} | survey exit {rc} | {secs:.0f} | | | | |")
+        return
+    s = json.loads((d / "out" / "survey.json").read_text())
+    cams = json.loads((d / "out" / "cameras.json").read_text())["images"]
+    truth = dict(sc.stations)
+    dc, ang = [], []
+    for im in cams:
+        p = truth[im["name"]]
+        dc.append(np.array(im["center"]) - p.center)
+        R = np.array(im["cam_from_world"]["R"])
+        ang.append(np.degrees(Rotation.from_matrix(R @ p.R.T).magnitude()))
+    dc, ang = np.array(dc), np.array(ang)
+    cr = "/".join(f"{v:.3f}" for v in np.sqrt(np.mean(dc**2, axis=0))) if len(dc) else "-"
+    rr = f"{np.sqrt(np.mean(ang**2)):.2f} / {ang.max():.2f}" if len(ang) else "-"
+    rms = s["reprojection_rms_px"]
+    tv = _tracks_rms_true_poses(sc, d / "out") if len(dc) else float("nan")
+    print(f"| {n} | {a.detail} | {a.refine_ties} | {mapper} | {s['images_oriented']}/{s['images_total']} {s['components']} | {secs:.0f} | "
+          f"{rms if rms is None else round(rms, 3)} | {tv:.3f} | {cr} | {rr} |", flush=True)
 
 
 if __name__ == "__main__":
