@@ -88,20 +88,20 @@ def test_global_orients_a_walk_the_incremental_orientation_stalls_on(walk):
     inc = reconstruct([CAM], np.zeros(len(C), int), xy, tracks, pc, ReconstructionOptions())
     rec = reconstruct_global([CAM], np.zeros(len(C), int), xy, tracks, pc, ReconstructionOptions())
     assert rec.success, rec.reason
-    # measured: incremental 7 frames (blocks of 4 and 3), global 14 (rigid parts of 7, 4 and 3: the walk has places
-    # where no track reaches a third frame and no triangle of pairs has a baseline angle, so parts cannot be scaled
-    # against each other and stay apart)
-    assert int(inc.registered.sum()) <= 9
-    assert 13 <= int(rec.registered.sum()) <= 16
+    # measured: incremental 9 frames (blocks of 6 and 3), global 16 (rigid parts of 9 and 7: the walk has a place
+    # where no track reaches a third frame and no triangle of pairs has a baseline angle, so the parts cannot be
+    # scaled against each other and stay apart; seeds 1 and 2: incremental 3 and 14, global 10 and 16)
+    assert int(inc.registered.sum()) <= 10
+    assert 14 <= int(rec.registered.sum()) <= 16
     comps = rec.components()
-    assert all(len(c) >= 3 for c in comps)
+    assert len(comps) >= 2 and all(len(c) >= 4 for c in comps)
     for comp in comps:
         rot, ce = _block_errors(rec, R, C, comp)
-        # 0.5 px on 765 px: 0.04 deg per ray; the short bases (0.6 m at 4 m) leave 0.3-0.4 deg (measured medians
-        # 0.33-0.39 deg, max 1.48 deg); centres 7-31 mm RMS for 0.6 m steps
-        assert 0.05 < np.median(rot) < 0.8, np.median(rot)
-        assert rot.max() < 2.5
-        assert np.sqrt(np.mean(ce ** 2)) < 0.06
+        # 0.5 px on 765 px: 0.04 deg per ray; the short bases (0.6 m at 4 m) leave 0.2-0.3 deg (measured medians
+        # 0.19 / 0.30 deg, max 0.53 deg); centres 10-15 mm RMS for 0.6 m steps
+        assert 0.05 < np.median(rot) < 0.6, np.median(rot)
+        assert rot.max() < 1.5
+        assert np.sqrt(np.mean(ce ** 2)) < 0.04
     # the observations the adjustment kept fit at the noise level
     ok = rec.obs_valid & rec.registered[tracks.image] & np.isfinite(rec.points[tracks.track]).all(1)
     i = tracks.image[ok]

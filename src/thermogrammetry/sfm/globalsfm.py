@@ -17,10 +17,9 @@ would connect most of them. The global scheme uses every verified pair at once:
    ratio of its sides). Parts that share only an image cannot be scaled against each other: they become separate
    components, never forced together.
 4. **Camera centres and points** with the rotations fixed: every observation says that the point lies on the
-   ray ``c_i + d v_ik`` (``v_ik`` = the ray in the world frame); the camera centres minimise
-   ``sum |(X_k - c_i) x v_ik|^2 / |X_k - c_i|^2`` with the points eliminated (a 3n x 3n quadratic form whose
-   smallest eigenvector is the solution up to scale), iteratively reweighted to angular residuals with Huber
-   weights (the linear known-rotation formulation, e.g. Kahl & Hartley 2008; Arrigoni et al. 2015).
+   ray ``c_i + d v_ik`` (``v_ik`` = the ray in the world frame, ``d >= 1``); centres, points and depths minimise the
+   sum of the unsquared deviations (LUD, Özyeşil & Singer 2015, with points as in GLOMAP), by iteratively reweighted
+   least squares (:func:`position_cameras`).
 5. **Bundle adjustment** on the project's engine (Huber loss, free network), outlier observations removed,
    tracks re-triangulated, adjusted again; images left with too few points are returned as not oriented with
    their reason.
@@ -31,9 +30,8 @@ frame: first image of each component at the origin, arbitrary scale), which geor
 References
 ----------
 Chatterjee, A., Govindu, V. M. (2013). Efficient and robust large-scale rotation averaging. ICCV.
-Kahl, F., Hartley, R. (2008). Multiple-view geometry under the L-infinity norm. IEEE TPAMI 30(9).
-Arrigoni, F., Rossi, B., Fusiello, A. (2015). Robust and efficient camera motion synchronization via matrix
-decomposition. ICIAP.
+Özyeşil, O., Singer, A. (2015). Robust camera location estimation by convex programming. CVPR.
+Zach, C., Klopschitz, M., Pollefeys, M. (2010). Disambiguating visual relations using loop constraints. CVPR.
 Pan, L., Baráth, D., Pollefeys, M., Schönberger, J. L. (2024). Global structure-from-motion revisited (GLOMAP). ECCV.
 """
 
@@ -65,6 +63,9 @@ class GlobalOptions:
     min_triangle_angle_deg : ... or when the third pair is verified and the triangle of baseline directions has no
         angle below this
     min_image_points : an image keeps its orientation with at least this many valid observations after the adjustment
+    min_part_images : a rigid part is positioned with at least this many images: a part of three images is one
+        triangle of pairs, whose loop check cannot tell a consistently wrong triple (the frescoes' thermal frames: a
+        triple 8.9 deg off against the RGB reference; a synthetic ring's triple 32 deg off, refused by georeferencing)
     max_far_ray_share : a rigid part is refused when more than this share of its rays are more than 5 deg from the
         directions to their points after the camera centres were computed: its rotations or tie points do not fit one
         configuration (measured: right parts 0.2-0.4 % -- the M3T flight, the synthetic walk; wrong parts of a
@@ -76,6 +77,7 @@ class GlobalOptions:
     min_triplet_tracks: int = 3
     min_triangle_angle_deg: float = 5.0
     min_image_points: int = 8
+    min_part_images: int = 4
     max_far_ray_share: float = 0.05
 
     def __post_init__(self):
@@ -324,14 +326,20 @@ def rigid_parts(n: int, poses: list[RelativePose], R: np.ndarray, tracks: Tracks
 # 4. camera centres from rays with known rotations
 # ------------------------------------------------------------------------------------------------
 def position_cameras(images: np.ndarray, R: np.ndarray, obs_image: np.ndarray, obs_track: np.ndarray, obs_ray: np.ndarray,
-                     *, huber_deg: float = 1.0, iterations: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     *, iterations: int = 100, tolerance: float = 1e-6, polish_iterations: int = 10
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Camera centres and points from rays when the rotations are known (up to a similarity).
 
-    Minimises ``sum_k sum_i w_ik |P(v_ik) (X_k - c_i)|^2`` with ``P(v) = I - v v^T`` (the part of ``X_k - c_i``
-    across the ray ``v_ik``, world frame): the points are eliminated per track, the reduced 3n x 3n form's
-    smallest eigenvector (the translation gauge removed by fixing the first image at the origin) gives the
-    centres up to scale, the sign puts most points in front of their cameras. Iterated with weights
-    ``1 / |X_k - c_i|^2`` (angular residuals) times Huber weights at ``huber_deg``.
+    Least unsquared deviations with points (LUD, Özyeşil & Singer 2015, in the camera-to-point form of GLOMAP):
+    ``min sum_k |X_t(k) - c_i(k) - d_k v_k|`` over centres ``c``, points ``X`` and depths ``d_k >= 1`` (``v_k`` = the
+    observation's ray in the world frame; the bound fixes the scale and keeps the solution from collapsing onto a
+    point, which the plain linear cross-product form does as soon as a few rays are gross). Solved by iteratively
+    reweighted least squares (weights ``1 / max(|r_k|, 1e-3)``), alternating between centres + points for fixed
+    depths (points eliminated: one weighted graph-Laplacian system on the centres) and the depths. That alternation
+    is robust but slow to converge, so it is polished on the rays that agree with it (angle below 3x the median or
+    0.5 deg) by least squares with the depths solved jointly through an active set: a free depth is eliminated (the
+    part of ``X - c`` across the ray remains), a depth at its bound leaves ``X - c - v``; the points are eliminated
+    per track and the centres solved from the reduced 3n x 3n system. The first image is put at the origin.
 
     Parameters
     ----------
@@ -343,8 +351,13 @@ def position_cameras(images: np.ndarray, R: np.ndarray, obs_image: np.ndarray, o
     Returns
     -------
     centres : (n, 3), unit RMS distance from their mean
-    points : (T, 3) for ``np.unique(obs_track)`` (NaN when not determined)
+    points : (T, 3) for ``np.unique(obs_track)``
     residual_deg : (K,) angle between each ray and the direction to its point
+
+    References
+    ----------
+    Özyeşil, O., Singer, A. (2015). Robust camera location estimation by convex programming. CVPR.
+    Pan, L., Baráth, D., Pollefeys, M., Schönberger, J. L. (2024). Global structure-from-motion revisited. ECCV.
     """
     images = np.asarray(images, np.int64)
     n = len(images)
@@ -352,64 +365,127 @@ def position_cameras(images: np.ndarray, R: np.ndarray, obs_image: np.ndarray, o
     slot[images] = np.arange(n)
     s = slot[obs_image]
     ut, tk = np.unique(obs_track, return_inverse=True)
-    T = len(ut)
-    v = np.c_[obs_ray, np.ones(len(obs_ray))]
+    T, K = len(ut), len(s)
+    v = np.c_[obs_ray, np.ones(K)]
     v = np.einsum("kba,kb->ka", R[obs_image], v)  # world-frame rays R^T [x, y, 1]
     v /= np.linalg.norm(v, axis=1, keepdims=True)
-    P = np.eye(3)[None] - np.einsum("ka,kb->kab", v, v)  # (K, 3, 3)
-    w = np.ones(len(v))
-    C = np.zeros((n, 3))
-    X = np.full((T, 3), np.nan)
-    huber = np.radians(huber_deg)
-    for it in range(iterations):
-        Pw = P * w[:, None, None]
-        A = np.zeros((T, 3, 3))
-        np.add.at(A, tk, Pw)
-        A += 1e-12 * np.eye(3)
-        Ainv = np.linalg.inv(A)
-        # S = sum_k [ sum_i Pw_ik at (i, i) - (sum_i Pw_ik e_i)^T A_k^-1 (sum_i Pw_ik e_i) ]
-        S = np.zeros((n, 3, n, 3))
-        np.add.at(S, (s, slice(None), s), Pw.transpose(0, 1, 2))  # diagonal blocks
-        # cross terms between every two observations of a track (tracks are short: pairs by a self-join on tk)
-        order = np.argsort(tk, kind="stable")
-        starts = np.searchsorted(tk[order], np.arange(T + 1))
-        lens = np.diff(starts)
-        a_idx, b_idx = [], []
-        for L in np.unique(lens):
-            ks = np.nonzero(lens == L)[0]
-            base = starts[ks]
-            for p in range(L):
-                for q in range(L):
-                    a_idx.append(order[base + p])
-                    b_idx.append(order[base + q])
-        a_idx = np.concatenate(a_idx)
-        b_idx = np.concatenate(b_idx)
-        M = Pw[a_idx] @ Ainv[tk[a_idx]] @ Pw[b_idx]
-        np.add.at(S, (s[a_idx], slice(None), s[b_idx]), -M)
-        S = S.reshape(3 * n, 3 * n)
-        S = 0.5 * (S + S.T)
-        Sr = S[3:, 3:]  # first image at the origin
-        evals, evecs = np.linalg.eigh(Sr)
-        c = np.r_[np.zeros(3), evecs[:, 0]].reshape(n, 3)
-        # points: X_k = A_k^-1 sum_i Pw_ik c_i
+    P = np.eye(3)[None] - np.einsum("ka,kb->kab", v, v)  # across the ray
+    # every two observations of a track (tracks are short: a self-join per track length)
+    order = np.argsort(tk, kind="stable")
+    starts = np.searchsorted(tk[order], np.arange(T + 1))
+    lens = np.diff(starts)
+    a_idx, b_idx = [], []
+    for L in np.unique(lens):
+        base = starts[np.nonzero(lens == L)[0]]
+        for p in range(L):
+            for q in range(L):
+                a_idx.append(order[base + p])
+                b_idx.append(order[base + q])
+    a_idx, b_idx = np.concatenate(a_idx), np.concatenate(b_idx)
+    # 1. robust start: L1 by IRLS, alternating between centres + points (depths fixed) and depths
+    cell = s[a_idx] * n + s[b_idx]
+    diag = s * n + s
+    w, d = np.ones(K), np.ones(K)
+    C, X = np.zeros((n, 3)), np.zeros((T, 3))
+    prev = np.inf
+    for _ in range(iterations):
+        W = np.bincount(tk, weights=w, minlength=T)
+        # sum_k w_k |X_t - c_s - d_k v_k|^2: X_t = mean_w(c_s + d v) eliminated; isotropic, one n x n system
+        M = (np.bincount(diag, weights=w, minlength=n * n)
+             - np.bincount(cell, weights=w[a_idx] * w[b_idx] / W[tk[a_idx]], minlength=n * n)).reshape(n, n)
+        bk = d[:, None] * v
+        Bt = np.zeros((T, 3))
+        np.add.at(Bt, tk, w[:, None] * bk)
+        Bt /= W[:, None]
+        g = np.zeros((n, 3))
+        np.add.at(g, s, w[:, None] * (Bt[tk] - bk))
+        C = np.r_[np.zeros((1, 3)), np.linalg.solve(M[1:, 1:] + 1e-12 * np.eye(n - 1), g[1:])]
+        Cm = np.zeros((T, 3))
+        np.add.at(Cm, tk, w[:, None] * C[s])
+        X = Cm / W[:, None] + Bt
+        e = X[tk] - C[s]
+        d = np.maximum(1.0, np.einsum("ka,ka->k", e, v))
+        r = np.linalg.norm(e - d[:, None] * v, axis=1)
+        cost = float(r.sum())
+        w = 1.0 / np.maximum(r, 1e-3)
+        if abs(prev - cost) <= tolerance * max(cost, 1e-12):
+            break
+        prev = cost
+    # 2. polish on the rays that agree (the alternation converges slowly): least squares with the depths solved
+    # jointly -- a free depth eliminated (the part of X - c across the ray), a depth at its bound leaving X - c - v;
+    # two rounds, the agreeing rays chosen again with every point intersected from the polished centres
+    PA = np.zeros((T, 3, 3))
+    np.add.at(PA, tk, P)
+    PA_inv = np.linalg.inv(PA + 1e-9 * np.eye(3))
+    for _round in range(2 if polish_iterations else 0):
+        e = X[tk] - C[s]
+        ang = np.arccos(np.clip(np.einsum("ka,ka->k", e, v) / np.maximum(np.linalg.norm(e, axis=1), 1e-300), -1, 1))
+        inl = ang < max(3.0 * float(np.median(ang)), np.radians(0.5))
+        cnt = np.bincount(tk[inl], minlength=T)
+        inl &= cnt[tk] >= 2
+        cnt = np.bincount(tk[inl], minlength=T)
+        if inl.sum() < 6 or np.bincount(s[inl], minlength=n).min() < 2:
+            break
+        C, X = _polish(C, X, inl, cnt, P, v, s, tk, a_idx, b_idx, n, T, polish_iterations)
+        # every point (also those of rays left out) intersected from the polished centres
         rhs = np.zeros((T, 3))
-        np.add.at(rhs, tk, np.einsum("kab,kb->ka", Pw, c[s]))
-        Xn = np.einsum("tab,tb->ta", Ainv, rhs)
-        d = np.einsum("ka,ka->k", Xn[tk] - c[s], v)
-        if np.sum(d > 0) < np.sum(d < 0):
-            c, Xn, d = -c, -Xn, -d
-        C, X = c, Xn
-        dist = np.linalg.norm(X[tk] - C[s], axis=1)
-        res = np.arccos(np.clip(d / np.maximum(dist, 1e-300), -1, 1))
-        res[d <= 0] = np.pi / 2  # behind the camera: an outlier
-        w = 1.0 / np.maximum(dist, 1e-6 * np.median(dist)) ** 2 * np.minimum(1.0, huber / np.maximum(res, 1e-12))
+        np.add.at(rhs, tk, np.einsum("kab,kb->ka", P, C[s]))
+        X = np.where((cnt >= 2)[:, None], X, np.einsum("tab,tb->ta", PA_inv, rhs))
     scale = np.sqrt(np.mean(np.sum((C - C.mean(0)) ** 2, axis=1)))
     if scale > 0:
         C, X = C / scale, X / scale
-    d = np.einsum("ka,ka->k", X[tk] - C[s], v)
-    dist = np.linalg.norm(X[tk] - C[s], axis=1)
-    res = np.degrees(np.arccos(np.clip(d / np.maximum(dist, 1e-300), -1, 1)))
+    e = X[tk] - C[s]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosang = np.einsum("ka,ka->k", e, v) / np.linalg.norm(e, axis=1)
+    res = np.degrees(np.arccos(np.clip(np.nan_to_num(cosang, nan=-1.0), -1, 1)))
     return C, X, res
+
+
+def _polish(C, X, inl, cnt, P, v, s, tk, a_idx, b_idx, n, T, iterations):
+    """Least squares on the agreeing rays ``inl`` with an active set for the depth bound (see :func:`position_cameras`);
+    returns the centres and points (points of tracks without two agreeing rays are left as they were)."""
+    w = inl.astype(float)
+    # the scale: the nearest agreeing point at depth 1, at its bound (a polish without any bound depth would be
+    # scale-free and fall to zero or to the mirror image)
+    proj = np.einsum("ka,ka->k", X[tk] - C[s], v)
+    k0 = np.nonzero(inl)[0][np.argmin(proj[inl])]
+    if proj[k0] > 0:
+        C, X = C / proj[k0], X / proj[k0]
+    bound = inl & (np.einsum("ka,ka->k", X[tk] - C[s], v) <= 1.0 + 1e-9)
+    bound[k0] = True
+    for _ in range(iterations):
+        Q = np.where(bound[:, None, None], np.eye(3)[None], P) * w[:, None, None]
+        bvec = np.where(bound[:, None], v, 0.0)
+        A = np.zeros((T, 3, 3))
+        np.add.at(A, tk, Q)
+        A[cnt < 2] += np.eye(3)  # tracks without two agreeing rays: not used
+        Ainv = np.linalg.inv(A)
+        Qb = np.einsum("kab,kb->ka", Q, bvec)
+        sQb = np.zeros((T, 3))
+        np.add.at(sQb, tk, Qb)
+        S = np.zeros((n, 3, n, 3))
+        np.add.at(S, (s, slice(None), s), Q)
+        np.add.at(S, (s[a_idx], slice(None), s[b_idx]), -(Q[a_idx] @ Ainv[tk[a_idx]] @ Q[b_idx]))
+        gg = np.zeros((n, 3))
+        np.add.at(gg, s, np.einsum("kab,kb->ka", Q @ Ainv[tk], sQb[tk]) - Qb)
+        S = S.reshape(3 * n, 3 * n)
+        try:
+            Cn = np.linalg.solve(S[3:, 3:], gg.ravel()[3:])
+        except np.linalg.LinAlgError:
+            break
+        Cn = np.r_[np.zeros(3), Cn].reshape(n, 3)
+        rhs = np.zeros((T, 3))
+        np.add.at(rhs, tk, np.einsum("kab,kb->ka", Q, Cn[s]))
+        Xn = np.einsum("tab,tb->ta", Ainv, rhs + sQb)
+        dn = np.einsum("ka,ka->k", Xn[tk] - Cn[s], v)
+        nb = inl & (dn <= 1.0)
+        if not nb.any():
+            nb[np.nonzero(inl)[0][np.argmin(dn[inl])]] = True
+        C, X = Cn, np.where((cnt >= 2)[:, None], Xn, X)
+        if np.array_equal(nb, bound):
+            break
+        bound = nb
+    return C, X
 
 
 # ------------------------------------------------------------------------------------------------
@@ -461,7 +537,10 @@ def reconstruct_global(cameras, image_camera, xy_by_image, tracks: Tracks, pair_
     comp = 0
     for pid in range(int(part.max()) + 1):
         imgs = np.nonzero(part == pid)[0]
-        if len(imgs) < opt.min_component_images:
+        if len(imgs) < max(opt.min_component_images, gopt.min_part_images):
+            for i in imgs:
+                rec.status[i] = ImageStatus(False, -1, f"global orientation: in a rigid part of {len(imgs)} images "
+                                                       f"(< {gopt.min_part_images}: too few loops to check its pairs)")
             continue
         ok = _position_part(b, imgs, Rabs, comp, opt, gopt)
         if ok:
@@ -543,7 +622,7 @@ def _position_part(b: _Builder, imgs: np.ndarray, Rabs: np.ndarray, comp: int, o
         rec.t[i] = -Rabs[i] @ C[k]
         rec.registered[i] = True
         rec.component[i] = comp
-    # points from the positioning, adjusted on the essential matrices' inliers; then every observation of the part's
+    # adjusted on the essential matrices' inliers first; then every observation of the part's
     # frames is tried again with the adjusted camera: the essential matrices judged them on the starting camera
     # (no distortion: 1.5 px excludes the corners of a lens with k1 = -0.35, and an adjustment without them
     # determines neither the distortion nor the focal length well); the reprojection filter (``max_error_px``)
@@ -551,8 +630,6 @@ def _position_part(b: _Builder, imgs: np.ndarray, Rabs: np.ndarray, comp: int, o
     ut = np.unique(tr.track[o])
     far = res > 5.0
     rec.obs_valid[o[far]] = False
-    rec.points[ut] = X
-    b.point_comp[ut] = comp
     b.log(f"global: rigid part of {len(imgs)} images positioned from {len(o)} rays on {len(ut)} tracks, "
           f"ray residual median {np.median(res):.2f} deg, {int(far.sum())} above 5 deg")
     if far.mean() > gopt.max_far_ray_share:
@@ -563,10 +640,12 @@ def _position_part(b: _Builder, imgs: np.ndarray, Rabs: np.ndarray, comp: int, o
                                                    f"images leave {far.mean():.0%} of its rays more than 5 deg from their "
                                                    f"points (> {gopt.max_far_ray_share:.0%}): its pairs' rotations or tie "
                                                    "points do not fit one configuration")
-        rec.points[ut] = np.nan
-        b.point_comp[ut] = -1
         rec.obs_valid[o] = False
         return False
+    # the points triangulated anew from the centres and rotations, with the incremental orientation's checks
+    # (intersection angle, reprojection error, in front): the positioning's points include tracks of tiny parallax
+    # that leave an adjustment undetermined
+    b._triangulate(ut, comp)
     b.ba(comp)  # the loose stopping rule of the incremental orientation's intermediate adjustments
     of_part = np.nonzero(inpart[tr.image])[0]
     rec.obs_valid[of_part] = True
