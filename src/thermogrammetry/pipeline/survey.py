@@ -242,14 +242,14 @@ class SurveyOptions:
         (:func:`~thermogrammetry.sfm.globalsfm.reconstruct_global`: rotation averaging over the verified pairs that
         close triangles, camera centres from the rays with the rotations fixed, one bundle adjustment per rigid part).
         Global orients frames whose tracks rarely reach a third frame but whose pairs close loops (synthetic walk
-        past a wall, 16 frames, tracks of 2-3 frames: 14-16 frames against the incremental 7-13, rotations as
-        accurate, ``tests/test_sfm_global.py``) and the real M3T nadir flight as well as the incremental does (32/32,
-        centres against RTK 1.7/1.2/1.5 cm RMS against 1.9/1.4/1.6 cm; orientation step 17-19 s against 8 s).
-        Incremental stays the default because global needs pairs whose relative rotations are right to a degree or
-        two: on the synthetic building rings of ``benchmarks/survey_building.py`` (pairs 1.7 deg median off, 9 deg at
-        the 90th percentile; rotation averaging along the ring's chain drifts) it orients 0/40 and 0/64 (its blocks
-        are refused) where the incremental orients 28/40 and 52/64; on the real frescoes' thermal frames (ASIFT: the
-        pairs' rotations 10 deg median off, 3 of 45 pairs close a triangle within 5 deg) 0/40, the incremental 4/40.
+        past a wall, 16 frames, tracks of 2-3 frames: 16/16 in two rigid parts against the incremental 9,
+        ``tests/test_sfm_global.py``), the real M3T nadir flight as the incremental does (32/32, centres against RTK
+        1.7/1.3/1.6 cm RMS against 1.9/1.4/1.6 cm; orientation step 22 s against 8 s) and a synthetic 64-station
+        building ring with more frames (56/64 against 52/64, rotations 0.65 deg RMS against 0.51,
+        ``benchmarks/survey_building.py --mapper incremental global``). Incremental stays the default because global
+        needs pairs whose relative rotations close loops within 5 deg: the 40-station ring (9 deg steps) keeps 19 of
+        50 pairs and orients 0/40 (incremental 28/40); the real frescoes' thermal frames (ASIFT; the pairs' rotations
+        10 deg median off, 3 of 45 pairs close a triangle) 0/40 (incremental 4/40).
     tie_refinement : LsmOptions or None
         Least-squares matching of every tie observation against its track's reference patch before the
         orientation (:func:`~thermogrammetry.sfm.lsm.refine_tracks`); None (default) keeps the keypoint
