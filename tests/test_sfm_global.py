@@ -149,8 +149,7 @@ def test_rigid_parts_keep_two_triangles_that_share_one_frame_apart():
         d = C[j] - C[i]
         poses.append(RelativePose(i, j, np.eye(3), -(d / np.linalg.norm(d)), np.array([10 * i + j]), np.zeros(1, int),
                                   np.zeros(1, int)))
-    tracks = Tracks(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int))
-    part = rigid_parts(5, poses, R, tracks, min_triplet_tracks=3, min_triangle_angle_deg=5.0)
+    part = rigid_parts(5, poses, R, min_triplet_tracks=3, min_triangle_angle_deg=5.0)
     assert part[0] == part[1] and part[3] == part[4] and part[0] != part[3]
     assert part[2] in (part[0], part[3])
     # collinear frames: a triangle of parallel baselines fixes nothing
@@ -158,13 +157,13 @@ def test_rigid_parts_keep_two_triangles_that_share_one_frame_apart():
     for p in poses:
         d = C[p.j] - C[p.i]
         p.t = -(d / np.linalg.norm(d))
-    part = rigid_parts(5, poses, R, tracks, min_triplet_tracks=3, min_triangle_angle_deg=5.0)
+    part = rigid_parts(5, poses, R, min_triplet_tracks=3, min_triangle_angle_deg=5.0)
     assert part[2] == part[3] == part[4] == 0  # the one rigid triangle left
     assert part[0] != 0 and part[1] != 0
     # ... unless three tracks run through frames 0, 1 and 2
     for p in poses[:3]:
         p.tracks = np.array([100, 101, 102])
-    part = rigid_parts(5, poses, R, tracks, min_triplet_tracks=3, min_triangle_angle_deg=5.0)
+    part = rigid_parts(5, poses, R, min_triplet_tracks=3, min_triangle_angle_deg=5.0)
     assert part[0] == part[1] and part[0] != part[3]
 
 

@@ -8,10 +8,11 @@ would connect most of them. The global scheme uses every verified pair at once:
 
 1. **Relative rotations** of every verified pair: essential matrix (OpenCV USAC MAGSAC++, seeded) on the
    normalised rays of its common tracks, decomposed by the cheirality test.
-2. **Rotation averaging**: a maximum spanning tree of the view graph (weights: inliers) gives a first rotation per
-   image; it is refined on all pairs by iteratively reweighted least squares in the tangent space (Huber weights,
-   Chatterjee & Govindu 2013); pairs whose relative rotation then disagrees by more than
-   ``max_rotation_residual_deg`` are dropped and the averaging repeated.
+2. **Rotation averaging**: pairs whose relative rotation closes no triangle of pairs within
+   ``max_rotation_residual_deg`` are dropped first (Zach et al. 2010); a maximum spanning tree of the view graph
+   (weights: inliers) gives a first rotation per image, refined on all pairs by iteratively reweighted least squares
+   in the tangent space (Huber weights, Chatterjee & Govindu 2013); while a pair disagrees with the averaged
+   rotations by more than ``max_rotation_residual_deg``, the worst one is dropped and the averaging repeated.
 3. **Rigid parts**: two pairs that share an image belong to the same rigid part when enough tracks run through
    all three images, or when the third pair is verified too (a triangle of baseline directions fixes the
    ratio of its sides). Parts that share only an image cannot be scaled against each other: they become separate
@@ -46,7 +47,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..results import Outcome, Termination
 from .._validate import config_keys
-from .reconstruction import (ImageStatus, Reconstruction, ReconstructionOptions, _Builder, bundle_adjust)
+from .reconstruction import ImageStatus, Reconstruction, ReconstructionOptions, _Builder
 from .tracks import Tracks
 
 __all__ = ["GlobalOptions", "RelativePose", "relative_poses", "average_rotations", "rigid_parts", "position_cameras",
@@ -68,8 +69,8 @@ class GlobalOptions:
         triple 8.9 deg off against the RGB reference; a synthetic ring's triple 32 deg off, refused by georeferencing)
     max_far_ray_share : a rigid part is refused when more than this share of its rays are more than 5 deg from the
         directions to their points after the camera centres were computed: its rotations or tie points do not fit one
-        configuration (measured: right parts 0.2-0.4 % -- the M3T flight, the synthetic walk; wrong parts of a
-        terrestrial ring and of the frescoes 9-19 %)
+        configuration (measured: the M3T flight 0.25 %, the 64-station ring's parts 3.9 % and 2.5 %, the synthetic
+        walk 0 %; with the earlier linear positioning the collapsed parts of that ring had 19-21 %)
     """
 
     min_pair_inliers: int = 15
@@ -259,7 +260,7 @@ def average_rotations(n: int, edges: np.ndarray, R_rel: np.ndarray, weights: np.
 # ------------------------------------------------------------------------------------------------
 # 3. rigid parts
 # ------------------------------------------------------------------------------------------------
-def rigid_parts(n: int, poses: list[RelativePose], R: np.ndarray, tracks: Tracks, *, min_triplet_tracks: int,
+def rigid_parts(n: int, poses: list[RelativePose], R: np.ndarray, *, min_triplet_tracks: int,
                 min_triangle_angle_deg: float) -> np.ndarray:
     """Which images can be scaled against each other: (n,) int part per image (-1: in no part), largest part 0.
 
@@ -526,7 +527,7 @@ def reconstruct_global(cameras, image_camera, xy_by_image, tracks: Tracks, pair_
         _statuses(rec, pair_counts, "no verified pair with a usable relative orientation")
         rec.seconds = time.perf_counter() - t0
         return rec
-    part = rigid_parts(n, poses, Rabs, tracks, min_triplet_tracks=gopt.min_triplet_tracks,
+    part = rigid_parts(n, poses, Rabs, min_triplet_tracks=gopt.min_triplet_tracks,
                        min_triangle_angle_deg=gopt.min_triangle_angle_deg)
     # observations that are inliers of a kept pair
     inl = np.zeros(len(tracks.track), bool)
