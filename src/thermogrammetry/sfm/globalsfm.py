@@ -47,7 +47,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..results import Outcome, Termination
 from .._validate import config_keys
-from .reconstruction import ImageStatus, Reconstruction, ReconstructionOptions, _Builder
+from .reconstruction import ImageStatus, Reconstruction, ReconstructionOptions, _Builder, _gather
 from .tracks import Tracks
 
 __all__ = ["GlobalOptions", "RelativePose", "relative_poses", "average_rotations", "rigid_parts", "position_cameras",
@@ -606,7 +606,7 @@ def _position_part(b: _Builder, imgs: np.ndarray, Rabs: np.ndarray, comp: int, o
     inpart = np.zeros(b.n, bool)
     inpart[imgs] = True
     o = np.nonzero(rec.obs_valid & inpart[tr.image] & ~rec.registered[tr.image])[0]
-    o = o[np.isfinite(_rays_of(b, o)).all(1)]
+    o = o[np.isfinite(_gather(b.rays, tr.image[o], tr.feature[o])).all(1)]
     cnt = np.bincount(tr.track[o], minlength=tr.n_tracks)
     o = o[cnt[tr.track[o]] >= 2]
     if len(o) < 20:
@@ -617,7 +617,7 @@ def _position_part(b: _Builder, imgs: np.ndarray, Rabs: np.ndarray, comp: int, o
     per = np.bincount(tr.image[o], minlength=b.n)
     imgs = imgs[per[imgs] > 0]
     imgs = imgs[np.argsort(-per[imgs], kind="stable")]
-    C, X, res = position_cameras(imgs, Rabs, tr.image[o], tr.track[o], _rays_of(b, o))
+    C, X, res = position_cameras(imgs, Rabs, tr.image[o], tr.track[o], _gather(b.rays, tr.image[o], tr.feature[o]))
     for k, i in enumerate(imgs):
         rec.R[i] = Rabs[i]
         rec.t[i] = -Rabs[i] @ C[k]
@@ -685,13 +685,3 @@ def _position_part(b: _Builder, imgs: np.ndarray, Rabs: np.ndarray, comp: int, o
         return False
     b.log(f"global: component {comp} with {len(members)} images adjusted")
     return True
-
-
-def _rays_of(b: _Builder, o: np.ndarray) -> np.ndarray:
-    tr = b.tr
-    im = tr.image[o]
-    out = np.empty((len(o), 2))
-    for k in np.unique(im):
-        m = im == k
-        out[m] = b.rays[k][tr.feature[o[m]]]
-    return out
