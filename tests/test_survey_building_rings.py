@@ -105,7 +105,12 @@ def test_one_far_point_does_not_make_a_block_singular(tmp_path):
     assert s["images_oriented"] >= 40 and s["components"][0] >= 25
     e = np.array(list(errs.values()))
     assert np.sqrt(np.mean(e**2)) < 1.1 and e.max() < 2.0
-    assert any("rays meet at less than" in n for n in s["notes"])
+    # whether that point drifts far enough to make the solve singular depends on the CPU's floating-point paths: the
+    # note was there on the machines of 2026-11-27 and is not on an AMD EPYC of 2026-11-28 (same packages, and main
+    # 8d3d00d as well). Either way the block must solve, and a final adjustment that stopped must have been solved
+    # again without the parallel-ray points (sfm.georef.MIN_FINAL_TRI_ANGLE_DEG; the selection: tests/test_tracks.py)
+    stopped = [n for n in s["notes"] if "final adjustment (round" in n and "stopped" in n]
+    assert all("solved again without the points whose rays meet at less than" in n for n in stopped), stopped
 
 
 @pytest.mark.slow
