@@ -293,6 +293,8 @@ def test_real_m3t_flight(m3t):
     s = json.loads((out / "survey.json").read_text())
     assert s["images_oriented"] == 32 and s["components"] == [32]
     assert s["frame_units"] == ["counts"] and not s["temperatures"]
+    assert s["mapper"] == "incremental"  # the default orientation, said in survey.json and the report
+    assert "orientation: incremental" in (out / "report.html").read_text()
     assert 0.2 < s["reprojection_rms_px"] < 0.7
     assert s["crs"] == "EPSG:32631"  # UTM zone 31N of the flight (4.43° E)
     # the adjusted centres against the RTK tags (σ from the files, ~1-2 cm): measured 1.9 / 1.4 / 1.6 cm RMS over 31

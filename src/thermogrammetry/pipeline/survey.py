@@ -2450,6 +2450,9 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
         "georeferenced": bool(crs),
         "frame_units": units,
         "temperatures": units == ["K"],
+        # which orientation built the blocks (SurveyOptions.mapper)
+        "mapper": (project.read_json("work/reconstruction.json").get("mapper", "incremental")
+                   if project.exists("work/reconstruction.json") else None),
         "points": int(pts_ok.sum()),
         "tie_point_multiplicity": {"mean": float(mult.mean()) if len(mult) else None,
                                    "histogram": np.bincount(mult).tolist() if len(mult) else []},

@@ -53,7 +53,8 @@ def write_survey_report(project) -> None:
     parts.append(f"<p><b>{s['images_oriented']} of {s['images_total']} images oriented</b> in {len(s['components'])} block(s) "
                  f"{s['components']}; reprojection RMS {_f(s['reprojection_rms_px'], '{:.3f}')} px; "
                  f"{s.get('points', 0)} tie points; CRS {html.escape(str(s['crs'] or 'local frame (not georeferenced)'))}; "
-                 f"{_f(s.get('seconds'), '{:.1f}')} s.</p>")
+                 f"{_f(s.get('seconds'), '{:.1f}')} s"
+                 + (f"; orientation: {html.escape(str(s['mapper']))}" if s.get("mapper") else "") + ".</p>")
     if not s.get("temperatures"):
         parts.append(f"<p class='bad'>Frame values are {html.escape(', '.join(s.get('frame_units', [])))}: "
                      "not temperatures (K) — the cloud carries counts or nothing.</p>")
