@@ -1740,6 +1740,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         extra["images_rig_only"] = len(r_only)
     if t_ids:
         extra["manual_ties"] = {"ids": len(t_ids), "used": tie_out}
+    extra["mapper"] = meta.get("mapper", "incremental")  # which orientation built the blocks (SurveyOptions.mapper)
     if lt_verdict:
         extra["low_texture"] = lt_verdict
         for nm in lt_verdict.get("refused_images", []):  # frames the primary orientation left out: both reasons
@@ -2450,9 +2451,6 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
         "georeferenced": bool(crs),
         "frame_units": units,
         "temperatures": units == ["K"],
-        # which orientation built the blocks (SurveyOptions.mapper)
-        "mapper": (project.read_json("work/reconstruction.json").get("mapper", "incremental")
-                   if project.exists("work/reconstruction.json") else None),
         "points": int(pts_ok.sum()),
         "tie_point_multiplicity": {"mean": float(mult.mean()) if len(mult) else None,
                                    "histogram": np.bincount(mult).tolist() if len(mult) else []},

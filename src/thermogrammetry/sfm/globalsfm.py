@@ -47,7 +47,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..results import Outcome, Termination
 from .._validate import config_keys
-from .reconstruction import ImageStatus, Reconstruction, ReconstructionOptions, _Builder, _gather
+from .reconstruction import ImageStatus, Reconstruction, ReconstructionOptions, _Builder, _gather, finish_components
 from .tracks import Tracks
 
 __all__ = ["GlobalOptions", "RelativePose", "relative_poses", "average_rotations", "rigid_parts", "position_cameras",
@@ -187,9 +187,8 @@ def average_rotations(n: int, edges: np.ndarray, R_rel: np.ndarray, weights: np.
     residual_deg : (E,) angle between each edge's relative rotation and the averaged one
     part : (n,) int, connected part of each image in the view graph (-1: on no edge)
     """
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import coo_matrix, identity
     from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
-    from scipy.sparse import identity
     from scipy.sparse.linalg import spsolve
 
     edges = np.asarray(edges, np.int64).reshape(-1, 2)
@@ -524,7 +523,8 @@ def reconstruct_global(cameras, image_camera, xy_by_image, tracks: Tracks, pair_
         poses = poses[:worst] + poses[worst + 1:]  # the worst pair out, then averaged again
     if not poses:
         rec.outcome = Outcome(Termination.DEGENERATE, "global orientation: no pair with a relative orientation")
-        _statuses(rec, pair_counts, "no verified pair with a usable relative orientation")
+        no_pose = "no verified pair with a usable relative orientation"
+        finish_components(rec, pair_counts, no_pose, no_pose)
         rec.seconds = time.perf_counter() - t0
         return rec
     part = rigid_parts(n, poses, Rabs, min_triplet_tracks=gopt.min_triplet_tracks,
@@ -548,12 +548,8 @@ def reconstruct_global(cameras, image_camera, xy_by_image, tracks: Tracks, pair_
             comp += 1
         if on_progress:
             on_progress(int(rec.registered.sum()), n)
-    comps = rec.components()
-    newc = np.full(n, -1)
-    for k, idx in enumerate(comps):
-        newc[idx] = k
-    rec.component = newc
-    _statuses(rec, pair_counts, "")
+    comps = finish_components(rec, pair_counts, "not in a rigid part of the view graph (its pairs share too few tracks "
+                                                "with a third image, or their rotations disagree)")
     rec.seconds = time.perf_counter() - t0
     if not rec.registered.any():
         rec.outcome = Outcome(Termination.DEGENERATE, "global orientation: no rigid part of "
@@ -588,17 +584,6 @@ def _loop_filter(poses: list[RelativePose], max_deg: float) -> tuple[list[Relati
     return kept, len(poses) - len(kept)
 
 
-def _statuses(rec: Reconstruction, pair_counts: dict, default: str) -> None:
-    for i in range(len(rec.status)):
-        if rec.registered[i]:
-            rec.status[i] = ImageStatus(True, int(rec.component[i]), "")
-        elif not rec.status[i].reason:
-            has = any(i in key for key in pair_counts)
-            rec.status[i] = ImageStatus(False, -1, default or ("no verified matches with any other image" if not has else
-                                        "not in a rigid part of the view graph (its pairs share too few tracks with a "
-                                        "third image, or their rotations disagree)"))
-
-
 def _position_part(b: _Builder, imgs: np.ndarray, Rabs: np.ndarray, comp: int, opt: ReconstructionOptions,
                    gopt: GlobalOptions) -> bool:
     """Centres, points and adjustment of one rigid part; registers its images in ``comp``. False when it fails."""
@@ -606,9 +591,12 @@ def _position_part(b: _Builder, imgs: np.ndarray, Rabs: np.ndarray, comp: int, o
     inpart = np.zeros(b.n, bool)
     inpart[imgs] = True
     o = np.nonzero(rec.obs_valid & inpart[tr.image] & ~rec.registered[tr.image])[0]
-    o = o[np.isfinite(_gather(b.rays, tr.image[o], tr.feature[o])).all(1)]
+    rays = _gather(b.rays, tr.image[o], tr.feature[o])
+    fin = np.isfinite(rays).all(1)
+    o, rays = o[fin], rays[fin]
     cnt = np.bincount(tr.track[o], minlength=tr.n_tracks)
-    o = o[cnt[tr.track[o]] >= 2]
+    two = cnt[tr.track[o]] >= 2
+    o, rays = o[two], rays[two]
     if len(o) < 20:
         for i in imgs:
             rec.status[i] = ImageStatus(False, -1, "global orientation: its rigid part has too few tie points")
@@ -617,7 +605,7 @@ def _position_part(b: _Builder, imgs: np.ndarray, Rabs: np.ndarray, comp: int, o
     per = np.bincount(tr.image[o], minlength=b.n)
     imgs = imgs[per[imgs] > 0]
     imgs = imgs[np.argsort(-per[imgs], kind="stable")]
-    C, X, res = position_cameras(imgs, Rabs, tr.image[o], tr.track[o], _gather(b.rays, tr.image[o], tr.feature[o]))
+    C, X, res = position_cameras(imgs, Rabs, tr.image[o], tr.track[o], rays)
     for k, i in enumerate(imgs):
         rec.R[i] = Rabs[i]
         rec.t[i] = -Rabs[i] @ C[k]

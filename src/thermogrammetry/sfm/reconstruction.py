@@ -43,7 +43,7 @@ from .tracks import Tracks
 from .._validate import config_keys
 
 __all__ = ["ReconstructionOptions", "Reconstruction", "ImageStatus", "reconstruct", "triangulate_tracks", "bundle_adjust",
-           "register_with_known_centres", "rotation_from_directions"]
+           "register_with_known_centres", "rotation_from_directions", "finish_components"]
 
 
 @dataclass(frozen=True)
@@ -644,25 +644,32 @@ def reconstruct(cameras, image_camera, xy_by_image, tracks: Tracks, pair_counts:
                 b.pair_counts.pop(key)
             continue
     rec = b.rec
-    # renumber components largest first
-    comps = rec.components()
-    newc = np.full(rec.component.shape, -1)
-    for k, idx in enumerate(comps):
-        newc[idx] = k
-    rec.component = newc
-    for i in range(b.n):
-        if rec.registered[i]:
-            rec.status[i] = ImageStatus(True, int(newc[i]), "")
-        elif not rec.status[i].reason:
-            has = any((i in key) for key in pair_counts)
-            rec.status[i] = ImageStatus(False, -1, "no verified matches with any other image" if not has
-                                        else "could not be added to any block (too few oriented tie points)")
+    comps = finish_components(rec, pair_counts, "could not be added to any block (too few oriented tie points)")
     rec.seconds = time.perf_counter() - t0
     if not rec.registered.any():
         rec.outcome = Outcome(Termination.DEGENERATE, "no initial image pair with enough verified matches and intersection angle")
     else:
         rec.outcome = Outcome(Termination.CONVERGED, f"{int(rec.registered.sum())} of {b.n} images in {len(comps)} component(s)")
     return rec
+
+
+def finish_components(rec: Reconstruction, pair_counts: dict, unplaced_reason: str,
+                      no_match_reason: str = "no verified matches with any other image") -> list[np.ndarray]:
+    """Renumber ``rec``'s components largest first and give every image its status: registered ones their
+    component, unregistered ones without a reason yet ``no_match_reason`` (on no pair of ``pair_counts``) or
+    ``unplaced_reason``. Returns the components (image indices, largest first)."""
+    comps = rec.components()
+    newc = np.full(rec.component.shape, -1)
+    for k, idx in enumerate(comps):
+        newc[idx] = k
+    rec.component = newc
+    for i in range(len(rec.status)):
+        if rec.registered[i]:
+            rec.status[i] = ImageStatus(True, int(newc[i]), "")
+        elif not rec.status[i].reason:
+            has = any((i in key) for key in pair_counts)
+            rec.status[i] = ImageStatus(False, -1, unplaced_reason if has else no_match_reason)
+    return comps
 
 
 # ------------------------------------------------------------------------------------------------
