@@ -77,7 +77,7 @@ def main(argv=None) -> int:
     ap.add_argument("--detail", action=argparse.BooleanOptionalAction, default=True, help="windows, door, spots")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--refine-ties", default="off", help="passed to survey (off | lsm)")
-    ap.add_argument("--mapper", nargs="+", default=["incremental"], help="passed to survey (incremental | global), one row each")
+    ap.add_argument("--mapper", nargs="+", default=["auto"], help="passed to survey (auto | incremental | global), one row each")
     a = ap.parse_args(argv)
     print(f"| stations | facade detail | tie refinement | mapper | oriented | survey s | RMS px | tracks vs TRUE poses RMS px | centre RMS x/y/z m "
           "(vs truth) | rotation RMS / max deg (vs truth) |")
@@ -121,7 +121,8 @@ def _row(a, n: int, mapper: str, sc, d: Path) -> None:
     rr = f"{np.sqrt(np.mean(ang**2)):.2f} / {ang.max():.2f}" if len(ang) else "-"
     rms = s["reprojection_rms_px"]
     tv = _tracks_rms_true_poses(sc, d / "out") if len(dc) else float("nan")
-    print(f"| {n} | {a.detail} | {a.refine_ties} | {mapper} | {s['images_oriented']}/{s['images_total']} {s['components']} | {secs:.0f} | "
+    label = f"auto → {s.get('mapper')}" if mapper == "auto" else mapper  # (auto: the orientation it kept)
+    print(f"| {n} | {a.detail} | {a.refine_ties} | {label} | {s['images_oriented']}/{s['images_total']} {s['components']} | {secs:.0f} | "
           f"{rms if rms is None else round(rms, 3)} | {tv:.3f} | {cr} | {rr} |", flush=True)
 
 

@@ -8,6 +8,8 @@ oriented frames triangulated to add a frame, and stalls.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -112,6 +114,53 @@ def test_global_orients_a_walk_the_incremental_orientation_stalls_on(walk):
     # a frame left out says why
     for k in np.nonzero(~rec.registered)[0]:
         assert rec.status[k].reason
+
+
+def test_auto_mapper_keeps_the_larger_block(walk, monkeypatch):
+    """``SurveyOptions(mapper="auto")``: global is tried when the incremental's largest block holds < 80 % of the
+    frames, and kept only when its own largest block is larger."""
+    from thermogrammetry.pipeline import survey as sv
+
+    C, R, tracks, xy, pc = walk
+    ic = np.zeros(len(C), int)
+    inc = reconstruct([CAM], ic, xy, tracks, pc, ReconstructionOptions())
+    n_inc = max(len(c) for c in inc.components())
+    alone = reconstruct_global([CAM], ic, xy, tracks, pc, ReconstructionOptions())
+    rec, used, summary = sv._auto_global(inc, [CAM], ic, xy, tracks, pc, ReconstructionOptions(), None)
+    # measured: incremental's largest block 6 of 16, global's 9 (rigid parts of 9 and 7)
+    assert n_inc < 0.8 * len(C)
+    assert used == "global" and rec is not inc
+    assert summary["incremental_largest_block"] == n_inc and summary["images"] == len(C)
+    assert summary["global_largest_block"] == max(len(c) for c in rec.components()) > n_inc
+    assert summary["incremental_oriented"] == int(inc.registered.sum()) <= summary["global_oriented"]
+    assert summary["kept"] == "global" and "mapper auto" in rec.log[0]
+    # the same block as the global orientation run on its own: the incremental run changed none of the inputs
+    assert np.array_equal(rec.registered, alone.registered)
+    assert np.allclose(rec.R[rec.registered], alone.R[alone.registered], rtol=0, atol=1e-12)
+    # an incremental block of >= 80 %: global not tried
+    monkeypatch.setattr(sv, "AUTO_GLOBAL_BELOW", n_inc / len(C))
+    rec2, used2, summary2 = sv._auto_global(inc, [CAM], ic, xy, tracks, pc, ReconstructionOptions(), None)
+    assert rec2 is inc and used2 == "incremental" and summary2 is None
+    # tried, but no larger: the incremental block stays (a tie too)
+    monkeypatch.setattr(sv, "AUTO_GLOBAL_BELOW", 0.8)
+    import thermogrammetry.sfm.globalsfm as gs
+
+    monkeypatch.setattr(gs, "reconstruct_global", lambda *a, **k: inc)
+    rec3, used3, summary3 = sv._auto_global(inc, [CAM], ic, xy, tracks, pc, ReconstructionOptions(), None)
+    assert rec3 is inc and used3 == "incremental" and summary3["kept"] == "incremental"
+    assert "incremental kept" in inc.log[-1]
+    # a larger largest block but fewer images in all (the incremental's blocks are each georeferenced with GNSS):
+    # the incremental stays
+    big = copy.deepcopy(alone)
+    first = big.components()[0][:-1]  # (8 of its 9 images: fewer than the incremental's 9 in all)
+    big.registered[:] = False
+    big.registered[first] = True
+    big.component[:] = -1
+    big.component[first] = 0
+    assert len(first) > n_inc and int(big.registered.sum()) < int(inc.registered.sum())
+    monkeypatch.setattr(gs, "reconstruct_global", lambda *a, **k: big)
+    rec4, used4, summary4 = sv._auto_global(inc, [CAM], ic, xy, tracks, pc, ReconstructionOptions(), None)
+    assert rec4 is inc and used4 == "incremental" and summary4["kept"] == "incremental"
 
 
 def test_rotation_averaging_recovers_rotations_past_a_wrong_pair():

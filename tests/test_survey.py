@@ -394,7 +394,7 @@ def test_float_tiff_without_unit_names_the_flag(tmp_path, capsys):
     (["--gnss-sigma", "0.02,-1"], "standard deviations must be > 0"),
     (["--rig", "rig.json"], "rig mode needs the RGB images"),
     (["--detector", "SURF"], "'SURF' is not a valid Detector; expected one of 'sift', 'orb', 'asift'"),
-    (["--mapper", "hybrid"], "mapper='hybrid': expected one of 'incremental', 'global'"),
+    (["--mapper", "hybrid"], "mapper='hybrid': expected one of 'auto', 'incremental', 'global'"),
 ])
 def test_bad_flags_exit_2_with_the_value(tmp_path, capsys, args, msg):
     from thermogrammetry.cli.main import main

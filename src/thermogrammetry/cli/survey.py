@@ -107,9 +107,11 @@ def survey(
     detector: str = typer.Option("sift", "--detector", help="Tie-point detector: sift (default), asift (SIFT on simulated "
                                  "tilted views, 6000 features: frames taken 30-60° apart, e.g. a hand-held facade; "
                                  "~20x the feature time) or orb."),
-    mapper: str = typer.Option("incremental", "--mapper", help="Orientation from the tie points: incremental (default) or "
+    mapper: str = typer.Option("auto", "--mapper", help="Orientation from the tie points: incremental, "
                                "global (rotation averaging over the pairs that close triangles, then camera centres and "
-                               "one bundle adjustment per rigid part: frames whose tracks rarely reach a third frame)."),
+                               "one bundle adjustment per rigid part: frames whose tracks rarely reach a third frame) or "
+                               "auto (default: incremental, and global too when the incremental's largest block holds "
+                               "< 80 % of the images; global is kept when its largest block is larger and it orients no fewer images in all)."),
 ) -> None:
     """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report.
 

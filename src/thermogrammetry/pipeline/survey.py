@@ -146,7 +146,10 @@ INTRINSICS_PLAUSIBLE = {"focal": 0.30, "aspect": 0.05, "principal_point": 0.15, 
 #: below this share of images with a verified pair, the low-texture features are tried as well
 LOW_TEXTURE_SHARE = 0.8
 #: SurveyOptions.mapper's choices (the orientation from the tracks)
-MAPPERS = ("incremental", "global")
+MAPPERS = ("auto", "incremental", "global")
+#: ``mapper="auto"``: the global orientation is tried when the incremental one's largest block holds fewer than this
+#: share of the images (issue 10's "at least 80 % of the frames in one block"), and kept when its largest block is larger
+AUTO_GLOBAL_BELOW = 0.8
 LOW_TEXTURE_BA_GROWTH = 1.0  # tracked low-texture sequences: a bundle adjustment after every added image
 LOW_TEXTURE_SELF_CALIBRATION = ("k1", "k2")  # ... and only radial distortion self-calibrated (+ fx, fy without EXIF focal)
 LOW_TEXTURE_PATTERN_SIGMA_PX = 8.0  # the tracker removes the sensor pattern's part finer than this blur (fixed_pattern)
@@ -236,20 +239,24 @@ class SurveyOptions:
         rejects every block of the primary orientation, the fallback runs then (:func:`run_survey`): walk seed 4's
         primary orientation builds a 30/30 block on SIFT matches of noise that no adjustment can determine; the
         fallback then orients 30/30 in one block (2.59 deg RMS).
-    mapper : "incremental" (default) | "global"
+    mapper : "auto" (default) | "incremental" | "global"
         How the block is oriented from the tracks: ``incremental`` (:func:`~thermogrammetry.sfm.reconstruction.reconstruct`:
-        initial pair, resection, triangulation, bundle adjustments) or ``global``
+        initial pair, resection, triangulation, bundle adjustments), ``global``
         (:func:`~thermogrammetry.sfm.globalsfm.reconstruct_global`: rotation averaging over the verified pairs that
-        close triangles, camera centres from the rays with the rotations fixed, one bundle adjustment per rigid part).
+        close triangles, camera centres from the rays with the rotations fixed, one bundle adjustment per rigid part)
+        or ``auto``: incremental, and global as well when the incremental's largest block holds fewer than
+        :data:`AUTO_GLOBAL_BELOW` (80 %) of the images; global is kept when its largest block is larger and it orients
+        no fewer images over all blocks (else, and on a tie, the incremental). survey.json's ``mapper`` says which one built the blocks, ``mapper_auto`` what each gave.
         Global orients frames whose tracks rarely reach a third frame but whose pairs close loops (synthetic walk
         past a wall, 16 frames, tracks of 2-3 frames: 16/16 in two rigid parts against the incremental 9,
         ``tests/test_sfm_global.py``), the real M3T nadir flight as the incremental does (32/32, centres against RTK
         1.7/1.3/1.6 cm RMS against 1.9/1.4/1.6 cm; orientation step 22 s against 8 s) and a synthetic 64-station
         building ring with more frames (56/64 against 52/64, rotations 0.65 deg RMS against 0.51,
-        ``benchmarks/survey_building.py --mapper incremental global``). Incremental stays the default because global
+        ``benchmarks/survey_building.py --mapper incremental global``). Global alone is not the default because it
         needs pairs whose relative rotations close loops within 5 deg: the 40-station ring (9 deg steps) keeps 19 of
         50 pairs and orients 0/40 (incremental 28/40); the real frescoes' thermal frames (ASIFT; the pairs' rotations
-        10 deg median off, 3 of 45 pairs close a triangle) 0/40 (incremental 4/40).
+        10 deg median off, 3 of 45 pairs close a triangle) 0/40 (incremental 4/40). ``auto`` keeps the incremental
+        block on both and costs nothing where the incremental block holds >= 80 % (M3T).
     tie_refinement : LsmOptions or None
         Least-squares matching of every tie observation against its track's reference patch before the
         orientation (:func:`~thermogrammetry.sfm.lsm.refine_tracks`); None (default) keeps the keypoint
@@ -276,7 +283,7 @@ class SurveyOptions:
     lever_arm_m: tuple = (0.0, 0.0, 0.0)
     video_overlap: float = 0.8
     low_texture: str = "auto"
-    mapper: str = "incremental"
+    mapper: str = "auto"
     features: FeatureOptions = field(default_factory=FeatureOptions)
     matching: MatchOptions = field(default_factory=MatchOptions)
     reconstruction: ReconstructionOptions = field(default_factory=ReconstructionOptions)
@@ -1083,12 +1090,18 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
     ropt = opt.reconstruction
     if camera is not None:
         ropt = replace(ropt, free_intrinsics=())
+    cam_objs = [cams[c] for c in cam_list]
+    mapper_auto = None
     if opt.mapper == "global":
         from ..sfm.globalsfm import reconstruct_global
 
-        rec = reconstruct_global([cams[c] for c in cam_list], image_camera, xy, tracks, pc, ropt, on_progress=progress)
+        rec = reconstruct_global(cam_objs, image_camera, xy, tracks, pc, ropt, on_progress=progress)
+        used = "global"
     else:
-        rec = reconstruct([cams[c] for c in cam_list], image_camera, xy, tracks, pc, ropt, on_progress=progress)
+        rec = reconstruct(cam_objs, image_camera, xy, tracks, pc, ropt, on_progress=progress)
+        used = "incremental"
+        if opt.mapper == "auto":
+            rec, used, mapper_auto = _auto_global(rec, cam_objs, image_camera, xy, tracks, pc, ropt, progress)
     release_free_heap()
     _save_npz(project, "work/reconstruction.npz", R=rec.R, t=rec.t, registered=rec.registered, component=rec.component,
               points=rec.points, track=tracks.track, image=tracks.image, feature=tracks.feature, obs_valid=rec.obs_valid,
@@ -1098,9 +1111,44 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
         "termination": rec.termination.value, "reason": rec.reason, "log": rec.log,
         "status": [{"registered": bool(s.registered), "component": int(s.component), "reason": s.reason} for s in rec.status],
         "tracks": int(tracks.n_tracks), "tracks_split": int(tracks.n_split), "seconds": rec.seconds,
-        "tie_refinement": refinement, "mapper": opt.mapper})
+        "tie_refinement": refinement, "mapper": used, "mapper_auto": mapper_auto})
     return {"oriented": int(rec.registered.sum()), "of": len(names), "components": [len(c) for c in rec.components()],
-            "tracks": int(tracks.n_tracks), "reason": rec.reason, "tie_refinement": refinement}
+            "tracks": int(tracks.n_tracks), "reason": rec.reason, "tie_refinement": refinement, "mapper": used,
+            "mapper_auto": mapper_auto}
+
+
+def _auto_global(rec, cameras, image_camera, xy, tracks, pair_counts, ropt, progress):
+    """``mapper="auto"``: the incremental reconstruction ``rec``, or the global one when the incremental one's largest
+    block holds fewer than :data:`AUTO_GLOBAL_BELOW` of the images and the global one's largest block is larger while
+    it orients at least as many images over all its blocks (a 48-station ring on RTK GNSS: incremental 44 images in
+    blocks of 26 and 18, both georeferenced, 48/48 after the GNSS-assisted additions; global 34 in one block).
+
+    Returns (reconstruction, mapper used, summary dict or None when global was not tried). The summary has the
+    largest block of each (images) and which was kept; the incremental's log says so too when global is kept.
+    """
+    from ..sfm.globalsfm import GlobalOptions, reconstruct_global
+
+    n = len(image_camera)
+    inc = max((len(c) for c in rec.components()), default=0)
+    if inc >= AUTO_GLOBAL_BELOW * n or n < GlobalOptions().min_part_images:
+        return rec, "incremental", None
+    t0 = time.perf_counter()
+    glob = reconstruct_global(cameras, image_camera, xy, tracks, pair_counts, ropt, on_progress=progress)
+    gl = max((len(c) for c in glob.components()), default=0)
+    n_inc, n_gl = int(rec.registered.sum()), int(glob.registered.sum())
+    # a larger largest block, and not fewer images oriented over all blocks (with GNSS every block is georeferenced
+    # on its own, so blocks that are apart count too)
+    keep = "global" if gl > inc and n_gl >= n_inc else "incremental"
+    summary = {"incremental_largest_block": int(inc), "global_largest_block": int(gl), "incremental_oriented": n_inc,
+               "global_oriented": n_gl, "images": int(n), "kept": keep,
+               "global_seconds": round(time.perf_counter() - t0, 3), "global_reason": glob.reason}
+    msg = (f"mapper auto: the incremental orientation's largest block holds {inc}/{n} images (< {AUTO_GLOBAL_BELOW:.0%}; "
+           f"{n_inc} oriented in all); the global orientation's {gl}/{n} ({n_gl} in all): {keep} kept")
+    if keep == "global":
+        glob.log.insert(0, msg)
+        return glob, "global", summary
+    rec.log.append(msg)
+    return rec, "incremental", summary
 
 
 def _largest_thermal_block(project: ProjectStore) -> tuple[int, int]:
@@ -1741,6 +1789,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     if t_ids:
         extra["manual_ties"] = {"ids": len(t_ids), "used": tie_out}
     extra["mapper"] = meta.get("mapper", "incremental")  # which orientation built the blocks (SurveyOptions.mapper)
+    if meta.get("mapper_auto"):
+        extra["mapper_auto"] = meta["mapper_auto"]
     if lt_verdict:
         extra["low_texture"] = lt_verdict
         for nm in lt_verdict.get("refused_images", []):  # frames the primary orientation left out: both reasons

@@ -54,7 +54,8 @@ def write_survey_report(project) -> None:
                  f"{s['components']}; reprojection RMS {_f(s['reprojection_rms_px'], '{:.3f}')} px; "
                  f"{s.get('points', 0)} tie points; CRS {html.escape(str(s['crs'] or 'local frame (not georeferenced)'))}; "
                  f"{_f(s.get('seconds'), '{:.1f}')} s"
-                 + (f"; orientation: {html.escape(str(s['mapper']))}" if s.get("mapper") else "") + ".</p>")
+                 + (f"; orientation: {html.escape(str(s['mapper']))}" if s.get("mapper") else "")
+                 + (_mapper_auto_text(s["mapper_auto"]) if s.get("mapper_auto") else "") + ".</p>")
     if not s.get("temperatures"):
         parts.append(f"<p class='bad'>Frame values are {html.escape(', '.join(s.get('frame_units', [])))}: "
                      "not temperatures (K) — the cloud carries counts or nothing.</p>")
@@ -218,3 +219,11 @@ def write_survey_report(project) -> None:
         parts.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in s["notes"]) + "</ul>")
     parts.append("</body></html>")
     project.write_text("report.html", "".join(parts))
+
+
+def _mapper_auto_text(a: dict) -> str:
+    """survey.json's ``mapper_auto``, as a clause of the report's summary line."""
+    return html.escape(f" (mapper auto: the incremental orientation's largest block {a.get('incremental_largest_block')}"
+                       f"/{a.get('images')} images, {a.get('incremental_oriented')} in all; the global one's "
+                       f"{a.get('global_largest_block')}/{a.get('images')}, {a.get('global_oriented')} in all: "
+                       f"{a.get('kept')} kept)")
