@@ -238,3 +238,13 @@ def test_global_options_are_checked():
         GlobalOptions(min_pair_inliers=3)
     with pytest.raises(ConfigError, match="unknown"):
         GlobalOptions.from_dict({"max_rotation_residual": 5})
+
+
+def test_survey_options_carry_the_global_options():
+    from thermogrammetry.pipeline.survey import SurveyOptions
+
+    opt = SurveyOptions.from_dict({"mapper": "AUTO", "global_orientation": {"min_pair_inliers": 25}})
+    assert opt.mapper == "auto" and opt.global_orientation == GlobalOptions(min_pair_inliers=25)
+    assert SurveyOptions().global_orientation == GlobalOptions() and SurveyOptions().mapper == "auto"
+    with pytest.raises(ConfigError, match="unknown"):
+        SurveyOptions.from_dict({"global_orientation": {"min_inliers": 25}})

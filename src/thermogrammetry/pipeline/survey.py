@@ -57,6 +57,7 @@ from ..errors import ConfigError, DataFileError, ThermogrammetryError, Unsupport
 from ..sfm.features import FeatureOptions
 from ..sfm.matching import MatchOptions
 from ..sfm.lsm import LsmOptions
+from ..sfm.globalsfm import GlobalOptions
 from ..sfm.reconstruction import ReconstructionOptions
 from .project import FolderProject, ProjectStore
 from .._validate import config_keys
@@ -257,6 +258,9 @@ class SurveyOptions:
         50 pairs and orients 0/40 (incremental 28/40); the real frescoes' thermal frames (ASIFT; the pairs' rotations
         10 deg median off, 3 of 45 pairs close a triangle) 0/40 (incremental 4/40). ``auto`` keeps the incremental
         block on both and costs nothing where the incremental block holds >= 80 % (M3T).
+    global_orientation : GlobalOptions
+        Settings of the global orientation (:class:`~thermogrammetry.sfm.globalsfm.GlobalOptions`: pair inliers,
+        loop closure, rigid parts), used by ``mapper="global"`` and ``"auto"``.
     tie_refinement : LsmOptions or None
         Least-squares matching of every tie observation against its track's reference patch before the
         orientation (:func:`~thermogrammetry.sfm.lsm.refine_tracks`); None (default) keeps the keypoint
@@ -287,6 +291,7 @@ class SurveyOptions:
     features: FeatureOptions = field(default_factory=FeatureOptions)
     matching: MatchOptions = field(default_factory=MatchOptions)
     reconstruction: ReconstructionOptions = field(default_factory=ReconstructionOptions)
+    global_orientation: GlobalOptions = field(default_factory=GlobalOptions)
     tie_refinement: LsmOptions | None = None
     workers: int = 0
     scheduler: str | None = None
@@ -321,7 +326,7 @@ class SurveyOptions:
     def from_dict(cls, d: dict) -> "SurveyOptions":
         d = config_keys(cls, d)
         for k, sub in (("features", FeatureOptions), ("matching", MatchOptions), ("reconstruction", ReconstructionOptions),
-                       ("tie_refinement", LsmOptions)):  # tie_refinement: a dict turns it on
+                       ("global_orientation", GlobalOptions), ("tie_refinement", LsmOptions)):  # tie_refinement: a dict turns it on
             if isinstance(d.get(k), dict):
                 d[k] = sub.from_dict(d[k])
         return cls(**d)
@@ -1095,13 +1100,14 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
     if opt.mapper == "global":
         from ..sfm.globalsfm import reconstruct_global
 
-        rec = reconstruct_global(cam_objs, image_camera, xy, tracks, pc, ropt, on_progress=progress)
+        rec = reconstruct_global(cam_objs, image_camera, xy, tracks, pc, ropt, opt.global_orientation, on_progress=progress)
         used = "global"
     else:
         rec = reconstruct(cam_objs, image_camera, xy, tracks, pc, ropt, on_progress=progress)
         used = "incremental"
         if opt.mapper == "auto":
-            rec, used, mapper_auto = _auto_global(rec, cam_objs, image_camera, xy, tracks, pc, ropt, progress)
+            rec, used, mapper_auto = _auto_global(rec, cam_objs, image_camera, xy, tracks, pc, ropt, progress,
+                                                  opt.global_orientation)
     release_free_heap()
     _save_npz(project, "work/reconstruction.npz", R=rec.R, t=rec.t, registered=rec.registered, component=rec.component,
               points=rec.points, track=tracks.track, image=tracks.image, feature=tracks.feature, obs_valid=rec.obs_valid,
@@ -1117,7 +1123,7 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
             "mapper_auto": mapper_auto}
 
 
-def _auto_global(rec, cameras, image_camera, xy, tracks, pair_counts, ropt, progress):
+def _auto_global(rec, cameras, image_camera, xy, tracks, pair_counts, ropt, progress, gopt: GlobalOptions | None = None):
     """``mapper="auto"``: the incremental reconstruction ``rec``, or the global one when the incremental one's largest
     block holds fewer than :data:`AUTO_GLOBAL_BELOW` of the images and the global one's largest block is larger while
     it orients at least as many images over all its blocks (a 48-station ring on RTK GNSS: incremental 44 images in
@@ -1126,14 +1132,15 @@ def _auto_global(rec, cameras, image_camera, xy, tracks, pair_counts, ropt, prog
     Returns (reconstruction, mapper used, summary dict or None when global was not tried). The summary has the
     largest block of each (images) and which was kept; the incremental's log says so too when global is kept.
     """
-    from ..sfm.globalsfm import GlobalOptions, reconstruct_global
+    from ..sfm.globalsfm import reconstruct_global
 
+    gopt = gopt or GlobalOptions()
     n = len(image_camera)
     inc = max((len(c) for c in rec.components()), default=0)
-    if inc >= AUTO_GLOBAL_BELOW * n or n < GlobalOptions().min_part_images:
+    if inc >= AUTO_GLOBAL_BELOW * n or n < gopt.min_part_images:
         return rec, "incremental", None
     t0 = time.perf_counter()
-    glob = reconstruct_global(cameras, image_camera, xy, tracks, pair_counts, ropt, on_progress=progress)
+    glob = reconstruct_global(cameras, image_camera, xy, tracks, pair_counts, ropt, gopt, on_progress=progress)
     gl = max((len(c) for c in glob.components()), default=0)
     n_inc, n_gl = int(rec.registered.sum()), int(glob.registered.sum())
     # a larger largest block, and not fewer images oriented over all blocks (with GNSS every block is georeferenced
