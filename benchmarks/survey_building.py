@@ -121,7 +121,12 @@ def _row(a, n: int, mapper: str, sc, d: Path) -> None:
     rr = f"{np.sqrt(np.mean(ang**2)):.2f} / {ang.max():.2f}" if len(ang) else "-"
     rms = s["reprojection_rms_px"]
     tv = _tracks_rms_true_poses(sc, d / "out") if len(dc) else float("nan")
-    label = f"auto → {s.get('mapper')}" if mapper == "auto" else mapper  # (auto: the orientation it kept)
+    label = mapper
+    if mapper == "auto":  # the orientation it kept, and the largest block / images oriented of each when both ran
+        a_ = s.get("mapper_auto")
+        label = f"auto → {s.get('mapper')}" + (
+            f" (largest block / oriented: incremental {a_['incremental_largest_block']}/{a_['incremental_oriented']}, "
+            f"global {a_['global_largest_block']}/{a_['global_oriented']})" if a_ else "")
     print(f"| {n} | {a.detail} | {a.refine_ties} | {label} | {s['images_oriented']}/{s['images_total']} {s['components']} | {secs:.0f} | "
           f"{rms if rms is None else round(rms, 3)} | {tv:.3f} | {cr} | {rr} |", flush=True)
 

@@ -134,6 +134,10 @@ def test_auto_mapper_keeps_the_larger_block(walk, monkeypatch):
     assert summary["global_largest_block"] == max(len(c) for c in rec.components()) > n_inc
     assert summary["incremental_oriented"] == int(inc.registered.sum()) <= summary["global_oriented"]
     assert summary["kept"] == "global" and "mapper auto" in rec.log[0]
+    from thermogrammetry.pipeline.survey_report import _mapper_auto_text
+
+    text = _mapper_auto_text(summary)  # the report's clause
+    assert f"largest block {n_inc}/16 images" in text and "global kept" in text
     # the same block as the global orientation run on its own: the incremental run changed none of the inputs
     assert np.array_equal(rec.registered, alone.registered)
     assert np.allclose(rec.R[rec.registered], alone.R[alone.registered], rtol=0, atol=1e-12)
