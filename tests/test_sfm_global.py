@@ -167,6 +167,35 @@ def test_auto_mapper_keeps_the_larger_block(walk, monkeypatch):
     assert rec4 is inc and used4 == "incremental" and summary4["kept"] == "incremental"
 
 
+def test_relative_poses_are_refined_on_their_inliers(walk):
+    from thermogrammetry.sfm.globalsfm import _exp, refine_relative_pose, relative_poses
+    from thermogrammetry.sfm.reconstruction import _Builder
+
+    C, R, tracks, xy, pc = walk
+    b = _Builder([CAM], np.zeros(len(C), int), xy, tracks, pc, ReconstructionOptions(), None)
+    poses = relative_poses(b, sorted(pc), min_inliers=15)
+    rot = np.array([_angle_deg(p.R @ (R[p.j] @ R[p.i].T).T) for p in poses])
+    tdir = []
+    for p in poses:
+        tt = R[p.j] @ (C[p.i] - C[p.j])
+        tdir.append(np.degrees(np.arccos(np.clip(p.t @ tt / np.linalg.norm(tt), -1, 1))))
+    # measured over 26 pairs (0.5 px noise, 0.6 m bases at 4 m): rotations 0.29 deg median, 0.76 at p90, baseline
+    # directions 0.87 / 1.62 deg; straight from the essential matrix (no refinement) 0.74 / 1.64 and 2.11 / 4.12 deg
+    assert len(poses) >= 20
+    assert 0.15 < np.median(rot) < 0.45 and np.percentile(rot, 90) < 1.1
+    assert np.median(tdir) < 1.3
+    # exact rays from a start 1 deg / 5 deg off: the truth to the solver's tolerance (measured 1.7e-6 deg)
+    rng = np.random.default_rng(0)
+    Rt, tt = _exp(np.array([0.05, -0.2, 0.1])), np.array([1.0, 0.1, 0.05])
+    X = rng.uniform([-2, -2, 4], [2, 2, 8], (60, 3))
+    xi = X[:, :2] / X[:, 2:]
+    Xj = X @ Rt.T + tt
+    xj = Xj[:, :2] / Xj[:, 2:]
+    R1, t1 = refine_relative_pose(_exp(np.radians([0.6, -0.5, 0.6])) @ Rt, tt + np.array([0, 0.08, -0.03]), xi, xj,
+                                  scale=1 / 765)
+    assert _angle_deg(R1 @ Rt.T) < 1e-4 and np.linalg.norm(t1 - tt / np.linalg.norm(tt)) < 1e-6
+
+
 def test_rotation_averaging_recovers_rotations_past_a_wrong_pair():
     rng = np.random.default_rng(3)
     from scipy.spatial.transform import Rotation
