@@ -111,7 +111,8 @@ def survey(
                                "global (rotation averaging over the pairs that close triangles, then camera centres and "
                                "one bundle adjustment per rigid part: frames whose tracks rarely reach a third frame) or "
                                "auto (default: incremental, and global too when the incremental's largest block holds "
-                               "< 80 % of the images; global is kept when its largest block is larger and it orients no fewer images in all)."),
+                               "< 80 % of the images; global is kept when its largest block is larger and it orients "
+                               "no fewer images in all)."),
 ) -> None:
     """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report.
 

@@ -247,7 +247,8 @@ class SurveyOptions:
         close triangles, camera centres from the rays with the rotations fixed, one bundle adjustment per rigid part)
         or ``auto``: incremental, and global as well when the incremental's largest block holds fewer than
         :data:`AUTO_GLOBAL_BELOW` (80 %) of the images; global is kept when its largest block is larger and it orients
-        no fewer images over all blocks (else, and on a tie, the incremental). survey.json's ``mapper`` says which one built the blocks, ``mapper_auto`` what each gave.
+        no fewer images over all blocks (else, and on a tie, the incremental). survey.json's ``mapper`` says which one
+        built the blocks, ``mapper_auto`` what each gave.
         Global orients frames whose tracks rarely reach a third frame but whose pairs close loops (synthetic walk
         past a wall, 16 frames, tracks of 2-3 frames: 16/16 in two rigid parts against the incremental 9,
         ``tests/test_sfm_global.py``), the real M3T nadir flight as the incremental does (32/32, centres against RTK
@@ -1126,11 +1127,13 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
 def _auto_global(rec, cameras, image_camera, xy, tracks, pair_counts, ropt, progress, gopt: GlobalOptions | None = None):
     """``mapper="auto"``: the incremental reconstruction ``rec``, or the global one when the incremental one's largest
     block holds fewer than :data:`AUTO_GLOBAL_BELOW` of the images and the global one's largest block is larger while
-    it orients at least as many images over all its blocks (a 48-station ring on RTK GNSS: incremental 44 images in
-    blocks of 26 and 18, both georeferenced, 48/48 after the GNSS-assisted additions; global 34 in one block).
+    it orients at least as many images over all its blocks (the held-out 48-station ring of
+    ``tests/test_survey_building_rings.py`` on RTK GNSS: the incremental orients 44 images in blocks of 26 and 18, both
+    georeferenced, then 48/48 with the images added at their GNSS positions; keeping global's larger block gave 34/48).
 
     Returns (reconstruction, mapper used, summary dict or None when global was not tried). The summary has the
-    largest block of each (images) and which was kept; the incremental's log says so too when global is kept.
+    largest block and the images oriented of each, which was kept and the global run's time; the kept
+    reconstruction's log says why.
     """
     from ..sfm.globalsfm import reconstruct_global
 

@@ -7,7 +7,8 @@ pairs whose tracks rarely reach a third frame; the incremental block stops after
 would connect most of them. The global scheme uses every verified pair at once:
 
 1. **Relative rotations** of every verified pair: essential matrix (OpenCV USAC MAGSAC++, seeded) on the
-   normalised rays of its common tracks, decomposed by the cheirality test.
+   normalised rays of its common tracks, decomposed by the cheirality test, then refined on all its inliers
+   (Sampson distances, Huber loss: :func:`refine_relative_pose`).
 2. **Rotation averaging**: pairs whose relative rotation closes no triangle of pairs within
    ``max_rotation_residual_deg`` are dropped first (Zach et al. 2010); a maximum spanning tree of the view graph
    (weights: inliers) gives a first rotation per image, refined on all pairs by iteratively reweighted least squares
@@ -50,8 +51,8 @@ from .._validate import config_keys
 from .reconstruction import ImageStatus, Reconstruction, ReconstructionOptions, _Builder, _gather, finish_components
 from .tracks import Tracks
 
-__all__ = ["GlobalOptions", "RelativePose", "relative_poses", "refine_relative_pose", "average_rotations", "rigid_parts", "position_cameras",
-           "reconstruct_global"]
+__all__ = ["GlobalOptions", "RelativePose", "relative_poses", "refine_relative_pose", "average_rotations", "rigid_parts",
+           "position_cameras", "reconstruct_global"]
 
 
 @dataclass(frozen=True)
@@ -210,7 +211,9 @@ def refine_relative_pose(R: np.ndarray, t: np.ndarray, ri: np.ndarray, rj: np.nd
         tt = t0 + x[3:] @ B
         return _exp(x[:3]) @ R, tt / np.linalg.norm(tt)
 
-    fun = lambda x: _sampson(*pose(x), ri, rj) / scale  # noqa: E731
+    def fun(x):
+        return _sampson(*pose(x), ri, rj) / scale
+
     try:
         res = least_squares(fun, np.zeros(5), loss="huber", f_scale=1.0, method="trf")
     except (ValueError, np.linalg.LinAlgError):
