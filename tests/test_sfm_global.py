@@ -147,9 +147,7 @@ def test_auto_mapper_keeps_the_larger_block(walk, monkeypatch):
     assert rec2 is inc and used2 == "incremental" and summary2 is None
     # tried, but no larger: the incremental block stays (a tie too)
     monkeypatch.setattr(sv, "AUTO_GLOBAL_BELOW", 0.8)
-    import thermogrammetry.sfm.globalsfm as gs
-
-    monkeypatch.setattr(gs, "reconstruct_global", lambda *a, **k: inc)
+    monkeypatch.setattr(sv, "reconstruct_global", lambda *a, **k: inc)
     rec3, used3, summary3 = sv._auto_global(inc, [CAM], ic, xy, tracks, pc, ReconstructionOptions(), None)
     assert rec3 is inc and used3 == "incremental" and summary3["kept"] == "incremental"
     assert "incremental kept" in inc.log[-1]
@@ -162,7 +160,7 @@ def test_auto_mapper_keeps_the_larger_block(walk, monkeypatch):
     big.component[:] = -1
     big.component[first] = 0
     assert len(first) > n_inc and int(big.registered.sum()) < int(inc.registered.sum())
-    monkeypatch.setattr(gs, "reconstruct_global", lambda *a, **k: big)
+    monkeypatch.setattr(sv, "reconstruct_global", lambda *a, **k: big)
     rec4, used4, summary4 = sv._auto_global(inc, [CAM], ic, xy, tracks, pc, ReconstructionOptions(), None)
     assert rec4 is inc and used4 == "incremental" and summary4["kept"] == "incremental"
 

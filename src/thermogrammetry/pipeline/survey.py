@@ -57,7 +57,7 @@ from ..errors import ConfigError, DataFileError, ThermogrammetryError, Unsupport
 from ..sfm.features import FeatureOptions
 from ..sfm.matching import MatchOptions
 from ..sfm.lsm import LsmOptions
-from ..sfm.globalsfm import GlobalOptions
+from ..sfm.globalsfm import GlobalOptions, reconstruct_global
 from ..sfm.reconstruction import ReconstructionOptions
 from .project import FolderProject, ProjectStore
 from .._validate import config_keys
@@ -327,7 +327,8 @@ class SurveyOptions:
     def from_dict(cls, d: dict) -> "SurveyOptions":
         d = config_keys(cls, d)
         for k, sub in (("features", FeatureOptions), ("matching", MatchOptions), ("reconstruction", ReconstructionOptions),
-                       ("global_orientation", GlobalOptions), ("tie_refinement", LsmOptions)):  # tie_refinement: a dict turns it on
+                       ("global_orientation", GlobalOptions),
+                       ("tie_refinement", LsmOptions)):  # tie_refinement: a dict turns it on
             if isinstance(d.get(k), dict):
                 d[k] = sub.from_dict(d[k])
         return cls(**d)
@@ -1099,8 +1100,6 @@ def step_orient(project: ProjectStore, opt: SurveyOptions, camera=None, progress
     cam_objs = [cams[c] for c in cam_list]
     mapper_auto = None
     if opt.mapper == "global":
-        from ..sfm.globalsfm import reconstruct_global
-
         rec = reconstruct_global(cam_objs, image_camera, xy, tracks, pc, ropt, opt.global_orientation, on_progress=progress)
         used = "global"
     else:
@@ -1135,8 +1134,6 @@ def _auto_global(rec, cameras, image_camera, xy, tracks, pair_counts, ropt, prog
     largest block and the images oriented of each, which was kept and the global run's time; the kept
     reconstruction's log says why.
     """
-    from ..sfm.globalsfm import reconstruct_global
-
     gopt = gopt or GlobalOptions()
     n = len(image_camera)
     inc = max((len(c) for c in rec.components()), default=0)

@@ -196,7 +196,7 @@ def refine_relative_pose(R: np.ndarray, t: np.ndarray, ri: np.ndarray, rj: np.nd
 
     Returns
     -------
-    (R (3, 3), t (3,) unit) ; the start when the fit does not lower the cost.
+    (R (3, 3), t (3,) unit) ; the start (``t`` made unit) when the fit fails.
 
     References
     ----------
@@ -215,18 +215,13 @@ def refine_relative_pose(R: np.ndarray, t: np.ndarray, ri: np.ndarray, rj: np.nd
         return _sampson(*pose(x), ri, rj) / scale
 
     try:
+        # (trust-region reflective accepts only steps that lower the cost: the result is never worse than the start)
         res = least_squares(fun, np.zeros(5), loss="huber", f_scale=1.0, method="trf")
     except (ValueError, np.linalg.LinAlgError):
         return R, t0
-    if not (res.success and np.all(np.isfinite(res.x)) and res.cost <= 0.5 * float(np.sum(_huber(fun(np.zeros(5)))))):
+    if not (res.success and np.all(np.isfinite(res.x))):
         return R, t0
     return pose(res.x)
-
-
-def _huber(r: np.ndarray) -> np.ndarray:
-    """2 x scipy's Huber rho (f_scale 1) of residuals r: r^2 inside |r| <= 1, 2|r| - 1 outside."""
-    a = np.abs(r)
-    return np.where(a <= 1.0, a * a, 2.0 * a - 1.0)
 
 
 # ------------------------------------------------------------------------------------------------
