@@ -88,20 +88,18 @@ def _gnss_csv(scene, path: Path, sigma_m: float) -> Path:
     return path
 
 
-def _render8(frames: Path, dst: Path, mode: str) -> Path:
+def _render8(frames: Path, dst: Path, mode: str, overlay: bool = False) -> Path:
     """The frames as 8-bit JPEGs (quality 92) with a per-frame 1-99 % stretch (an AGC), grey or through matplotlib's
-    'inferno' palette, without EXIF (no focal length): what a camera's exported JPEGs give."""
-    import matplotlib
+    'inferno' palette, without EXIF (no focal length): what a camera's exported JPEGs give. ``overlay``: the camera's
+    display burned in (:func:`thermogrammetry.synthetic.display.burn_display`)."""
     import tifffile
     from PIL import Image
 
+    from thermogrammetry.synthetic.display import render_8bit
+
     dst.mkdir(parents=True, exist_ok=True)
-    cmap = matplotlib.colormaps["inferno"]
     for p in sorted(frames.glob("*.tif")):
-        a = tifffile.imread(p).astype(float)
-        lo, hi = np.percentile(a, [1, 99])
-        g = np.clip((a - lo) / max(hi - lo, 1e-12), 0, 1)
-        img = np.round(g * 255).astype(np.uint8) if mode == "grey" else (cmap(g)[..., :3] * 255).round().astype(np.uint8)
+        img = render_8bit(tifffile.imread(p), mode=mode, display=overlay)
         Image.fromarray(img).save(dst / (p.stem + ".jpg"), quality=92)
     return dst
 
@@ -229,8 +227,9 @@ def synthetic(args) -> int:
                     truth = {n: (p.R, p.t) for n, p in zip(sc.names, sc.poses)}
                     frames = work / tag / "frames"
                     if args.render8:
-                        frames = _render8(frames, work / tag / f"frames8_{args.render8}", args.render8)
-                        tag += f"_8bit{args.render8[0]}"
+                        frames = _render8(frames, work / tag / f"frames8_{args.render8}{'_hud' if args.overlay else ''}",
+                                          args.render8, overlay=args.overlay)
+                        tag += f"_8bit{args.render8[0]}" + ("_hud" if args.overlay else "")
                     if args.gnss_sigma is not None:
                         gnss = ("--gnss", str(_gnss_csv(sc, work / tag / "gnss.csv", args.gnss_sigma)), "--crs", "EPSG:2056")
                         tag += f"_gnss{args.gnss_sigma:g}"
@@ -332,6 +331,8 @@ def main(argv=None) -> int:
                     help="--scene walk|wall320: give the survey GNSS (true centres + N(0, M) noise, EPSG:2056)")
     ap.add_argument("--render8", choices=("grey", "palette"), default=None,
                     help="--scene walk|wall320: the frames as 8-bit JPEGs (per-frame stretch, no EXIF focal length)")
+    ap.add_argument("--overlay", action="store_true",
+                    help="with --render8: a hand-held camera's display burned in (text, cross-hair, colour bar)")
     args = ap.parse_args(argv)
     if args.synthetic:
         sys.path.insert(0, str(REPO / "src"))

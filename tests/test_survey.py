@@ -293,6 +293,7 @@ def test_real_m3t_flight(m3t):
     s = json.loads((out / "survey.json").read_text())
     assert s["images_oriented"] == 32 and s["components"] == [32]
     assert s["frame_units"] == ["counts"] and not s["temperatures"]
+    assert s["overlay"] is None  # raw counts carry no burned-in display: not searched
     # the default (mapper auto) keeps the incremental orientation, which holds >= 80 % in one block: global not tried
     assert s["mapper"] == "incremental" and "mapper_auto" not in s
     assert "orientation: incremental" in (out / "report.html").read_text()

@@ -1,5 +1,5 @@
 """Image sampling shared by the layers (sfm, dense, products): one bilinear sampler with the project's pixel convention,
-and one fill of no-data pixels by their nearest valid value."""
+and two fills of no-data pixels: by their nearest valid value, and smoothly from the valid pixels around them."""
 
 from __future__ import annotations
 
@@ -30,3 +30,23 @@ def fill_nearest_valid(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
     lut = np.zeros(int(np.count_nonzero(valid)) + 1, np.float64 if a.dtype == np.float64 else np.float32)
     lut[1:] = a[valid]
     return lut[lab]
+
+
+def fill_smooth(a: np.ndarray, valid: np.ndarray, sigma_px: float = 8.0) -> np.ndarray:
+    """(H, W) float32 copy of ``a`` with every invalid pixel set to the Gaussian-weighted mean (σ ``sigma_px``) of the
+    valid pixels around it (normalised convolution), blending into the median of the valid pixels where none is
+    near: no edge at a hole's border for a detector or a tracker to lock onto (a flat fill leaves one). All invalid:
+    zeros."""
+    import cv2
+
+    x = np.asarray(a, np.float32)
+    v = np.asarray(valid, bool)
+    if v.all():
+        return x.copy()
+    if not v.any():
+        return np.zeros(x.shape, np.float32)
+    med = np.float32(np.median(x[v]))
+    w = cv2.GaussianBlur(v.astype(np.float32), (0, 0), float(sigma_px))
+    s = cv2.GaussianBlur(np.where(v, x, np.float32(0.0)), (0, 0), float(sigma_px))
+    eps = np.float32(1e-3)
+    return np.where(v, x, (s + eps * med) / (w + eps)).astype(np.float32)

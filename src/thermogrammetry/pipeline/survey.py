@@ -7,7 +7,8 @@ reads what the previous wrote and writes a small report under ``reports/``:
 ``inputs``        decode every input (radiometric files, 8-bit renderings, float TIFFs, video frames) to
                   ``frames/<name>.tif`` (float32 K, uint16 counts or uint8 display numbers) and
                   ``work/inputs.json`` (unit, size, GNSS, camera guess per image; failures by name)
-``features``      ``features/<name>.npz`` per image (dask tasks)
+``features``      ``features/<name>.npz`` per image (dask tasks); a camera display burned into the 8-bit
+                  thermal frames found first and kept out (``features/overlay.npz``, ``work/overlay.json``)
 ``matching``      candidate pairs from GNSS/sequence, ``matches/<i>_<j>.npz`` verified (dask tasks)
 ``orient``        tracks + incremental orientation -> ``work/reconstruction.npz``
 ``georef``        similarity to GNSS/GCPs, final adjustment with GNSS priors and weighted GCPs, images with
@@ -24,7 +25,9 @@ largest first), ``reprojection_rms_px`` (root mean square of the residual vector
 observations, px), ``gcps`` / ``checkpoints`` (``n, rmse_x.., mae_x.., min_x.., max_x..`` in metres; n = 0
 and nulls when none), ``crs``, ``seconds`` and more detail (per image, per step, camera; per block ``blocks``:
 datum, σ0, self-calibration and its steps, ``added_at_gnss``: images added at their GNSS positions; a rejected
-block's ``rejected`` reason and ``moved_to_blocks``: block -> its images that a later pass added there). Rig mode
+block's ``rejected`` reason and ``moved_to_blocks``: block -> its images that a later pass added there), ``overlay``
+(a display burned into 8-bit frames: ``share`` of the frame masked, ``frames`` it was found from, ``images`` of that
+``size`` it applies to; null when none was found or the frames are radiometric). Rig mode
 (``--rig``) adds ``rig`` (file, pairs, blocks with R*, t, σ, own observations per thermal image, or the reason an
 estimate was refused; ``rig_only``: thermal images posed by the rig alone; ``registration``: R*, t and the thermal
 focal scale from image registration when the rig is to be estimated and < 3 thermal frames tie to their RGB
@@ -646,6 +649,7 @@ def feature_task(args) -> tuple[str, int]:
     project, name, fopt, *rest = args
     folder = rest[0] if rest else "features"
     pattern_key = rest[1] if len(rest) > 1 else None
+    overlay_key = rest[2] if len(rest) > 2 else None
     from ..sfm.features import extract_features
     from ..sfm.keypoints import to_pixel_centre_convention
 
@@ -654,10 +658,61 @@ def feature_task(args) -> tuple[str, int]:
         pat = _load_npz_cached(project, pattern_key)["pattern"]
         if pat.shape == frame.shape:  # the sensor's fixed pattern, estimated from the sequence
             frame = frame.astype(np.float32) - pat
+    frame = _masked_overlay(project, frame, overlay_key)
     # (0, 0) = centre of the top-left pixel, like the camera model, GCP and manual-tie measurements
     f = to_pixel_centre_convention(extract_features(frame, fopt), fopt)
     _save_npz(project, f"{folder}/{name}.npz", **f.to_npz_dict())
     return name, len(f)
+
+
+def _masked_overlay(project: ProjectStore, frame: np.ndarray, overlay_key: str | None) -> np.ndarray:
+    """``frame`` as float32 with the pixels of a burned-in display (``overlay_key``: :func:`_overlay_mask`) set to
+    NaN (no tie point there); unchanged without a key or when the mask's size differs."""
+    if not overlay_key or frame.ndim != 2:
+        return frame
+    mask = _load_npz_cached(project, overlay_key)["mask"]
+    if mask.shape != frame.shape:
+        return frame
+    out = frame.astype(np.float32)
+    out[mask] = np.nan
+    return out
+
+
+def _overlay_mask(project: ProjectStore, inputs: dict) -> dict | None:
+    """A display burned into the 8-bit thermal renderings (``unit`` dn), found from the frames of the most common
+    size (:func:`~thermogrammetry.sfm.features.static_overlay`); writes ``features/overlay.npz`` and returns
+    ``{"key", "share", "frames", "images", "size"}`` (share of the frame masked, frames it was found from, images of
+    that size it applies to, [width, height]), or None."""
+    from ..sfm.features import OVERLAY_MIN_FRAMES, static_overlay
+
+    groups: dict = {}
+    for im in inputs["images"]:
+        if im.get("sensor", "thermal") == "thermal" and im.get("unit") == "dn":
+            groups.setdefault((int(im["height"]), int(im["width"])), []).append(im["name"])
+    if not groups:
+        return None
+    members = max(groups.values(), key=len)
+    if len(members) < OVERLAY_MIN_FRAMES:
+        return None
+    used = members[:: max(1, len(members) // 60)]
+    frames = [f for f in (_read_frame(project, nm) for nm in used) if f.ndim == 2]
+    mask = static_overlay(frames)
+    if mask is None:
+        return None
+    key = "features/overlay.npz"
+    _save_npz(project, key, mask=mask)
+    return {"key": key, "share": float(mask.mean()), "frames": len(frames), "images": len(members),
+            "size": [int(mask.shape[1]), int(mask.shape[0])]}
+
+
+def _overlay_keys(project: ProjectStore, inputs: dict) -> dict:
+    """image name -> key of the burned-in display's mask that the features step found for it (``work/overlay.json``)."""
+    ov = project.read_json("work/overlay.json") if project.exists("work/overlay.json") else {}
+    if not ov.get("found"):
+        return {}
+    w, h = ov["size"]
+    return {im["name"]: ov["key"] for im in inputs["images"] if im.get("sensor", "thermal") == "thermal"
+            and im.get("unit") == "dn" and int(im["width"]) == w and int(im["height"]) == h}
 
 
 def match_task(args) -> tuple[int, int, int, int, str]:
@@ -768,10 +823,17 @@ def _initial_cameras(inputs: dict, camera=None, rgb_camera=None) -> tuple[dict, 
 def step_features(project: ProjectStore, opt: SurveyOptions, progress=None) -> dict:
     inputs = project.read_json("work/inputs.json")
     store = project if not isinstance(project, FolderProject) else FolderProject(project.root, durable=project.durable)
-    res = _run_tasks(feature_task, [(store, im["name"], opt.features) for im in inputs["images"]], opt, progress, "features")
+    ov = _overlay_mask(project, inputs)
+    project.write_json("work/overlay.json", {"found": False} if ov is None else {"found": True, **ov})
+    keys = _overlay_keys(project, inputs)
+    res = _run_tasks(feature_task, [(store, im["name"], opt.features, "features", None, keys.get(im["name"]))
+                                    for im in inputs["images"]], opt, progress, "features")
     counts = {name: n for name, n in res}
     project.write_json("work/features.json", counts)
-    return {"images": len(counts), "median_features": float(np.median(list(counts.values()))) if counts else 0.0}
+    out = {"images": len(counts), "median_features": float(np.median(list(counts.values()))) if counts else 0.0}
+    if ov is not None:
+        out["overlay_share"] = ov["share"]
+    return out
 
 
 def _gnss_xyz(inputs: dict, opt: SurveyOptions, crs_out: str | None):
@@ -909,6 +971,7 @@ def _track_thermal_sequence(project: ProjectStore, inputs: dict, thermal: list, 
 
     names = [inputs["images"][k]["name"] for k in thermal]
     pattern = _load_npz(project, pattern_key)["pattern"] if pattern_key else None
+    overlay = _overlay_keys(project, inputs)
     shapes = [(int(inputs["images"][k]["height"]), int(inputs["images"][k]["width"])) for k in thermal]
     counts: dict = {}
     res: list = []
@@ -919,7 +982,9 @@ def _track_thermal_sequence(project: ProjectStore, inputs: dict, thermal: list, 
             continue
         run = thermal[start:end]
         pat = pattern if pattern is not None and pattern.shape == shapes[start] else None
-        st = track_sequence(lambda a, run=run: _read_frame(project, inputs["images"][run[a]]["name"]), len(run), pattern=pat,
+        st = track_sequence(lambda a, run=run: _masked_overlay(project, _read_frame(project, inputs["images"][run[a]]["name"]),
+                                                               overlay.get(inputs["images"][run[a]]["name"])),
+                            len(run), pattern=pat,
                             cameras=[cams[cam_ids[k]] for k in run])
         for a, k in enumerate(run):
             nm = inputs["images"][k]["name"]
@@ -1005,7 +1070,9 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
             pattern_key = _fixed_pattern(project, inputs, th_names)
             lt = replace(opt.features, detector="sift", enhancement="clahe", contrast_threshold=0.005,
                          max_features=max(opt.features.max_features, 4000))
-            counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key) for nm in th_names],
+            overlay = _overlay_keys(project, inputs)
+            counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key, overlay.get(nm))
+                                                       for nm in th_names],
                                         opt, None, "features"))
             res_lt = match("lowtexture/", mopt_lt, pairs_lt)
             how = "sift/clahe on pattern-corrected thermal frames, guided matching"
@@ -1798,6 +1865,12 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     extra["mapper"] = meta.get("mapper", "incremental")  # which orientation built the blocks (SurveyOptions.mapper)
     if meta.get("mapper_auto"):
         extra["mapper_auto"] = meta["mapper_auto"]
+    ov = project.read_json("work/overlay.json") if project.exists("work/overlay.json") else {"found": False}
+    extra["overlay"] = ({k: ov[k] for k in ("share", "frames", "images", "size")} if ov.get("found") else None)
+    if ov.get("found"):
+        notes.append(f"a display burned into the 8-bit frames (text, marks, colour bar at the same pixels in every frame) "
+                     f"was found in {ov['frames']} frames: {100 * ov['share']:.1f} % of each {ov['size'][0]}x{ov['size'][1]} "
+                     f"frame masked, no tie points there ({ov['images']} images)")
     if lt_verdict:
         extra["low_texture"] = lt_verdict
         for nm in lt_verdict.get("refused_images", []):  # frames the primary orientation left out: both reasons

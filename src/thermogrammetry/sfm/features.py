@@ -37,12 +37,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._sampling import fill_smooth
 from ..enums import StrChoice
 from ..errors import ConfigError, ShapeError
 from .._validate import config_keys
 
 __all__ = ["ASIFT_MAX_FEATURES", "Detector", "Enhancement", "FeatureOptions", "Features", "asift_views",
-           "detector_input", "extract_features", "fixed_pattern"]
+           "detector_input", "extract_features", "fixed_pattern", "static_overlay", "OVERLAY_MIN_FRAMES"]
 
 
 ASIFT_MAX_FEATURES = 6000
@@ -197,8 +198,8 @@ def detector_input(image, options: FeatureOptions | None = None) -> tuple[np.nda
     valid = np.isfinite(a)
     if not valid.any():
         return np.zeros(a.shape, np.uint8), valid
-    fill = float(np.median(a[valid]))
-    a = np.where(valid, a, fill).astype(np.float32)
+    if not valid.all():  # no-data (NaN, a masked display) filled smoothly: no edge at its border
+        a = fill_smooth(a, valid)
     if opt.enhancement is Enhancement.HIGHPASS:
         a = a - cv2.GaussianBlur(a, (0, 0), opt.highpass_sigma_px)
     if opt.enhancement is Enhancement.LOCAL:
@@ -402,3 +403,106 @@ def fixed_pattern(frames, *, max_frames: int = 60, highpass_sigma_px: float = 0.
         pat = np.nanmedian(stack, axis=0)
     pat = np.where(np.isfinite(pat), pat, 0.0).astype(np.float32)
     return pat - np.float32(np.median(pat))
+
+
+#: :func:`static_overlay`: the fewest frames from which a burned-in display is told from the scene
+OVERLAY_MIN_FRAMES = 8
+
+
+def static_overlay(frames, *, max_frames: int = 60, highpass_sigma_px: float = 2.0, top_share: float = 0.02,
+                   min_frequency: float = 0.25, dilate_px: float | None = None) -> np.ndarray | None:
+    """Pixels of a display burned into 8-bit renderings (text, cross-hair, colour bar, logo), found from the frames.
+
+    Exported JPEGs and screen recordings of hand-held thermal cameras carry the camera's display: the maker's
+    name, the spot meter's reading and cross-hair, a colour bar with the frame's range, the date. Those stay at
+    the same pixels while the scene moves, so their features "match" at zero motion in every pair (consistent with
+    any pure translation, they pass an essential-matrix check) and drag the camera model: on the 32 M3T frames as
+    8-bit palette JPEGs without EXIF focal length, a burned-in display moved the self-calibrated focal length from
+    686 to 402 px (benchmarks/survey_lowtexture.py ``--overlay``). A pixel is taken as display when, in the
+    high-pass of the frames (frame − Gaussian blur of ``highpass_sigma_px``):
+
+    * its per-pixel median over the frames is strong and steady -- ``|P| > 6 σ`` of both the median's spread over
+      the frame (a sensor's fixed pattern) and the typical frame-to-frame variation, and its median absolute
+      deviation over the frames below ``|P| / 2`` (static text and marks; the local background may change with
+      the camera's gain), or
+    * it is among the ``top_share`` strongest high-pass pixels of a frame in at least ``min_frequency`` of the
+      frames (and in at least 4): readings whose digits change from frame to frame stay in their box. A moving
+      scene puts a pixel there in ~``top_share`` of the frames.
+
+    Components of fewer than 3 (steady) or 16 (frequent) pixels are dropped -- a sensor's strongest fixed-pattern
+    pixels are frequent too, in specks; a changing reading's box is larger --, the rest dilated by ``dilate_px`` (default 8 px per 640 px of
+    width: a feature's support region).
+
+    Parameters
+    ----------
+    frames : sequence of (H, W) arrays of one sensor (same shape), any numeric dtype; at most ``max_frames``,
+        evenly spaced, are used. Meant for 8-bit renderings: raw radiometric data carries no display.
+
+    Returns
+    -------
+    (H, W) bool (True = display, no tie points there) or None: fewer than :data:`OVERLAY_MIN_FRAMES` frames,
+    frames of different shapes, nothing found, or more than a quarter of the frame found (the frames hardly move:
+    the scene cannot be told from a display).
+    """
+    import cv2
+
+    frames = list(frames)
+    if len(frames) < OVERLAY_MIN_FRAMES:
+        return None
+    shape = np.asarray(frames[0]).shape
+    if len(shape) != 2 or any(np.asarray(f).shape != shape for f in frames):
+        return None
+    pick = np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int)
+    hp = np.empty((len(pick), *shape), np.float32)
+    raw = np.empty((len(pick), *shape), np.float32)
+    for k, i in enumerate(pick):
+        a = np.asarray(frames[i], np.float32)
+        ok = np.isfinite(a)
+        if not ok.all():
+            a = np.where(ok, a, np.float32(np.median(a[ok])) if ok.any() else np.float32(0.0))
+        raw[k] = a
+        hp[k] = a - cv2.GaussianBlur(a, (0, 0), float(highpass_sigma_px))
+    # pixels whose value hardly changes while the scene moves: a display's flat parts (a colour bar's inside)
+    d_raw = np.median(np.abs(raw - np.median(raw, axis=0)), axis=0)
+    still = d_raw <= 0.1 * float(np.median(d_raw))
+    del raw
+    P = np.median(hp, axis=0)
+    D = np.median(np.abs(hp - P), axis=0)
+    s_pattern = 1.4826 * float(np.median(np.abs(P - np.median(P))))
+    s_motion = 1.4826 * float(np.median(D))
+    absP = np.abs(P)
+    steady = (absP > max(6.0 * s_pattern, 6.0 * s_motion, 1e-12)) & (D < 0.5 * absP)
+    mag = np.abs(hp, out=hp)
+    q = np.quantile(mag.reshape(len(pick), -1), 1.0 - float(top_share), axis=1)
+    frequent = (mag > q[:, None, None]).mean(axis=0) >= max(float(min_frequency), 4.0 / len(pick))
+    m = (_without_small(steady, 3) | _without_small(frequent, 16)).astype(np.uint8)
+    if not m.any():
+        return None
+    if still.mean() < 0.25:  # the marks found grow into the still pixels they touch (unless most of the frame is still)
+        m = _grow_into(m, still)
+    r = int(round(8.0 * shape[1] / 640.0)) if dilate_px is None else int(round(dilate_px))
+    if r > 0:
+        m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    out = m.astype(bool)
+    return None if out.mean() > 0.25 else out
+
+
+def _without_small(mask: np.ndarray, min_pixels: int) -> np.ndarray:
+    """``mask`` (bool) without its 8-connected components of fewer than ``min_pixels`` pixels."""
+    import cv2
+
+    n, lab, st, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    keep = st[:, cv2.CC_STAT_AREA] >= min_pixels
+    keep[0] = False
+    return keep[lab]
+
+
+def _grow_into(seed: np.ndarray, region: np.ndarray) -> np.ndarray:
+    """uint8 mask: ``seed`` grown (8-connected) into the components of ``region`` that it touches."""
+    import cv2
+
+    n, lab = cv2.connectedComponents((region | seed.astype(bool)).astype(np.uint8), connectivity=8)
+    hit = np.zeros(n, bool)
+    hit[np.unique(lab[seed.astype(bool)])] = True
+    hit[0] = False
+    return (hit[lab] | seed.astype(bool)).astype(np.uint8)

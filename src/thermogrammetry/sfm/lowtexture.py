@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._sampling import fill_smooth
 from ..errors import ConfigError
 
 #: a track is refined against its first observation while that frame is at most this many frames back (the frames
@@ -150,7 +151,8 @@ def tracking_image(frame, pattern=None, options: TrackingOptions | None = None, 
     valid = np.isfinite(a)
     if not valid.any():
         return np.zeros(a.shape, np.uint8), valid, (0.0, 1.0) if scale is None else scale
-    a = np.where(valid, a, np.float32(np.median(a[valid])))
+    if not valid.all():  # no-data (NaN, a masked display) filled smoothly: no edge at its border
+        a = fill_smooth(a, valid)
     if pattern is not None and np.shape(pattern) == a.shape:
         p = np.asarray(pattern, np.float32)
         if opt.pattern_sigma_px > 0:
