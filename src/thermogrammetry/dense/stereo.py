@@ -367,17 +367,28 @@ def disparity(left, right, min_disparity: int = 0, num_disparities: int = 64, *,
                        penalty_scale=penalty_scale).compute(cl, cr)[:, : L.shape[1]]
     d = raw.astype(np.float32)
     d *= np.float32(1.0 / 16.0)
-    bad = (raw < int(min_disparity) * 16) | (d >= min_disparity + num) | ~vl
+    # d = raw / 16 exactly (int16 / 16 in float32), so the range test runs on the integers
+    bad = raw < int(min_disparity) * 16
+    bad |= raw >= (int(min_disparity) + num) * 16
+    bad |= ~vl
     np.copyto(d, np.float32(np.nan), where=bad)
-    # the matched right pixel (nearest) must hold data too
+    # the matched right pixel (nearest) must hold data too: checked on the rows where the right image has no-data
+    # pixels or a match lands within half a pixel of its side borders (elsewhere every match lands on data)
     if not vr.all():
-        h, w = d.shape
-        xr = np.arange(w, dtype=np.float32)[None, :] - d
-        np.copyto(xr, np.float32(-1.0), where=bad)
-        yr = np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w))
-        good = cv2.remap(vr.view(np.uint8), xr, np.ascontiguousarray(yr), cv2.INTER_NEAREST,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        d[good == 0] = np.nan
+        w = d.shape[1]
+        xr = np.arange(w, dtype=np.float32)[None, :] - d  # NaN where bad (d is NaN there)
+        with np.errstate(invalid="ignore"):
+            near_border = ((xr < 0.5) | (xr > w - 1.5)).any(axis=1)
+        rows = np.flatnonzero(near_border | ~vr.all(axis=1))
+        if rows.size:
+            sub = xr[rows]
+            np.copyto(sub, np.float32(-1.0), where=np.isnan(sub))
+            yr = np.ascontiguousarray(np.broadcast_to(rows.astype(np.float32)[:, None], sub.shape))
+            good = cv2.remap(vr.view(np.uint8), sub, yr, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                             borderValue=0)
+            dr = d[rows]
+            dr[good == 0] = np.nan
+            d[rows] = dr
     del cv2
     return d
 
