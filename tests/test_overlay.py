@@ -104,3 +104,32 @@ def test_survey_features_avoid_the_display(tmp_path, frames):
         else:
             assert ov == {"found": False}
             assert in_display > 50  # the display's area is textured scene like the rest: features there
+
+
+def test_survey_reports_the_display(tmp_path):
+    """A 10-frame low-texture walk (``synthetic.lowtexture_facade``) exported as 8-bit palette JPEGs with the display
+    burned in, through ``run_survey`` with the defaults: the display is found in all 10 frames and reported in
+    ``survey.json`` (``overlay``), its notes and the report; the walk is oriented (measured 10/10 in one block, 8.8 %
+    of the frame masked, 8 s). No accuracy bound: without an EXIF focal length the walk's rotations are several degrees
+    off (benchmarks/README.md, "What the tracked walk needs")."""
+    from PIL import Image
+
+    from thermogrammetry.pipeline import MemoryProject
+    from thermogrammetry.pipeline.survey import SurveyInput, SurveyOptions, run_survey
+    from thermogrammetry.synthetic.lowtexture_facade import (LowTextureFacadeConfig, make_lowtexture_facade,
+                                                             render_lowtexture_frame)
+
+    sc = make_lowtexture_facade(LowTextureFacadeConfig(n_frames=10))
+    for k in range(10):
+        img = render_8bit(render_lowtexture_frame(sc, k), mode="palette", display=True)
+        Image.fromarray(img).save(tmp_path / f"F{k:03d}.jpg", quality=92)
+    p = MemoryProject()
+    run_survey(p, SurveyInput([str(tmp_path)]), SurveyOptions(gnss="none", workers=0))
+    s = p.read_json("survey.json")
+    ov = s["overlay"]
+    assert ov["frames"] == 10 and ov["images"] == 10 and ov["size"] == [640, 512]
+    assert 0.06 < ov["share"] < 0.12
+    note = [n for n in s["notes"] if "display burned into the 8-bit frames" in n]
+    assert len(note) == 1 and f"{100 * ov['share']:.1f} %" in note[0]
+    assert "display burned into the 8-bit frames" in p.read_text("report.html")
+    assert s["components"] and s["components"][0] >= 8
