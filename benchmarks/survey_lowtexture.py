@@ -227,9 +227,10 @@ def synthetic(args) -> int:
                     truth = {n: (p.R, p.t) for n, p in zip(sc.names, sc.poses)}
                     frames = work / tag / "frames"
                     if args.render8:
-                        frames = _render8(frames, work / tag / f"frames8_{args.render8}{'_hud' if args.overlay else ''}",
-                                          args.render8, overlay=args.overlay)
-                        tag += f"_8bit{args.render8[0]}" + ("_hud" if args.overlay else "")
+                        hud = "_hud" if args.overlay else ""
+                        frames = _render8(frames, work / tag / f"frames8_{args.render8}{hud}", args.render8,
+                                          overlay=args.overlay)
+                        tag += f"_8bit{args.render8[0]}{hud}"
                     if args.gnss_sigma is not None:
                         gnss = ("--gnss", str(_gnss_csv(sc, work / tag / "gnss.csv", args.gnss_sigma)), "--crs", "EPSG:2056")
                         tag += f"_gnss{args.gnss_sigma:g}"

@@ -694,7 +694,8 @@ def _overlay_mask(project: ProjectStore, inputs: dict) -> dict | None:
     members = max(groups.values(), key=len)
     if len(members) < OVERLAY_MIN_FRAMES:
         return None
-    used = members[:: max(1, len(members) // 60)]
+    # the frames static_overlay uses, evenly spaced (it takes at most 60, fewer when they are large)
+    used = [members[k] for k in np.unique(np.linspace(0, len(members) - 1, min(len(members), 60)).round().astype(int))]
     frames = [f for f in (_read_frame(project, nm) for nm in used) if f.ndim == 2]
     mask = static_overlay(frames)
     if mask is None:
@@ -982,9 +983,12 @@ def _track_thermal_sequence(project: ProjectStore, inputs: dict, thermal: list, 
             continue
         run = thermal[start:end]
         pat = pattern if pattern is not None and pattern.shape == shapes[start] else None
-        st = track_sequence(lambda a, run=run: _masked_overlay(project, _read_frame(project, inputs["images"][run[a]]["name"]),
-                                                               overlay.get(inputs["images"][run[a]]["name"])),
-                            len(run), pattern=pat,
+
+        def load(a, run=run):
+            nm = inputs["images"][run[a]]["name"]
+            return _masked_overlay(project, _read_frame(project, nm), overlay.get(nm))
+
+        st = track_sequence(load, len(run), pattern=pat,
                             cameras=[cams[cam_ids[k]] for k in run])
         for a, k in enumerate(run):
             nm = inputs["images"][k]["name"]
@@ -1071,8 +1075,8 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
             lt = replace(opt.features, detector="sift", enhancement="clahe", contrast_threshold=0.005,
                          max_features=max(opt.features.max_features, 4000))
             overlay = _overlay_keys(project, inputs)
-            counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key, overlay.get(nm))
-                                                       for nm in th_names],
+            counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key,
+                                                        overlay.get(nm)) for nm in th_names],
                                         opt, None, "features"))
             res_lt = match("lowtexture/", mopt_lt, pairs_lt)
             how = "sift/clahe on pattern-corrected thermal frames, guided matching"
@@ -1868,9 +1872,9 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     ov = project.read_json("work/overlay.json") if project.exists("work/overlay.json") else {"found": False}
     extra["overlay"] = ({k: ov[k] for k in ("share", "frames", "images", "size")} if ov.get("found") else None)
     if ov.get("found"):
-        notes.append(f"a display burned into the 8-bit frames (text, marks, colour bar at the same pixels in every frame) "
-                     f"was found in {ov['frames']} frames: {100 * ov['share']:.1f} % of each {ov['size'][0]}x{ov['size'][1]} "
-                     f"frame masked, no tie points there ({ov['images']} images)")
+        notes.append(f"a display burned into the 8-bit frames (text, marks, colour bar at the same pixels in every "
+                     f"frame) was found in {ov['frames']} frames: {100 * ov['share']:.1f} % of each "
+                     f"{ov['size'][0]}x{ov['size'][1]} frame masked, no tie points there ({ov['images']} images)")
     if lt_verdict:
         extra["low_texture"] = lt_verdict
         for nm in lt_verdict.get("refused_images", []):  # frames the primary orientation left out: both reasons

@@ -408,6 +408,10 @@ def fixed_pattern(frames, *, max_frames: int = 60, highpass_sigma_px: float = 0.
 #: :func:`static_overlay`: the fewest frames from which a burned-in display is told from the scene
 OVERLAY_MIN_FRAMES = 8
 
+#: :func:`static_overlay` holds two float32 stacks of the frames it uses: at most this many pixels per stack (60
+#: frames of 640x512; 9 of 1920x1080), ~160 MB for both
+OVERLAY_PIXEL_BUDGET = 20_000_000
+
 
 def static_overlay(frames, *, max_frames: int = 60, highpass_sigma_px: float = 2.0, top_share: float = 0.02,
                    min_frequency: float = 0.25, dilate_px: float | None = None) -> np.ndarray | None:
@@ -416,10 +420,11 @@ def static_overlay(frames, *, max_frames: int = 60, highpass_sigma_px: float = 2
     Exported JPEGs and screen recordings of hand-held thermal cameras carry the camera's display: the maker's
     name, the spot meter's reading and cross-hair, a colour bar with the frame's range, the date. Those stay at
     the same pixels while the scene moves, so their features "match" at zero motion in every pair (consistent with
-    any pure translation, they pass an essential-matrix check) and drag the camera model: on the 32 M3T frames as
-    8-bit palette JPEGs without EXIF focal length, a burned-in display moved the self-calibrated focal length from
-    686 to 402 px (benchmarks/survey_lowtexture.py ``--overlay``). A pixel is taken as display when, in the
-    high-pass of the frames (frame − Gaussian blur of ``highpass_sigma_px``):
+    any pure translation, they pass an essential-matrix check) and drag the camera model: the 32 M3T frames as 8-bit
+    palette JPEGs without EXIF focal length self-calibrate a focal length of 686 px, 402 px with a display burned in,
+    855 px with it masked (783 px from the radiometric frames; benchmarks/README.md, "A camera display burned into
+    8-bit frames"). A pixel is taken as display when, in the high-pass of the frames (frame − Gaussian blur of
+    ``highpass_sigma_px``):
 
     * its per-pixel median over the frames is strong and steady -- ``|P| > 6 σ`` of both the median's spread over
       the frame (a sensor's fixed pattern) and the typical frame-to-frame variation, and its median absolute
@@ -429,14 +434,17 @@ def static_overlay(frames, *, max_frames: int = 60, highpass_sigma_px: float = 2
       frames (and in at least 4): readings whose digits change from frame to frame stay in their box. A moving
       scene puts a pixel there in ~``top_share`` of the frames.
 
-    Components of fewer than 3 (steady) or 16 (frequent) pixels are dropped -- a sensor's strongest fixed-pattern
-    pixels are frequent too, in specks; a changing reading's box is larger --, the rest dilated by ``dilate_px`` (default 8 px per 640 px of
-    width: a feature's support region).
+    Components of fewer than 3 (steady) or 16 (frequent) pixels are dropped (a sensor's strongest fixed-pattern
+    pixels are frequent too, in specks; a changing reading's box is larger). What is left grows into the still
+    pixels it touches -- whose value varies over the frames by less than a tenth of the typical pixel's (a colour
+    bar's inside, flat behind its edges) -- unless a quarter of the frame is still, and is dilated by ``dilate_px``
+    (default 8 px per 640 px of width: a feature's support region).
 
     Parameters
     ----------
-    frames : sequence of (H, W) arrays of one sensor (same shape), any numeric dtype; at most ``max_frames``,
-        evenly spaced, are used. Meant for 8-bit renderings: raw radiometric data carries no display.
+    frames : sequence of (H, W) arrays of one sensor (same shape), any numeric dtype; at most ``max_frames`` (and
+        :data:`OVERLAY_PIXEL_BUDGET` pixels), evenly spaced, are used. Meant for 8-bit renderings: raw radiometric
+        data carries no display.
 
     Returns
     -------
@@ -452,7 +460,8 @@ def static_overlay(frames, *, max_frames: int = 60, highpass_sigma_px: float = 2
     shape = np.asarray(frames[0]).shape
     if len(shape) != 2 or any(np.asarray(f).shape != shape for f in frames):
         return None
-    pick = np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int)
+    n_use = max(OVERLAY_MIN_FRAMES, min(int(max_frames), OVERLAY_PIXEL_BUDGET // max(1, shape[0] * shape[1])))
+    pick = np.linspace(0, len(frames) - 1, min(len(frames), n_use)).round().astype(int)
     hp = np.empty((len(pick), *shape), np.float32)
     raw = np.empty((len(pick), *shape), np.float32)
     for k, i in enumerate(pick):
