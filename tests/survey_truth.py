@@ -21,11 +21,12 @@ def small_survey_config(**kw):
     return SurveyConfig(**base)
 
 
-def write_true_survey(folder, config=None, *, unit: str = "K", sensor: bool = True, frames=None):
+def write_true_survey(folder, config=None, *, unit: str = "K", sensor: bool = True, frames=None, display: bool = False):
     """Render the frames and write a survey folder with the true poses. Returns ``(scene, folder)``.
 
     ``unit="counts"`` writes uint16 frames (kelvin × 100, a stand-in for raw counts: the products must keep
-    the values and never call them temperatures).
+    the values and never call them temperatures). ``unit="dn"``: 8-bit grey renderings (per-frame stretch,
+    ``synthetic.display.render_8bit``), with ``display`` a camera display burned in.
     """
     import tifffile
 
@@ -42,6 +43,10 @@ def write_true_survey(folder, config=None, *, unit: str = "K", sensor: bool = Tr
         img = render_frame(sc, k, sensor=sensor)["image_k"].astype(np.float32)
         if unit == "counts":
             img = np.clip(np.rint(img * 100.0), 0, 65535).astype(np.uint16)
+        elif unit == "dn":
+            from thermogrammetry.synthetic.display import render_8bit
+
+            img = render_8bit(img, display=display)
         tifffile.imwrite(folder / "frames" / f"{fr.name}.tif", img)
         images.append(OrientedImage(fr.name, "thermal", fr.pose.R, fr.pose.t, frame=f"frames/{fr.name}.tif", unit=unit))
     OrientedCameras({"thermal": sc.camera}, images, crs=f"EPSG:{sc.terrain.epsg}",

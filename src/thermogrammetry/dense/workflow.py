@@ -47,6 +47,32 @@ class SurveyFrames:
         self.crs = self.oc.crs
         self._cache: dict[int, np.ndarray] = {}
         self._max = int(cache)
+        self._display = self._load_display_mask()
+
+    def _load_display_mask(self):
+        """The mask of a camera display burned into the survey's 8-bit frames (``survey`` found it:
+        ``work/overlay.json``, ``features/overlay.npz``), or None."""
+        import json
+
+        info = self.root / "work" / "overlay.json"
+        if self.unit != "dn" or not info.is_file():
+            return None
+        try:
+            ov = json.loads(info.read_text())
+            if not ov.get("found"):
+                return None
+            with np.load(self.root / ov["key"]) as z:
+                return np.asarray(z["mask"], bool)
+        except (OSError, ValueError, KeyError) as exc:
+            raise DataFileError(f"{info}: a burned-in display is recorded but its mask cannot be read ({exc})") from None
+
+    def display_mask(self, i: int) -> np.ndarray | None:
+        """(H, W) bool: the pixels of image ``i`` that a camera display covers (never a source of values), or None."""
+        m = self._display
+        if m is None:
+            return None
+        W, H = self.cameras[i].image_size
+        return m if m.shape == (H, W) else None
 
     def __len__(self) -> int:
         return len(self.images)

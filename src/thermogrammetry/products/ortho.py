@@ -87,7 +87,8 @@ def _project(cam, R, t, X):
     return uv, np.where(good, Xc[:, 2], np.nan)
 
 
-def ortho_tile(X, Y, Z, normals, dsm_pts, images, frames, config: OrthoConfig | None = None, *, gsd: float):
+def ortho_tile(X, Y, Z, normals, dsm_pts, images, frames, config: OrthoConfig | None = None, *, gsd: float,
+               masks=None):
     """Mosaic one tile.
 
     Parameters
@@ -99,6 +100,9 @@ def ortho_tile(X, Y, Z, normals, dsm_pts, images, frames, config: OrthoConfig | 
     images : list of (index, camera, R, t) candidate images
     frames : callable index -> frame array
     gsd : cell size (m)
+    masks : callable index -> (H, W) bool or None, optional
+        Pixels that are never a source (a camera display burned into 8-bit frames): a cell whose projection falls
+        there takes its value from another image that sees it.
 
     Returns
     -------
@@ -148,6 +152,11 @@ def ortho_tile(X, Y, Z, normals, dsm_pts, images, frames, config: OrthoConfig | 
         tol = cfg.tolerance_m if cfg.tolerance_m is not None else np.maximum(4 * gsd, 0.01 * z[ci])
         vis = z[ci] <= zbuf[cb] + tol
         ci = ci[vis]
+        dm = masks(idx) if masks is not None else None
+        if dm is not None and len(ci):
+            rr = np.clip(np.rint(uv[ci, 1]).astype(np.int64), 0, H - 1)
+            cc = np.clip(np.rint(uv[ci, 0]).astype(np.int64), 0, W - 1)
+            ci = ci[~dm[rr, cc]]
         if len(ci) == 0:
             continue
         f_px = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
@@ -277,7 +286,7 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
     # tolerance is represented by its corners to within that (its points hide no cell its corners do not)
     tol_min = cfg.tolerance_m if cfg.tolerance_m is not None else 4 * grid.gsd
     occ = occluders(D, dg, dr0, dc0, occluder_subdivision(cell_px, cfg.bin_px), min_span_m=0.5 * tol_min)
-    res = ortho_tile(X, Y, Z, nrm, occ, images, sv, cfg, gsd=grid.gsd)
+    res = ortho_tile(X, Y, Z, nrm, occ, images, sv, cfg, gsd=grid.gsd, masks=sv.display_mask)
     v = res["value"]
     notes = 0
     if correction is not None:
@@ -431,6 +440,9 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
         notes.append("frames are raw sensor counts: the mosaic holds counts, not temperatures (labelled 'counts')"
                      if sv.unit == "counts" else
                      "frames are display numbers of an 8-bit rendering: geometry-only product, no temperature")
+        if sv.display_mask(0) is not None:
+            notes.append("a camera display burned into the frames (found by survey: work/overlay.json): its pixels "
+                         "are never a source, the cells take their value from another image")
         if correct:
             raise ConfigError("--correct needs temperature frames (unit K); these frames are "
                               f"{sv.unit!r}")
