@@ -694,9 +694,8 @@ def _overlay_mask(project: ProjectStore, inputs: dict) -> dict | None:
     members = max(groups.values(), key=len)
     if len(members) < OVERLAY_MIN_FRAMES:
         return None
-    # the frames static_overlay uses, evenly spaced (it takes at most 60, fewer when they are large)
-    used = [members[k] for k in np.unique(np.linspace(0, len(members) - 1, min(len(members), 60)).round().astype(int))]
-    frames = [f for f in (_read_frame(project, nm) for nm in used) if f.ndim == 2]
+    # the frames static_overlay uses (it takes at most 60, fewer when they are large)
+    frames = [f for f in (_read_frame(project, nm) for nm in _evenly_spaced(members, 60)) if f.ndim == 2]
     mask = static_overlay(frames)
     if mask is None:
         return None
@@ -704,6 +703,13 @@ def _overlay_mask(project: ProjectStore, inputs: dict) -> dict | None:
     _save_npz(project, key, mask=mask)
     return {"key": key, "share": float(mask.mean()), "frames": len(frames), "images": len(members),
             "size": [int(mask.shape[1]), int(mask.shape[0])]}
+
+
+def _evenly_spaced(items: list, n: int) -> list:
+    """At most ``n`` of ``items``, evenly spaced from the first to the last: the frames that
+    :func:`~thermogrammetry.sfm.features.fixed_pattern` and ``static_overlay`` would pick themselves (only those
+    are read)."""
+    return [items[k] for k in np.unique(np.linspace(0, len(items) - 1, min(len(items), n)).round().astype(int))]
 
 
 def _overlay_keys(project: ProjectStore, inputs: dict) -> dict:
@@ -923,7 +929,7 @@ def _fixed_pattern(project: ProjectStore, inputs: dict, names: list, *, highpass
     if not groups:
         return None
     members = max(groups.values(), key=len)
-    frames = [f for f in (_read_frame(project, nm) for nm in members[:: max(1, len(members) // 60)]) if f.ndim == 2]
+    frames = [f for f in (_read_frame(project, nm) for nm in _evenly_spaced(members, 60)) if f.ndim == 2]
     pat = fixed_pattern(frames, highpass_sigma_px=highpass_sigma_px)
     if pat is None:
         return None
