@@ -685,13 +685,7 @@ def _overlay_mask(project: ProjectStore, inputs: dict) -> dict | None:
     that size it applies to, [width, height]), or None."""
     from ..sfm.features import OVERLAY_MIN_FRAMES, static_overlay
 
-    groups: dict = {}
-    for im in inputs["images"]:
-        if im.get("sensor", "thermal") == "thermal" and im.get("unit") == "dn":
-            groups.setdefault((int(im["height"]), int(im["width"])), []).append(im["name"])
-    if not groups:
-        return None
-    members = max(groups.values(), key=len)
+    members = _largest_size_group(inputs, _is_thermal_rendering)
     if len(members) < OVERLAY_MIN_FRAMES:
         return None
     # the frames static_overlay uses (it takes at most 60, fewer when they are large)
@@ -703,6 +697,21 @@ def _overlay_mask(project: ProjectStore, inputs: dict) -> dict | None:
     _save_npz(project, key, mask=mask)
     return {"key": key, "share": float(mask.mean()), "frames": len(frames), "images": len(members),
             "size": [int(mask.shape[1]), int(mask.shape[0])]}
+
+
+def _is_thermal_rendering(im: dict) -> bool:
+    """An input image (``work/inputs.json``) that is an 8-bit rendering of a thermal frame (unit dn)."""
+    return im.get("sensor", "thermal") == "thermal" and im.get("unit") == "dn"
+
+
+def _largest_size_group(inputs: dict, keep) -> list:
+    """Names of the images that ``keep(image dict)`` accepts, those of the most common frame size (the first such
+    size in input order on a tie); [] when none is accepted."""
+    groups: dict = {}
+    for im in inputs["images"]:
+        if keep(im):
+            groups.setdefault((int(im["height"]), int(im["width"])), []).append(im["name"])
+    return max(groups.values(), key=len) if groups else []
 
 
 def _evenly_spaced(items: list, n: int) -> list:
@@ -718,8 +727,8 @@ def _overlay_keys(project: ProjectStore, inputs: dict) -> dict:
     if not ov.get("found"):
         return {}
     w, h = ov["size"]
-    return {im["name"]: ov["key"] for im in inputs["images"] if im.get("sensor", "thermal") == "thermal"
-            and im.get("unit") == "dn" and int(im["width"]) == w and int(im["height"]) == h}
+    return {im["name"]: ov["key"] for im in inputs["images"]
+            if _is_thermal_rendering(im) and int(im["width"]) == w and int(im["height"]) == h}
 
 
 def match_task(args) -> tuple[int, int, int, int, str]:
@@ -922,13 +931,10 @@ def _fixed_pattern(project: ProjectStore, inputs: dict, names: list, *, highpass
     """Estimate the thermal sensor's fixed pattern from its frames (the most common frame size); its key or None."""
     from ..sfm.features import fixed_pattern
 
-    groups: dict = {}
-    for im in inputs["images"]:
-        if im.get("sensor", "thermal") == "thermal" and im["name"] in names:
-            groups.setdefault((int(im["height"]), int(im["width"])), []).append(im["name"])
-    if not groups:
+    names = set(names)
+    members = _largest_size_group(inputs, lambda im: im.get("sensor", "thermal") == "thermal" and im["name"] in names)
+    if not members:
         return None
-    members = max(groups.values(), key=len)
     frames = [f for f in (_read_frame(project, nm) for nm in _evenly_spaced(members, 60)) if f.ndim == 2]
     pat = fixed_pattern(frames, highpass_sigma_px=highpass_sigma_px)
     if pat is None:
