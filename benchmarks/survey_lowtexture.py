@@ -104,6 +104,36 @@ def _render8(frames: Path, dst: Path, mode: str, overlay: bool = False) -> Path:
     return dst
 
 
+def _write_video(scene, path: Path, render8: str | None, overlay: bool) -> Path:
+    """Every frame of ``scene`` as a 25 fps video: lossless 16-bit kelvin (``synthetic``'s FFV1 with the
+    THERMOGRAMMETRY_* mapping) or, with ``render8``, 8-bit grey frames (per-frame stretch; ``overlay``: the display
+    burned in), a screen recording. No focal length travels with a video."""
+    import av
+
+    from thermogrammetry.synthetic.display import render_8bit
+    from thermogrammetry.synthetic.lowtexture_facade import render_lowtexture_frame
+    from thermogrammetry.synthetic.survey import _VideoWriter
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    w, h = scene.camera.image_size
+    if render8 is None:
+        wr = _VideoWriter(25.0)
+        for k in range(len(scene.poses)):
+            wr.add(render_lowtexture_frame(scene, k), k / 25.0)
+        path.write_bytes(wr.finish())
+        return path
+    with av.open(str(path), mode="w", format="matroska") as c:
+        st = c.add_stream("ffv1", rate=25)
+        st.width, st.height, st.pix_fmt = w, h, ("gray" if render8 == "grey" else "rgb24")
+        for k in range(len(scene.poses)):
+            img = render_8bit(render_lowtexture_frame(scene, k), mode=render8, display=overlay)
+            fr = av.VideoFrame.from_ndarray(img, format="gray" if img.ndim == 2 else "rgb24")
+            fr.pts = k
+            c.mux(st.encode(fr))
+        c.mux(st.encode())
+    return path
+
+
 def _poses(out: Path, suffix: str) -> dict:
     """stem (without the sensor suffix) -> (R, t) cam_from_world of the oriented images."""
     cams = json.loads((out / "cameras.json").read_text())
@@ -222,6 +252,27 @@ def synthetic(args) -> int:
                     extra = (dict(image_size=(320, 256), pixel_pitch_um=34.0, distance_m=2.0, n_frames=20)
                              if args.scene == "wall320" else {})
                     tag = f"{'wall320_' if extra else ''}seed{seed}_c{contrast:g}"
+                    if args.video:
+                        # a walk filmed at 25 fps: 1/40 of the frame width a frame, 30 frames' worth at 80 % overlap
+                        sc = make_lowtexture_facade(LowTextureFacadeConfig(seed=seed, contrast_k=contrast, n_frames=250,
+                                                                           overlap=0.975, jitter_deg=0.3, supersample=1,
+                                                                           **extra))
+                        tag += "_video" + (f"8{args.render8[0]}{'_hud' if args.overlay else ''}" if args.render8 else "K")
+                        frames = _write_video(sc, work / tag / "walk.mkv", args.render8, args.overlay)
+                        sc.camera.save(work / tag / "camera.json")
+                        truth = {f"walk_f{k:06d}": (p.R, p.t) for k, p in enumerate(sc.poses)}
+                        n = None
+                        for label, more in (("ours, no camera file", ()),
+                                            ("ours, --camera (true)", ("--camera", str(work / tag / "camera.json")))):
+                            run = _survey(frames, work / tag / f"out_{len(more)}", *more, gnss=gnss)
+                            if "error" in run:
+                                rows.append((tag, label, 0, None, run["wall"], run["error"][-120:]))
+                                continue
+                            sv = run["survey"]
+                            rows.append((tag, label, sv["images_total"], (sv["images_oriented"], sv["components"],
+                                                                          _block_errors(run["out"], truth)),
+                                         run["wall"], f"exit {run['code']}; frames extracted from {len(sc.poses)}"))
+                        continue
                     sc = make_lowtexture_facade(LowTextureFacadeConfig(seed=seed, contrast_k=contrast, **extra))
                     write_lowtexture_facade(FolderProject(work / tag), sc)
                     truth = {n: (p.R, p.t) for n, p in zip(sc.names, sc.poses)}
@@ -258,6 +309,10 @@ def synthetic(args) -> int:
         what = {"walk": "plain wall, 30 frames 640x512, 0.08 K pattern, 0.04 K NETD",
                 "wall320": "plain wall without ground, 20 frames 320x256 (34 um), 2 m, 0.08 K pattern, 0.04 K NETD",
                 "facade": f"synthetic.facade, {args.stations} stations 320x240, windows reflecting the sky, no EXIF focal"}
+        if args.video and args.scene != "facade":
+            what[args.scene] += ("; filmed as a 25 fps video of 250 frames, 1/40 of the frame width apart, "
+                                 + (f"8-bit {args.render8}" + (" with the display" if args.overlay else "") if args.render8
+                                    else "16-bit kelvin"))
         print(f"\nSynthetic low-texture scene ({what[args.scene]}), {os.cpu_count()} cores")
         print(f"{'scene':<20}{'run':<28}{'oriented':>9}{'blocks':>12}{'in block':>9}{'rot RMS/max deg':>17}"
               f"{'centre RMS/len':>15}{'time s':>8}  note")
@@ -334,6 +389,10 @@ def main(argv=None) -> int:
                     help="--scene walk|wall320: the frames as 8-bit JPEGs (per-frame stretch, no EXIF focal length)")
     ap.add_argument("--overlay", action="store_true",
                     help="with --render8: a hand-held camera's display burned in (text, cross-hair, colour bar)")
+    ap.add_argument("--video", action="store_true",
+                    help="--scene walk|wall320: the walk filmed as a 25 fps video (250 frames, kelvin, or 8-bit with "
+                         "--render8 [--overlay]); survey extracts frames at 80 %% overlap, without and with the true "
+                         "camera file")
     args = ap.parse_args(argv)
     if args.synthetic:
         sys.path.insert(0, str(REPO / "src"))

@@ -133,3 +133,5 @@ def test_survey_reports_the_display(tmp_path):
     assert len(note) == 1 and f"{100 * ov['share']:.1f} %" in note[0]
     assert "display burned into the 8-bit frames" in p.read_text("report.html")
     assert s["components"] and s["components"][0] >= 8
+    # no focal length in the JPEGs: the user is told that the walk determines it only weakly
+    assert sum("focal length of thermal is not known" in n for n in s["notes"]) == 1

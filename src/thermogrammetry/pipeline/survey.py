@@ -1281,7 +1281,7 @@ def _low_texture_self_calibration(project: ProjectStore, camera_ids: list, self_
     k1, k2 only it stays at 0.60-0.92 deg (k1 -0.051 for a true -0.05)."""
     if not _low_texture_sequence_used(project):
         return self_cal, ""
-    out, limited = {}, []
+    out, limited, guessed = {}, [], []
     for k, cid in enumerate(camera_ids):
         req = tuple(self_cal.get(k, ())) if isinstance(self_cal, dict) else tuple(self_cal)
         if str(cid).startswith("thermal"):
@@ -1289,10 +1289,19 @@ def _low_texture_self_calibration(project: ProjectStore, camera_ids: list, self_
             kept = tuple(p for p in req if p in allow)
             if kept != req:
                 limited.append(f"{cid}: {', '.join(kept) or 'none'}")
+            if "fx" in kept:
+                guessed.append(str(cid))
             req = kept
         out[k] = req
     note = ("low-texture sequence: self-calibration limited to " + "; ".join(limited) +
             " (a strip of frames along a wall cannot carry the focal length and principal point)") if limited else ""
+    if guessed:
+        # synthetic facade walk filmed at 25 fps, 28 frames extracted (benchmarks/survey_lowtexture.py --synthetic
+        # --video): fx 933 px for a true 765, rotations 9.6 deg RMS; with the camera file 1.3 deg
+        note += ("; " if note else "low-texture sequence: ") + (
+            f"the focal length of {', '.join(guessed)} is not known (no EXIF focal length, no camera file; a video "
+            "carries none) and a walk along a wall determines it only weakly: expect rotations several degrees off "
+            "(give --camera camera.json from `thermogrammetry calibrate`)")
     return out, note
 
 
