@@ -177,3 +177,18 @@ def test_frames_of_a_low_texture_walk_extracted_at_the_target_overlap(facade_wal
         # a frame is kept at most one frame's motion past 20 % of the width; 0.01 for the estimate (measured <= 0.008)
         moved = _wall_flow(sc, a, b)
         assert 0.2 - 0.01 <= moved <= 0.2 + max(steps[a:b]) + 0.01, (a, b, moved)
+
+
+def test_survey_video_overlap_option(video, tmp_path, capsys):
+    """``--video-overlap`` sets the extraction's target: fewer frames at 0.6 than at 0.8 (4-6 frames there); a value
+    outside [0, 1) is refused before anything is decoded."""
+    import json
+
+    from thermogrammetry.cli.main import main
+
+    sc, _, path = video
+    assert main(["survey", str(path), "-o", str(tmp_path / "bad"), "--video-overlap", "1.2"]) == 2
+    assert "--video-overlap 1.2" in capsys.readouterr().err and not (tmp_path / "bad").exists()
+    main(["survey", str(path), "-o", str(tmp_path / "s"), "--gnss", "none", "--workers", "0", "--video-overlap", "0.6"])
+    s = json.loads((tmp_path / "s" / "survey.json").read_text())
+    assert 2 <= s["images_total"] <= 3  # 40 % of the frame height between kept frames: frames 0, ~15, ~30

@@ -107,6 +107,10 @@ def survey(
     detector: str = typer.Option("sift", "--detector", help="Tie-point detector: sift (default), asift (SIFT on simulated "
                                  "tilted views, 6000 features: frames taken 30-60° apart, e.g. a hand-held facade; "
                                  "~20x the feature time) or orb."),
+    video_overlap: float = typer.Option(0.8, "--video-overlap", help="Forward overlap of the frames extracted from a "
+                                        "video (a fraction in [0, 1), measured from the images: the frame-to-frame "
+                                        "motion with the fixed pattern or a burned-in display taken out). A walk along "
+                                        "a plain wall needs >= 0.8; a textured UAV flight 0.6-0.8."),
     mapper: str = typer.Option("auto", "--mapper", help="Orientation from the tie points: incremental, "
                                "global (rotation averaging over the pairs that close triangles, then camera centres and "
                                "one bundle adjustment per rigid part: frames whose tracks rarely reach a third frame) or "
@@ -193,7 +197,10 @@ def survey(
             from ..sfm.lsm import LsmOptions
 
             extra["tie_refinement"] = LsmOptions()
-        opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, mapper=mapper, **extra, workers=workers if scheduler is None else 0,
+        if not (math.isfinite(video_overlap) and 0 <= video_overlap < 1):
+            raise ThermogrammetryError(f"--video-overlap {video_overlap!r}: expected a fraction in [0, 1), e.g. 0.8")
+        opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, mapper=mapper,
+                            video_overlap=video_overlap, **extra, workers=workers if scheduler is None else 0,
                             scheduler=scheduler)
         inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,
                           str(gcp_measurements) if gcp_measurements else None, str(checkpoints) if checkpoints else None,
