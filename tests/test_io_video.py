@@ -192,3 +192,25 @@ def test_survey_video_overlap_option(video, tmp_path, capsys):
     main(["survey", str(path), "-o", str(tmp_path / "s"), "--gnss", "none", "--workers", "0", "--video-overlap", "0.6"])
     s = json.loads((tmp_path / "s" / "survey.json").read_text())
     assert 2 <= s["images_total"] <= 3  # 40 % of the frame height between kept frames: frames 0, ~15, ~30
+
+
+def test_survey_keeps_the_frames_of_a_flir_recording_for_the_overlap():
+    """A FLIR CSQ recording (8 hand-held frames of one scene, 1024x768): survey's inputs keep its frames like a video's
+    (:class:`OverlapSelector`). Measured motion from frame 0: at most 14 px along x, 15 px along y (~1.5-2 % of the
+    frame), so at 80 % overlap only the first frame is kept; at 99.5 % (5.1 / 3.8 px) a few (measured: 0, 3, 4, 5)."""
+    from conftest import data_path
+
+    from thermogrammetry.pipeline.survey import _decode
+
+    p = data_path("flir_thermimage", "inst", "extdata", "SampleCSQ.csq")
+    every = _decode(p, None, None)
+    assert [d[0] for d in every] == [f"_f{k:05d}" for k in range(8)]
+    kept = _decode(p, None, 0.8)
+    assert [d[0] for d in kept] == ["_f00000"] and "frame 0 of 8 in the recording" in kept[0][5]
+    dense = _decode(p, None, 0.995)
+    assert 3 <= len(dense) <= 6 and dense[0][0] == "_f00000"
+    for a, b in zip(every, every[1:]):
+        assert a[1].shape == b[1].shape
+    # the kept frames are the recording's own values
+    by_name = {d[0]: d[1] for d in every}
+    assert all(np.array_equal(d[1], by_name[d[0]]) for d in dense)

@@ -35,7 +35,7 @@ import numpy as np
 from ..errors import ConfigError, DataFileError, UnsupportedFormatError
 
 __all__ = ["VideoFrame", "VideoInfo", "probe_video", "read_video_frames", "extraction_stride", "frame_shift_px",
-           "static_pattern"]
+           "static_pattern", "static_pattern_of", "OverlapSelector"]
 
 #: frames larger than this many pixels are refused before decoding (no thermal camera comes close)
 MAX_FRAME_PIXELS = 64_000_000
@@ -179,38 +179,50 @@ def _without_static(r: np.ndarray, static: np.ndarray | None) -> np.ndarray:
     return r - (float(np.vdot(r, static)) / ss) * static
 
 
-def static_pattern(path, *, sample: int = 64) -> np.ndarray | None:
-    """What stays at the same pixels while the scene moves: a band-passed, reduced copy (see :func:`_reduced`).
+def static_pattern_of(frames, *, sample: int = 64) -> np.ndarray | None:
+    """What stays at the same pixels while the scene moves, from an iterable of 2-D frames: a band-passed, reduced copy
+    (see :func:`_reduced`).
 
-    The median of at most ``2 · sample`` frames evenly spaced through the video (a first decoding pass; memory does not
-    grow with the video's length). Uncooled thermal cameras add a fixed pattern (column stripes, pixel offsets), screen
-    recordings carry the camera's display; both are the same in every frame and, on a low-texture scene, outweigh
-    it: the correlation of two frames then peaks at zero motion. None when fewer than 8 frames were decoded.
+    The median of at most ``2 · sample`` frames evenly spaced through the sequence (memory does not grow with its
+    length). Uncooled thermal cameras add a fixed pattern (column stripes, pixel offsets), screen recordings carry the
+    camera's display; both are the same in every frame and, on a low-texture scene, outweigh it: the correlation of two
+    frames then peaks at zero motion. None when fewer than 8 frames came or their sizes differ.
     """
+    samples: list = []
+    stride = 1
+    for idx, img in enumerate(frames):
+        if idx % stride:
+            continue
+        samples.append(_reduced(img)[0])
+        if len(samples) >= 2 * sample:  # keep every other one: still evenly spaced, at twice the stride
+            samples = samples[::2]
+            stride *= 2
+    if len(samples) < 8 or len({a.shape for a in samples}) != 1:
+        return None
+    return np.median(np.stack(samples), axis=0).astype(np.float32)
+
+
+def static_pattern(path, *, sample: int = 64) -> np.ndarray | None:
+    """:func:`static_pattern_of` the frames of a video (a first decoding pass; a decoding error ends it, the
+    extraction pass reports it)."""
     import av
 
     p, c = _open(path)
-    samples: list = []
-    stride = 1
     try:
         stream = c.streams.video[0]
         bits = max((comp.bits for comp in stream.codec_context.format.components), default=8) \
             if stream.codec_context.format is not None else 8
-        try:
-            for idx, frame in enumerate(c.decode(stream)):
-                if idx % stride:
-                    continue
-                samples.append(_reduced(_frame_array(frame, bits))[0])
-                if len(samples) >= 2 * sample:  # keep every other one: still evenly spaced, at twice the stride
-                    samples = samples[::2]
-                    stride *= 2
-        except av.error.FFmpegError:  # the extraction pass reports the decoding error
-            pass
+
+        def frames():
+            try:
+                for frame in c.decode(stream):
+                    yield _frame_array(frame, bits)
+            except av.error.FFmpegError:
+                return
+
+        return static_pattern_of(frames(), sample=sample)
     finally:
         c.close()
-    if len(samples) < 8 or len({s.shape for s in samples}) != 1:
-        return None
-    return np.median(np.stack(samples), axis=0).astype(np.float32)
 
 
 #: a frame-to-frame correlation peak less than this many robust σ above the correlation surface's median is not a
@@ -270,6 +282,68 @@ def extraction_stride(fps: float, speed_mps: float, footprint_along_m: float, fo
     return max(1, int(np.floor((1 - forward_overlap) * footprint_along_m / (speed_mps / fps) + 1e-9)))
 
 
+class OverlapSelector:
+    """Decides, frame by frame, which frames of a sequence to keep for a target forward overlap.
+
+    Call it with each frame in order; it returns True for the first frame and then whenever the image motion
+    accumulated since the last kept frame reaches ``(1 − forward_overlap)`` of the frame size in either direction.
+    The motion between consecutive frames is :func:`frame_shift_px`'s (with ``static`` projected out); a frame without
+    a significant correlation peak moves as the last measured one for up to ``carry`` frames, then not at all (the
+    camera stopped); the accumulated shift is re-measured directly from the last kept frame when that agrees with it
+    within 25 % (+ 2 reduced pixels).
+
+    Parameters
+    ----------
+    forward_overlap : float in [0, 1)
+    static : (h, w) float32 or None
+        :func:`static_pattern_of` the sequence.
+    carry : int
+        Frames over which an unmeasured motion is carried (the frame rate: one second).
+    """
+
+    def __init__(self, forward_overlap: float, static: np.ndarray | None = None, carry: int = 25):
+        if forward_overlap is None or not 0 <= forward_overlap < 1:
+            raise ConfigError(f"forward_overlap={forward_overlap!r}: expected a fraction in [0, 1)")
+        self.overlap = float(forward_overlap)
+        self.static = static
+        self.carry = max(1, int(carry))
+        self.acc = np.zeros(2)  # image motion since the last kept frame (full-resolution px)
+        self.last = np.zeros(2)  # the last measured frame-to-frame shift
+        self.unmeasured = 0  # consecutive frames without a significant correlation peak
+        self.prev = None  # reduced copy of the previous frame (each frame is reduced once)
+        self.anchor = None  # reduced copy of the last kept frame
+
+    def __call__(self, img: np.ndarray) -> bool:
+        r, f = _reduced(img)
+        small = (_without_static(r, self.static) if self.static is not None and self.static.shape == r.shape else r), f
+        prev, self.prev = self.prev, small
+        if prev is None or prev[0].shape != small[0].shape:
+            keep = True
+        else:
+            acc = self.acc
+            dx, dy, sig = _shift_of_reduced(prev[0], small[0], f)
+            if sig >= SHIFT_MIN_SIGNIFICANCE:
+                self.last[:] = dx, dy
+                self.unmeasured = 0
+            else:  # no measurement: the last motion for up to `carry` frames, then none (the camera stopped)
+                self.unmeasured += 1
+                if self.unmeasured > self.carry:
+                    self.last[:] = 0.0
+            acc += self.last
+            # the accumulated shift drifts (a weak scene against the residue of the static pattern pulls each small
+            # frame-to-frame shift toward zero): measured again directly from the last kept frame, where the scene's
+            # peak stands clear of zero, when that agrees with it
+            dx, dy, sig = _shift_of_reduced(self.anchor[0], small[0], f)
+            if sig >= SHIFT_MIN_SIGNIFICANCE and np.hypot(dx - acc[0], dy - acc[1]) <= 0.25 * np.hypot(*acc) + 2.0 / f:
+                acc[:] = dx, dy
+            h, w = np.shape(img)[:2]
+            keep = max(abs(acc[0]) / w, abs(acc[1]) / h) >= (1.0 - self.overlap) - 1e-9
+        if keep:
+            self.acc[:] = 0.0
+            self.anchor = small
+        return bool(keep)
+
+
 def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int | None = None,
                       max_frames: int | None = None, max_pixels: int = MAX_FRAME_PIXELS) -> Iterator[VideoFrame]:
     """Decode a video and yield the frames to keep.
@@ -308,13 +382,10 @@ def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int |
         stream = c.streams.video[0]
         tb = float(stream.time_base) if stream.time_base else 0.0
         last_kept = None
-        acc = np.zeros(2)
-        prev = None  # reduced copy of the previous frame (each frame is reduced once)
-        anchor = None  # reduced copy of the last kept frame
-        static = static_pattern(path) if every is None else None
-        last = np.zeros(2)  # the last measured frame-to-frame shift
-        carry = max(1, int(round(info.fps))) if np.isfinite(info.fps) and info.fps > 0 else 25
-        unmeasured = 0  # consecutive frames without a significant correlation peak
+        select = None
+        if every is None:
+            carry = int(round(info.fps)) if np.isfinite(info.fps) and info.fps > 0 else 25
+            select = OverlapSelector(forward_overlap, static_pattern(path), carry=carry)
         try:
             frames = c.decode(stream)
             for idx, frame in enumerate(frames):
@@ -327,36 +398,8 @@ def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int |
                     img, unit = img.astype(np.float32), "K"
                 else:
                     img, unit = raw, ("counts" if raw.dtype == np.uint16 else "dn")
-                keep = every is not None and idx % int(every) == 0
-                if every is None:
-                    r, f = _reduced(img)
-                    small = (_without_static(r, static) if static is not None and static.shape == r.shape else r), f
-                    if prev is None:
-                        keep = True
-                    else:
-                        dx, dy, sig = _shift_of_reduced(prev[0], small[0], small[1])
-                        if sig >= SHIFT_MIN_SIGNIFICANCE:
-                            last[:] = dx, dy
-                            unmeasured = 0
-                        else:  # no measurement: the last motion for up to a second, then none (the camera stopped)
-                            unmeasured += 1
-                            if unmeasured > carry:
-                                last[:] = 0.0
-                        acc += last
-                        # the accumulated shift drifts (a weak scene against the residue of the static pattern pulls
-                        # each small frame-to-frame shift toward zero): measured again directly from the last kept
-                        # frame, where the scene's peak stands clear of zero, when that agrees with it
-                        dx, dy, sig = _shift_of_reduced(anchor[0], small[0], small[1])
-                        if sig >= SHIFT_MIN_SIGNIFICANCE and np.hypot(dx - acc[0], dy - acc[1]) <= \
-                                0.25 * np.hypot(*acc) + 2.0 / small[1]:
-                            acc[:] = dx, dy
-                        h, w = img.shape
-                        keep = max(abs(acc[0]) / w, abs(acc[1]) / h) >= (1.0 - forward_overlap) - 1e-9
-                    prev = small
+                keep = select(img) if select is not None else idx % int(every) == 0
                 if keep:
-                    acc[:] = 0.0
-                    if every is None:
-                        anchor = small
                     last_kept = idx
                     kept += 1
                     yield VideoFrame(idx, t, img, unit)

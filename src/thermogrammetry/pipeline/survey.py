@@ -210,7 +210,8 @@ class SurveyOptions:
     lever_arm_m : (3,)
         GNSS antenna offset in the camera frame (x right, y down, z forward), metres.
     video_overlap : float
-        Target forward overlap of frames extracted from a video.
+        Target forward overlap of frames extracted from a video or a FLIR SEQ/CSQ recording
+        (:class:`~thermogrammetry.io.video.OverlapSelector`).
     low_texture : "auto" (default) | "off"
         ``auto``: low-texture tie points for the thermal frames when fewer than 80 % of them have a verified pair
         with the primary features (``features``), or when the orientation leaves fewer than 80 % of them in one
@@ -444,21 +445,50 @@ def frame_values(im, path, counts_dtype=np.uint16) -> tuple[str, np.ndarray, str
     return ("" if fi is None else f"_f{fi:05d}"), arr, unit
 
 
-def _decode(path: Path, input_unit: str | None):
-    """One input file -> list of (name suffix, array, unit, geotag dict, camera guess dict, note)."""
+#: multi-frame thermal recordings (FLIR SEQ/CSQ): their frames are selected for a forward overlap like a video's
+SEQUENCE_SUFFIXES = {".seq", ".csq"}
+
+
+def _decode(path: Path, input_unit: str | None, overlap: float | None = None):
+    """One input file -> list of (name suffix, array, unit, geotag dict, camera guess dict, note).
+
+    A FLIR SEQ/CSQ recording with several frames keeps only those that :class:`~thermogrammetry.io.video.OverlapSelector`
+    picks for ``overlap`` (a recording at 30 Hz holds frames that overlap by > 99 %; all of them would be near-duplicate
+    images and an unbounded memory), after a first pass that estimates the sensor's static pattern; ``overlap=None``
+    keeps every frame."""
     from ..io import iter_thermal
 
     suffix = path.suffix.lower()
     if suffix in VIDEO_SUFFIXES:
         raise UnsupportedFormatError(f"{path}: video input is decoded by the inputs step (io.video)")
     try:
+        select, n_frames = None, None
+        if suffix in SEQUENCE_SUFFIXES and overlap is not None:
+            from ..io.video import OverlapSelector, static_pattern_of
+
+            count = [0]
+
+            def values():
+                for im in iter_thermal(path, unit=input_unit):
+                    count[0] += 1
+                    yield frame_values(im, path)[1]
+
+            static = static_pattern_of(values())
+            n_frames = count[0]
+            if n_frames > 1:
+                select = OverlapSelector(overlap, static)
         out = []
         for im in iter_thermal(path, unit=input_unit):
             sfx, arr, unit = frame_values(im, path)
+            if select is not None and not select(arr):
+                continue
             md = im.metadata
             h, w = arr.shape
-            out.append((sfx, arr, unit, _geotag_dict(md.geotag), _camera_guess(w, h, md),
-                        "raw counts (no documented conversion): geometry and products labelled as counts" if unit == "counts" else ""))
+            notes = ["raw counts (no documented conversion): geometry and products labelled as counts"] if unit == "counts" else []
+            if select is not None:
+                notes.append(f"frame {md.frame_index} of {n_frames} in the recording (frames kept for "
+                             f"{overlap:.0%} forward overlap)")
+            out.append((sfx, arr, unit, _geotag_dict(md.geotag), _camera_guess(w, h, md), "; ".join(notes)))
         return out
     except UnsupportedFormatError as exc:
         not_radiometric = "radiometric" in str(exc) or "no reader" in str(exc).lower() or "not a" in str(exc).lower()
@@ -557,7 +587,7 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
                 h, w = img.shape[:2]
                 decoded = [("", img[..., ::-1].copy(), "dn", geo, _camera_guess(w, h, _Md), "RGB image")]
             else:
-                decoded = _decode(path, opt.input_unit)
+                decoded = _decode(path, opt.input_unit, opt.video_overlap)
         except (ThermogrammetryError, OSError, ValueError, MemoryError) as exc:
             reason = str(exc)
             if "pass unit='K' or unit='C'" in reason:
