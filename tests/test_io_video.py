@@ -214,3 +214,22 @@ def test_survey_keeps_the_frames_of_a_flir_recording_for_the_overlap():
     # the kept frames are the recording's own values
     by_name = {d[0]: d[1] for d in every}
     assert all(np.array_equal(d[1], by_name[d[0]]) for d in dense)
+
+
+def test_overlap_selector_counts_what_it_could_measure():
+    """Frames cut from one smooth random field 10 px apart (160 px wide, target 80 %: 32 px) are kept every 4th, every
+    pair measured; frames from unrelated fields have no significant peak (``measured`` stays low, which makes survey
+    keep every frame of such a recording) and only the first is kept."""
+    import cv2
+
+    from thermogrammetry.io.video import OverlapSelector
+
+    rng = np.random.default_rng(5)
+    field = cv2.GaussianBlur(rng.normal(size=(128, 260)).astype(np.float32), (0, 0), 2.0)
+    sel = OverlapSelector(0.8)
+    kept = [k for k in range(9) if sel(field[:, 10 * k:10 * k + 160])]
+    assert kept == [0, 4, 8] and (sel.pairs, sel.measured) == (8, 8)
+    sel = OverlapSelector(0.8)
+    fields = [cv2.GaussianBlur(rng.normal(size=(128, 160)).astype(np.float32), (0, 0), 2.0) for _ in range(8)]
+    kept = [k for k, f in enumerate(fields) if sel(f)]
+    assert kept == [0] and sel.pairs == 7 and sel.measured <= 1

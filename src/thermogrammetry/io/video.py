@@ -299,6 +299,12 @@ class OverlapSelector:
         :func:`static_pattern_of` the sequence.
     carry : int
         Frames over which an unmeasured motion is carried (the frame rate: one second).
+
+    Attributes
+    ----------
+    pairs, measured : int
+        Consecutive pairs seen so far, and how many of them had a significant correlation peak (frames that do not
+        overlap at all, e.g. an interval recording with large steps, have none).
     """
 
     def __init__(self, forward_overlap: float, static: np.ndarray | None = None, carry: int = 25):
@@ -312,6 +318,8 @@ class OverlapSelector:
         self.unmeasured = 0  # consecutive frames without a significant correlation peak
         self.prev = None  # reduced copy of the previous frame (each frame is reduced once)
         self.anchor = None  # reduced copy of the last kept frame
+        self.pairs = 0  # consecutive pairs seen
+        self.measured = 0  # ... of which with a significant correlation peak
 
     def __call__(self, img: np.ndarray) -> bool:
         r, f = _reduced(img)
@@ -322,9 +330,11 @@ class OverlapSelector:
         else:
             acc = self.acc
             dx, dy, sig = _shift_of_reduced(prev[0], small[0], f)
+            self.pairs += 1
             if sig >= SHIFT_MIN_SIGNIFICANCE:
                 self.last[:] = dx, dy
                 self.unmeasured = 0
+                self.measured += 1
             else:  # no measurement: the last motion for up to `carry` frames, then none (the camera stopped)
                 self.unmeasured += 1
                 if self.unmeasured > self.carry:

@@ -477,18 +477,27 @@ def _decode(path: Path, input_unit: str | None, overlap: float | None = None):
             n_frames = count[0]
             if n_frames > 1:
                 select = OverlapSelector(overlap, static)
-        out = []
-        for im in iter_thermal(path, unit=input_unit):
-            sfx, arr, unit = frame_values(im, path)
-            if select is not None and not select(arr):
-                continue
-            md = im.metadata
-            h, w = arr.shape
-            notes = ["raw counts (no documented conversion): geometry and products labelled as counts"] if unit == "counts" else []
-            if select is not None:
-                notes.append(f"frame {md.frame_index} of {n_frames} in the recording (frames kept for "
-                             f"{overlap:.0%} forward overlap)")
-            out.append((sfx, arr, unit, _geotag_dict(md.geotag), _camera_guess(w, h, md), "; ".join(notes)))
+
+        def decoded(select):
+            out = []
+            for im in iter_thermal(path, unit=input_unit):
+                sfx, arr, unit = frame_values(im, path)
+                if select is not None and not select(arr):
+                    continue
+                md = im.metadata
+                h, w = arr.shape
+                notes = ["raw counts (no documented conversion): geometry and products labelled as counts"] if unit == "counts" else []
+                if select is not None:
+                    notes.append(f"frame {md.frame_index} of {n_frames} in the recording (frames kept for "
+                                 f"{overlap:.0%} forward overlap)")
+                out.append((sfx, arr, unit, _geotag_dict(md.geotag), _camera_guess(w, h, md), "; ".join(notes)))
+            return out
+
+        out = decoded(select)
+        if select is not None and select.measured < 0.5 * select.pairs:
+            # most consecutive frames show no measurable motion: not a video-rate recording (an interval recording
+            # whose frames do not overlap, or noise only), every frame is kept
+            out = decoded(None)
         return out
     except UnsupportedFormatError as exc:
         not_radiometric = "radiometric" in str(exc) or "no reader" in str(exc).lower() or "not a" in str(exc).lower()
