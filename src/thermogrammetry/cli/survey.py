@@ -108,9 +108,10 @@ def survey(
                                  "tilted views, 6000 features: frames taken 30-60° apart, e.g. a hand-held facade; "
                                  "~20x the feature time) or orb."),
     video_overlap: float = typer.Option(0.8, "--video-overlap", help="Forward overlap of the frames extracted from a "
-                                        "video or a FLIR SEQ/CSQ recording (a fraction in [0, 1), measured from the images: the frame-to-frame "
-                                        "motion with the fixed pattern or a burned-in display taken out). A walk along "
-                                        "a plain wall needs >= 0.8; a textured UAV flight 0.6-0.8."),
+                                        "video or a FLIR SEQ/CSQ recording (a fraction in [0, 1), measured from the "
+                                        "images: the frame-to-frame motion with the fixed pattern or a burned-in "
+                                        "display taken out). A walk along a plain wall needs >= 0.8; a textured UAV "
+                                        "flight 0.6-0.8."),
     mapper: str = typer.Option("auto", "--mapper", help="Orientation from the tie points: incremental, "
                                "global (rotation averaging over the pairs that close triangles, then camera centres and "
                                "one bundle adjustment per rigid part: frames whose tracks rarely reach a third frame) or "
