@@ -233,3 +233,20 @@ def test_overlap_selector_counts_what_it_could_measure():
     fields = [cv2.GaussianBlur(rng.normal(size=(128, 160)).astype(np.float32), (0, 0), 2.0) for _ in range(8)]
     kept = [k for k, f in enumerate(fields) if sel(f)]
     assert kept == [0] and sel.pairs == 7 and sel.measured <= 1
+
+
+def test_survey_samples_a_video_whose_motion_cannot_be_measured(tmp_path):
+    """40 frames of unrelated noise at 25 fps: no frame-to-frame motion can be measured, so instead of the first frame
+    alone survey's inputs take a frame every 0.5 s (every 12th: 0, 12, 24, 36), each saying why."""
+    from thermogrammetry.pipeline.survey import _decode_video
+    from thermogrammetry.synthetic.survey import _VideoWriter
+
+    rng = np.random.default_rng(3)
+    wr = _VideoWriter(25.0)
+    for k in range(40):
+        wr.add((290.0 + rng.normal(0, 0.5, (96, 128))).astype(np.float32), k / 25.0)
+    path = tmp_path / "noise.mkv"
+    path.write_bytes(wr.finish())
+    out = _decode_video(path, 0.8)
+    assert [d[0] for d in out] == ["_f000000", "_f000012", "_f000024", "_f000036"]
+    assert all("measurable in" in d[5] and "every 0.48 s" in d[5] for d in out)

@@ -355,7 +355,8 @@ class OverlapSelector:
 
 
 def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int | None = None,
-                      max_frames: int | None = None, max_pixels: int = MAX_FRAME_PIXELS) -> Iterator[VideoFrame]:
+                      max_frames: int | None = None, max_pixels: int = MAX_FRAME_PIXELS,
+                      stats: dict | None = None) -> Iterator[VideoFrame]:
     """Decode a video and yield the frames to keep.
 
     Parameters
@@ -371,6 +372,9 @@ def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int |
         Stop after this many kept frames.
     max_pixels : int
         Frames larger than this are refused before decoding.
+    stats : dict, optional
+        Filled as the frames are decoded, with an overlap target: ``pairs`` (consecutive pairs) and ``measured``
+        (those whose motion could be measured, :class:`OverlapSelector`), ``fps``.
 
     Yields
     ------
@@ -409,6 +413,8 @@ def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int |
                 else:
                     img, unit = raw, ("counts" if raw.dtype == np.uint16 else "dn")
                 keep = select(img) if select is not None else idx % int(every) == 0
+                if select is not None and stats is not None:
+                    stats.update(pairs=select.pairs, measured=select.measured, fps=info.fps)
                 if keep:
                     last_kept = idx
                     kept += 1
