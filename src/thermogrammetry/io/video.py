@@ -282,6 +282,18 @@ def extraction_stride(fps: float, speed_mps: float, footprint_along_m: float, fo
     return max(1, int(np.floor((1 - forward_overlap) * footprint_along_m / (speed_mps / fps) + 1e-9)))
 
 
+def _overlap_fraction(value) -> float:
+    """``value`` as a forward overlap: a fraction in [0, 1), else :class:`ConfigError`."""
+    if value is None or not 0 <= value < 1:
+        raise ConfigError(f"forward_overlap={value!r}: expected a fraction in [0, 1)")
+    return float(value)
+
+
+#: below this share of consecutive pairs with a significant correlation peak, a sequence's motion is not measured
+#: (:attr:`OverlapSelector.motion_measured`)
+MIN_MEASURED_SHARE = 0.5
+
+
 class OverlapSelector:
     """Decides, frame by frame, which frames of a sequence to keep for a target forward overlap.
 
@@ -308,9 +320,7 @@ class OverlapSelector:
     """
 
     def __init__(self, forward_overlap: float, static: np.ndarray | None = None, carry: int = 25):
-        if forward_overlap is None or not 0 <= forward_overlap < 1:
-            raise ConfigError(f"forward_overlap={forward_overlap!r}: expected a fraction in [0, 1)")
-        self.overlap = float(forward_overlap)
+        self.overlap = _overlap_fraction(forward_overlap)
         self.static = static
         self.carry = max(1, int(carry))
         self.acc = np.zeros(2)  # image motion since the last kept frame (full-resolution px)
@@ -320,6 +330,12 @@ class OverlapSelector:
         self.anchor = None  # reduced copy of the last kept frame
         self.pairs = 0  # consecutive pairs seen
         self.measured = 0  # ... of which with a significant correlation peak
+
+    @property
+    def motion_measured(self) -> bool:
+        """False when fewer than :data:`MIN_MEASURED_SHARE` of the consecutive pairs seen had a significant peak
+        (frames that do not overlap, or too little texture once the static pattern is out)."""
+        return self.measured >= MIN_MEASURED_SHARE * self.pairs
 
     def __call__(self, img: np.ndarray) -> bool:
         r, f = _reduced(img)
@@ -373,8 +389,8 @@ def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int |
     max_pixels : int
         Frames larger than this are refused before decoding.
     stats : dict, optional
-        Filled as the frames are decoded, with an overlap target: ``pairs`` (consecutive pairs) and ``measured``
-        (those whose motion could be measured, :class:`OverlapSelector`), ``fps``.
+        With an overlap target: ``selector`` (the :class:`OverlapSelector`; its counts are final once the frames are
+        read) and ``fps``.
 
     Yields
     ------
@@ -383,8 +399,7 @@ def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int |
     if every is not None and (int(every) != every or every < 1):
         raise ConfigError(f"every={every!r}: expected a positive integer")
     if every is None:
-        if forward_overlap is None or not 0 <= forward_overlap < 1:
-            raise ConfigError(f"forward_overlap={forward_overlap!r}: expected a fraction in [0, 1)")
+        forward_overlap = _overlap_fraction(forward_overlap)
     info = probe_video(path)
     if info.width * info.height > max_pixels:
         raise DataFileError(f"{info.path}: frames of {info.width}x{info.height} px exceed the cap of {max_pixels} pixels")
@@ -400,6 +415,8 @@ def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int |
         if every is None:
             carry = int(round(info.fps)) if np.isfinite(info.fps) and info.fps > 0 else 25
             select = OverlapSelector(forward_overlap, static_pattern(path), carry=carry)
+            if stats is not None:
+                stats.update(selector=select, fps=info.fps)
         try:
             frames = c.decode(stream)
             for idx, frame in enumerate(frames):
@@ -413,8 +430,6 @@ def read_video_frames(path, *, forward_overlap: float | None = 0.8, every: int |
                 else:
                     img, unit = raw, ("counts" if raw.dtype == np.uint16 else "dn")
                 keep = select(img) if select is not None else idx % int(every) == 0
-                if select is not None and stats is not None:
-                    stats.update(pairs=select.pairs, measured=select.measured, fps=info.fps)
                 if keep:
                     last_kept = idx
                     kept += 1

@@ -498,7 +498,7 @@ def _decode(path: Path, input_unit: str | None, overlap: float | None = None):
             return out
 
         out = decoded(select)
-        if select is not None and select.measured < 0.5 * select.pairs:
+        if select is not None and not select.motion_measured:
             # most consecutive frames show no measurable motion: not a video-rate recording (an interval recording
             # whose frames do not overlap, or noise only), every frame is kept
             out = decoded(None)
@@ -546,7 +546,7 @@ def _decode_video(path: Path, overlap: float):
         from ..io.video import read_video_frames
     except ImportError:
         raise UnsupportedFormatError(f"{path}: video input needs thermogrammetry.io.video, which this installation lacks") from None
-    def decoded(**how):
+    def decoded(note, **how):
         out = []
         for fr in read_video_frames(path, **how):
             h, w = fr.image.shape[:2]
@@ -554,16 +554,16 @@ def _decode_video(path: Path, overlap: float):
                         f"video frame at {fr.time_s:.2f} s" + (f" ({note})" if note else "")))
         return out
 
-    note, stats = "", {}
-    out = decoded(forward_overlap=overlap, stats=stats)
-    if stats.get("pairs") and stats["measured"] < 0.5 * stats["pairs"]:
+    stats: dict = {}
+    out = decoded("", forward_overlap=overlap, stats=stats)
+    sel = stats.get("selector")
+    if sel is not None and not sel.motion_measured:
         # the motion between frames could not be measured in most of the video (too little texture left once the
         # static pattern is out): frames at a fixed interval instead of none after the first
         fps = stats["fps"] if np.isfinite(stats["fps"]) and stats["fps"] > 0 else 25.0
         every = max(1, int(round(fps * VIDEO_FALLBACK_INTERVAL_S)))
-        note = (f"the frame-to-frame motion was measurable in {stats['measured']} of {stats['pairs']} frames: frames "
-                f"taken every {every / fps:.2f} s instead of for {overlap:.0%} overlap")
-        out = decoded(every=every)
+        out = decoded(f"the frame-to-frame motion was measurable in {sel.measured} of {sel.pairs} frames: frames "
+                      f"taken every {every / fps:.2f} s instead of for {overlap:.0%} overlap", every=every)
     return out
 
 
