@@ -426,6 +426,28 @@ def _(t):
     return ["demo", str(unwritable(t)), "--sections", "closerange"], ["thermogrammetry-out"], None
 
 
+@_c("survey: a folder holding side files, its frames in a subfolder")
+def _(t):
+    write(t / "flight" / "gcps.csv", "id,X,Y,Z\n1,2600000.1,1200000.2,500.0\n")
+    write(t / "flight" / "frames" / "f0.csv", "\n".join(",".join(["300.5"] * 16) for _ in range(12)))
+    return ["survey", str(t / "flight"), "-o", str(t / "OUT")], \
+        ["no input images", "gcps.csv", "subfolder(s) not entered: frames"], t / "OUT"
+
+
+def test_folder_scan_takes_matrices_and_skips_side_files(tmp_path):
+    from thermogrammetry.pipeline.survey import expand_inputs
+
+    write(tmp_path / "a_matrix.csv", "\n".join(",".join(["300.5"] * 16) for _ in range(12)))
+    write(tmp_path / "b_matrix_with_header.csv", "T (K) of frame 7\n" + "\n".join(";".join(["300.5"] * 8) for _ in range(4)))
+    write(tmp_path / "gcps.csv", "id,X,Y,Z\n1,2600000.1,1200000.2,500.0\n")  # numbers, but 4 of them: a side file
+    write(tmp_path / "gnss.csv", "image,X,Y,Z\nT0001,1.0,2.0,3.0\n")
+    files, notes = expand_inputs([str(tmp_path)])
+    assert [f.name for f in files] == ["a_matrix.csv", "b_matrix_with_header.csv"]
+    assert len(notes) == 1 and "2 file(s)" in notes[0] and "gcps.csv" in notes[0] and "gnss.csv" in notes[0]
+    # named on the command line, a file is always tried (and a bad one is reported as failed with its reason)
+    assert [f.name for f in expand_inputs([str(tmp_path / "gcps.csv")])[0]] == ["gcps.csv"]
+
+
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_bad_input_is_refused_with_a_message(name, tmp_path, capsys):
     argv, expected, must_not_exist = CASES[name](tmp_path)

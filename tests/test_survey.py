@@ -45,6 +45,8 @@ def block(tmp_path_factory):
     (images / "ZZ_other_flight.tif").write_bytes(data)
     good = (images / "T0005.tif").read_bytes()
     (images / "T0005_truncated.tif").write_bytes(good[: len(good) // 3])
+    # a side file kept next to the frames (not a temperature matrix: skipped with a note, not a failed frame)
+    shutil.copy(user / "gcps.csv", images / "gcps.csv")
     # two frames without GNSS
     lines = (user / "gnss.csv").read_text().splitlines()
     dropped = {"T0010", "T0030"}
@@ -66,7 +68,8 @@ def test_contract_files_and_counts(block):
     assert block["code"] == 0
     s = json.loads((block["out"] / "survey.json").read_text())
     n = len(block["scene"].frames)
-    assert s["images_total"] == n + 2
+    assert s["images_total"] == n + 2  # the frames, the other flight's frame and the truncated file; not gcps.csv
+    assert any("gcps.csv" in n_ and "skipped" in n_ for n_ in s["notes"]), s["notes"]
     assert s["images_oriented"] == n  # every frame of the block, the frames without GNSS included
     assert s["components"] == [n]
     status = {im["name"]: im for im in s["images"]}
@@ -404,3 +407,38 @@ def test_bad_flags_exit_2_with_the_value(tmp_path, capsys, args, msg):
     assert main(["survey", str(tmp_path), "-o", str(tmp_path / "out")] + args) == 2
     assert msg in " ".join(capsys.readouterr().err.split())
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.realdata
+def test_dji_folder_with_visible_photographs(tmp_path, shared_data):
+    """A DJI M3T folder holds the visible ``_V`` photographs next to the ``_T`` thermal frames: given as thermal
+    input they are not thermal frames (another size than every radiometric frame: skipped with a note), and the
+    radiometric ``_T`` files given to ``--rgb`` are not RGB images; an 8-bit rendering of the thermal frames' size
+    is still taken (geometry only)."""
+    import cv2
+
+    from thermogrammetry.pipeline.project import MemoryProject
+    from thermogrammetry.pipeline.survey import SurveyInput, SurveyOptions, step_inputs
+
+    src = sorted((shared_data / "uav_m3t_flight" / "Test_image").glob("*_T.JPG"))[:3]
+    if len(src) < 3:
+        pytest.skip("uav_m3t_flight frames are absent")
+    rng = np.random.default_rng(0)
+    for f in src:
+        shutil.copy(f, tmp_path / f.name)
+        cv2.imwrite(str(tmp_path / f.name.replace("_T.", "_V.")), rng.integers(0, 255, (960, 1280, 3), dtype=np.uint8))
+    cv2.imwrite(str(tmp_path / "palette_render.jpg"), rng.integers(0, 255, (512, 640, 3), dtype=np.uint8))
+    proj = MemoryProject()
+    step_inputs(proj, SurveyInput([str(tmp_path)]), SurveyOptions())
+    rec = proj.read_json("work/inputs.json")
+    got = {im["name"]: (im["unit"], im["width"]) for im in rec["images"]}
+    assert got == {**{f.stem: ("counts", 640) for f in src}, "palette_render": ("dn", 640)}
+    assert [im["name"] for im in rec["images"]][:3] == [f.stem for f in src]  # the inputs' order is kept
+    assert not rec["failed"]
+    assert any("3 ordinary 8-bit image(s)" in n and src[0].name.replace("_T.", "_V.") in n for n in rec["notes"])
+    proj = MemoryProject()
+    step_inputs(proj, SurveyInput([str(src[0])], rgb=[str(tmp_path)]), SurveyOptions())
+    rec = proj.read_json("work/inputs.json")
+    assert sorted((im["name"], im["sensor"]) for im in rec["images"]) == sorted(
+        [(src[0].stem, "thermal")] + [(f.stem.replace("_T", "_V"), "rgb") for f in src] + [("palette_render", "rgb")])
+    assert any("3 radiometric thermal file(s) among the RGB images" in n for n in rec["notes"])

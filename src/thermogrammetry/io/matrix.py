@@ -126,4 +126,26 @@ def _sniff(head: bytes, path: Path) -> bool:
     return any(_NUMERIC_LINE.match(ln) for ln in lines[:2])  # a number row within the first two lines
 
 
+#: a folder scan (:func:`thermogrammetry.pipeline.survey.expand_inputs`) takes a CSV for a temperature matrix only
+#: with at least this many values in a row: a side file (GCPs, GNSS, measurements: ``id,X,Y,Z``) has fewer
+MIN_MATRIX_COLUMNS = 8
+
+
+def looks_like_matrix(path: str | Path) -> bool:
+    """Whether a ``.csv``/``.txt``/``.tsv`` file looks like a temperature matrix: a row of at least
+    :data:`MIN_MATRIX_COLUMNS` numbers within its first two lines (a header line allowed). Reads 16 KiB; an
+    unreadable file gives True (its reader then says why)."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(16384)
+    except OSError:
+        return True
+    if not _sniff(head, p):
+        return False
+    lines = [ln for ln in head.splitlines()[:3] if ln.strip() and not ln.lstrip().startswith(b"#")]
+    row = next(ln for ln in lines[:2] if _NUMERIC_LINE.match(ln))
+    return len(re.split(rb"\s*[,;\t ]\s*", row.strip())) >= MIN_MATRIX_COLUMNS
+
+
 register_reader("matrix", _sniff, read_matrix, priority=0, description="CSV/NPY temperature matrix with explicit unit")

@@ -356,15 +356,20 @@ class SurveyInput:
 # inputs
 # ------------------------------------------------------------------------------------------------
 def expand_inputs(items: Sequence, *, kind: str = "thermal") -> tuple[list[Path], list[str]]:
-    """Files from files/folders (folders: their image and video files, sorted; subfolders not entered).
+    """Files from files/folders (folders: their image and video files, sorted; subfolders not entered; a CSV
+    that is no temperature matrix — GCPs, GNSS, measurements kept next to the images — is skipped with a note,
+    :func:`thermogrammetry.io.matrix.looks_like_matrix`).
 
     Returns (files, notes): notes say what was skipped and why.
     """
+    from ..io.matrix import looks_like_matrix
+
     files, notes = [], []
     for it in items:
         p = Path(it)
         if p.is_dir():
-            inside = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES)
+            inside = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES
+                            and (q.suffix.lower() != ".csv" or looks_like_matrix(q)))
             other = [q.name for q in sorted(p.iterdir()) if q.is_file() and q not in inside and not q.name.startswith(".")]
             subs = [q.name for q in sorted(p.iterdir()) if q.is_dir()]
             if other:
@@ -567,6 +572,22 @@ def _decode_video(path: Path, overlap: float):
     return out
 
 
+#: readers of radiometric JPEGs (:func:`thermogrammetry.io.thermal.sniff_reader`): such a file is a thermal frame
+RADIOMETRIC_JPEG_READERS = ("flir_rjpeg", "workswell_rjpeg", "dji_rjpeg")
+
+
+def _radiometric_jpeg(path: Path) -> bool:
+    """Whether ``path`` is a JPEG that one of the radiometric readers accepts (a DJI _T / FLIR R-JPEG)."""
+    from ..io.thermal import sniff_reader
+
+    if path.suffix.lower() not in (".jpg", ".jpeg"):
+        return False
+    try:
+        return sniff_reader(path).name in RADIOMETRIC_JPEG_READERS
+    except (ThermogrammetryError, OSError, ValueError):
+        return False
+
+
 def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, progress: Callable | None = None) -> dict:
     """Decode every input to ``frames/<name>.tif``; ``work/inputs.json``."""
     import tifffile
@@ -579,10 +600,36 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
         notes += nts
         items += [(kind, f) for f in files]
     if not items:
-        raise DataFileError("no input images: the files/folders given hold no image or video files")
-    images, failed = [], []
+        skipped = f" ({'; '.join(notes)})" if notes else ""
+        raise DataFileError(f"no input images: the files/folders given hold no image or video files{skipped}")
+    failed: list[dict] = []
+    slots: list[list] = [[] for _ in items]  # the decoded frames of each input, in the inputs' order
     used_names: set[str] = set()
+    plain: list[tuple] = []  # (k, path, sizes): 8-bit renderings among the thermal inputs, written at the end
+
+    def emit(k, kind, path, decoded):
+        for sfx, arr, unit, geo, guess, note in decoded:
+            name = path.stem + sfx
+            base, n = name, 1
+            while name in used_names:
+                n += 1
+                name = f"{base}_{n}"
+            used_names.add(name)
+            buf = io.BytesIO()
+            tifffile.imwrite(buf, arr, photometric="rgb" if arr.ndim == 3 else "minisblack",
+                             metadata={"unit": unit, "source": str(path)})
+            project.write_bytes(f"frames/{name}.tif", buf.getvalue())
+            slots[k].append({"name": name, "source": str(path.resolve()) if path.exists() else str(path), "sensor": kind,
+                             "unit": unit, "width": int(arr.shape[1]), "height": int(arr.shape[0]), "geotag": geo,
+                             "camera_guess": guess, "note": note})
+
+    rgb_thermal = []  # radiometric thermal files given among the RGB images (a DJI folder given to --rgb)
     for k, (kind, path) in enumerate(items):
+        if kind == "rgb" and _radiometric_jpeg(path):
+            rgb_thermal.append(path.name)
+            if progress:
+                progress(k + 1, len(items))
+            continue
         try:
             if not path.exists():
                 raise DataFileError(f"{path}: no such file")
@@ -622,25 +669,37 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
             if progress:
                 progress(k + 1, len(items))
             continue
-        for sfx, arr, unit, geo, guess, note in decoded:
-            name = path.stem + sfx
-            base, n = name, 1
-            while name in used_names:
-                n += 1
-                name = f"{base}_{n}"
-            used_names.add(name)
-            buf = io.BytesIO()
-            tifffile.imwrite(buf, arr, photometric="rgb" if arr.ndim == 3 else "minisblack",
-                             metadata={"unit": unit, "source": str(path)})
-            project.write_bytes(f"frames/{name}.tif", buf.getvalue())
-            images.append({"name": name, "source": str(path.resolve()) if path.exists() else str(path), "sensor": kind,
-                           "unit": unit, "width": int(arr.shape[1]), "height": int(arr.shape[0]), "geotag": geo,
-                           "camera_guess": guess, "note": note})
+        if kind == "thermal" and path.suffix.lower() not in VIDEO_SUFFIXES and decoded \
+                and all(d[2] == "dn" for d in decoded):
+            # an 8-bit rendering: kept only if no radiometric frame says the thermal frames have another size (a
+            # DJI folder holds the visible _V/_W/_Z photographs next to the _T thermal frames); decoded again then
+            plain.append((k, path, {(int(d[1].shape[1]), int(d[1].shape[0])) for d in decoded}))
+        else:
+            emit(k, kind, path, decoded)
         if progress:
             progress(k + 1, len(items))
+    if rgb_thermal:
+        notes.append(f"{len(rgb_thermal)} radiometric thermal file(s) among the RGB images ({', '.join(rgb_thermal[:3])}"
+                     f"{' ...' if len(rgb_thermal) > 3 else ''}): not used as RGB images")
+    thermal_sizes = {(im["width"], im["height"]) for ims in slots for im in ims if im["sensor"] == "thermal"}
+    others = {k for k, path, sizes in plain if thermal_sizes and not sizes & thermal_sizes}
+    if others:
+        names = [path.name for k, path, _ in plain if k in others]
+        notes.append(f"{len(others)} ordinary 8-bit image(s) of another size than every radiometric or 16-bit thermal "
+                     f"frame ({', '.join(names[:3])}{' ...' if len(names) > 3 else ''}): visible photographs, not used "
+                     "as thermal frames (give them with --rgb to use them)")
+    for k, path, _ in plain:
+        if k in others:
+            continue
+        try:
+            emit(k, "thermal", path, _decode(path, opt.input_unit, opt.video_overlap))
+        except (ThermogrammetryError, OSError, ValueError, MemoryError) as exc:
+            failed.append({"file": str(path), "reason": str(exc)})
+    images = [im for ims in slots for im in ims]
     if not images:
+        skipped = f" ({'; '.join(notes)})" if notes else ""
         raise DataFileError("no usable input image: " + "; ".join(f["reason"] for f in failed[:5])
-                            + (f" (and {len(failed) - 5} more)" if len(failed) > 5 else ""))
+                            + (f" (and {len(failed) - 5} more)" if len(failed) > 5 else "") + skipped)
     project.write_json("work/inputs.json", {"images": images, "failed": failed, "notes": notes})
     return {"images": len(images), "failed": len(failed), "seconds": time.perf_counter() - t0}
 
