@@ -227,7 +227,8 @@ def _product_rows(scene, root: Path) -> list[DemoRow]:
                         float(np.median(pe[:, 0])), None, "px", kind="info",
                         note=f"p95 {np.percentile(pe[:, 0], 95):.3f} px; per source image the offset is one shift (median "
                              f"{np.median(off[:, 0]):.3f} px, spread within an image {np.median(off[:, 1]):.3f} px): the block "
-                             f"floats locally with its GNSS (σ {cfg.gnss_sigma_h_m}/{cfg.gnss_sigma_v_m} m) between the GCPs; "
+                             f"floats locally between the GCPs, mostly with its GNSS (σ {cfg.gnss_sigma_h_m}/"
+                             f"{cfg.gnss_sigma_v_m} m; 5 mm GNSS halves the shift, benchmarks/ortho_accuracy.py); "
                              f"times this texture's gradient (median {np.median(pe[:, 1]):.2f} K/px) that is the ΔT above; every "
                              f"cell within 0.05 K would need ~{0.05 / max(np.percentile(pe[:, 1], 95), 1e-9):.2f} px"))
     rows.append(DemoRow(sec, "ortho vs the noise-free rendering (sensor noise and vignetting of the frames included)",
