@@ -681,7 +681,8 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
     if rgb_thermal:
         notes.append(f"{len(rgb_thermal)} radiometric thermal file(s) among the RGB images ({', '.join(rgb_thermal[:3])}"
                      f"{' ...' if len(rgb_thermal) > 3 else ''}): not used as RGB images")
-    thermal_sizes = {(im["width"], im["height"]) for ims in slots for im in ims if im["sensor"] == "thermal"}
+    thermal_sizes = {(im["width"], im["height"]) for ims in slots for im in ims
+                     if im["sensor"] == "thermal" and im["unit"] != "dn"}  # (not an 8-bit video's frames)
     others = {k for k, path, sizes in plain if thermal_sizes and not sizes & thermal_sizes}
     if others:
         names = [path.name for k, path, _ in plain if k in others]
