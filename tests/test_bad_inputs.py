@@ -443,7 +443,8 @@ def test_folder_scan_takes_matrices_and_skips_side_files(tmp_path):
     write(tmp_path / "gnss.csv", "image,X,Y,Z\nT0001,1.0,2.0,3.0\n")
     files, notes = expand_inputs([str(tmp_path)])
     assert [f.name for f in files] == ["a_matrix.csv", "b_matrix_with_header.csv"]
-    assert len(notes) == 1 and "2 file(s)" in notes[0] and "gcps.csv" in notes[0] and "gnss.csv" in notes[0]
+    assert len(notes) == 1 and "2 CSV file(s) that are not temperature matrices" in notes[0]
+    assert "gcps.csv" in notes[0] and "gnss.csv" in notes[0]
     # named on the command line, a file is always tried (and a bad one is reported as failed with its reason)
     assert [f.name for f in expand_inputs([str(tmp_path / "gcps.csv")])[0]] == ["gcps.csv"]
 

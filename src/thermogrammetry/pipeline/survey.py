@@ -370,8 +370,13 @@ def expand_inputs(items: Sequence, *, kind: str = "thermal") -> tuple[list[Path]
         if p.is_dir():
             inside = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES
                             and (q.suffix.lower() != ".csv" or looks_like_matrix(q)))
-            other = [q.name for q in sorted(p.iterdir()) if q.is_file() and q not in inside and not q.name.startswith(".")]
+            rest = [q for q in sorted(p.iterdir()) if q.is_file() and q not in inside and not q.name.startswith(".")]
+            side = [q.name for q in rest if q.suffix.lower() == ".csv"]
+            other = [q.name for q in rest if q.suffix.lower() != ".csv"]
             subs = [q.name for q in sorted(p.iterdir()) if q.is_dir()]
+            if side:
+                notes.append(f"{p}: {len(side)} CSV file(s) that are not temperature matrices skipped ({', '.join(side[:3])}"
+                             f"{' ...' if len(side) > 3 else ''}; GCPs, GNSS and measurements go to their own options)")
             if other:
                 notes.append(f"{p}: {len(other)} file(s) that are not images or videos skipped ({', '.join(other[:3])}{' ...' if len(other) > 3 else ''})")
             if subs:
