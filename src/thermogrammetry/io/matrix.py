@@ -117,13 +117,19 @@ def read_emissivity_table(path: str | Path):
         raise type(exc)(f"{p}: {exc}") from None
 
 
+def _number_row(head: bytes) -> bytes | None:
+    """The first row of numbers within the first two lines of a text file's first 4 KiB (comments and blank lines
+    skipped), or None."""
+    lines = [ln for ln in head[:4096].splitlines()[:3] if ln.strip() and not ln.lstrip().startswith(b"#")]
+    return next((ln for ln in lines[:2] if _NUMERIC_LINE.match(ln)), None)
+
+
 def _sniff(head: bytes, path: Path) -> bool:
     if head.startswith(b"\x93NUMPY"):
         return True
     if path.suffix.lower() not in (".csv", ".txt", ".tsv"):
         return False
-    lines = [ln for ln in head[:4096].splitlines()[:3] if ln.strip() and not ln.lstrip().startswith(b"#")]
-    return any(_NUMERIC_LINE.match(ln) for ln in lines[:2])  # a number row within the first two lines
+    return _number_row(head) is not None  # a number row within the first two lines
 
 
 #: a folder scan (:func:`thermogrammetry.pipeline.survey.expand_inputs`) takes a CSV for a temperature matrix only
@@ -133,19 +139,20 @@ MIN_MATRIX_COLUMNS = 8
 
 def looks_like_matrix(path: str | Path) -> bool:
     """Whether a ``.csv``/``.txt``/``.tsv`` file looks like a temperature matrix: a row of at least
-    :data:`MIN_MATRIX_COLUMNS` numbers within its first two lines (a header line allowed). Reads 16 KiB; an
-    unreadable file gives True (its reader then says why)."""
+    :data:`MIN_MATRIX_COLUMNS` numbers within its first two lines (a header line allowed), the row the reader's
+    sniffer finds. Reads 4 KiB; an unreadable file gives True (its reader then says why)."""
     p = Path(path)
     try:
         with open(p, "rb") as fh:
-            head = fh.read(16384)
+            head = fh.read(4096)
     except OSError:
         return True
-    if not _sniff(head, p):
+    if head.startswith(b"\x93NUMPY"):  # as :func:`_sniff` decides
+        return True
+    if p.suffix.lower() not in (".csv", ".txt", ".tsv"):
         return False
-    lines = [ln for ln in head.splitlines()[:3] if ln.strip() and not ln.lstrip().startswith(b"#")]
-    row = next(ln for ln in lines[:2] if _NUMERIC_LINE.match(ln))
-    return len(re.split(rb"\s*[,;\t ]\s*", row.strip())) >= MIN_MATRIX_COLUMNS
+    row = _number_row(head)
+    return row is not None and len(re.split(rb"\s*[,;\t ]\s*", row.strip())) >= MIN_MATRIX_COLUMNS
 
 
 register_reader("matrix", _sniff, read_matrix, priority=0, description="CSV/NPY temperature matrix with explicit unit")

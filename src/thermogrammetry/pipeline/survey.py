@@ -355,6 +355,11 @@ class SurveyInput:
 # ------------------------------------------------------------------------------------------------
 # inputs
 # ------------------------------------------------------------------------------------------------
+def _name_list(names: Sequence[str], k: int = 3) -> str:
+    """The first ``k`` names, comma-separated, with " ..." when there are more (for notes)."""
+    return ", ".join(names[:k]) + (" ..." if len(names) > k else "")
+
+
 def expand_inputs(items: Sequence, *, kind: str = "thermal") -> tuple[list[Path], list[str]]:
     """Files from files/folders (folders: their image and video files, sorted; subfolders not entered; a CSV
     that is no temperature matrix — GCPs, GNSS, measurements kept next to the images — is skipped with a note,
@@ -368,19 +373,22 @@ def expand_inputs(items: Sequence, *, kind: str = "thermal") -> tuple[list[Path]
     for it in items:
         p = Path(it)
         if p.is_dir():
-            inside = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES
-                            and (q.suffix.lower() != ".csv" or looks_like_matrix(q)))
-            rest = [q for q in sorted(p.iterdir()) if q.is_file() and q not in inside and not q.name.startswith(".")]
-            side = [q.name for q in rest if q.suffix.lower() == ".csv"]
-            other = [q.name for q in rest if q.suffix.lower() != ".csv"]
-            subs = [q.name for q in sorted(p.iterdir()) if q.is_dir()]
+            entries = sorted(p.iterdir())  # listed once (a flight folder may hold thousands of frames)
+            inside, side, other = [], [], []
+            for q in (q for q in entries if q.is_file()):
+                sfx = q.suffix.lower()
+                if sfx in IMAGE_SUFFIXES | VIDEO_SUFFIXES and (sfx != ".csv" or looks_like_matrix(q)):
+                    inside.append(q)
+                elif not q.name.startswith("."):
+                    (side if sfx == ".csv" else other).append(q.name)
+            subs = [q.name for q in entries if q.is_dir()]
             if side:
-                notes.append(f"{p}: {len(side)} CSV file(s) that are not temperature matrices skipped ({', '.join(side[:3])}"
-                             f"{' ...' if len(side) > 3 else ''}; GCPs, GNSS and measurements go to their own options)")
+                notes.append(f"{p}: {len(side)} CSV file(s) that are not temperature matrices skipped "
+                             f"({_name_list(side)}; GCPs, GNSS and measurements go to their own options)")
             if other:
-                notes.append(f"{p}: {len(other)} file(s) that are not images or videos skipped ({', '.join(other[:3])}{' ...' if len(other) > 3 else ''})")
+                notes.append(f"{p}: {len(other)} file(s) that are not images or videos skipped ({_name_list(other)})")
             if subs:
-                notes.append(f"{p}: subfolder(s) not entered: {', '.join(subs[:3])}{' ...' if len(subs) > 3 else ''} (name them to include them)")
+                notes.append(f"{p}: subfolder(s) not entered: {_name_list(subs)} (name them to include them)")
             files += inside
         elif p.exists():
             files.append(p)
@@ -604,9 +612,11 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
         files, nts = expand_inputs(src, kind=kind)
         notes += nts
         items += [(kind, f) for f in files]
+    def skipped() -> str:  # what the inputs left out, for the errors below
+        return f" ({'; '.join(notes)})" if notes else ""
+
     if not items:
-        skipped = f" ({'; '.join(notes)})" if notes else ""
-        raise DataFileError(f"no input images: the files/folders given hold no image or video files{skipped}")
+        raise DataFileError(f"no input images: the files/folders given hold no image or video files{skipped()}")
     failed: list[dict] = []
     slots: list[list] = [[] for _ in items]  # the decoded frames of each input, in the inputs' order
     used_names: set[str] = set()
@@ -627,6 +637,12 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
             slots[k].append({"name": name, "source": str(path.resolve()) if path.exists() else str(path), "sensor": kind,
                              "unit": unit, "width": int(arr.shape[1]), "height": int(arr.shape[0]), "geotag": geo,
                              "camera_guess": guess, "note": note})
+
+    def fail(path, exc):
+        reason = str(exc)
+        if "pass unit='K' or unit='C'" in reason:
+            reason = reason.replace("pass unit='K' or unit='C'", "give --input-unit K or C")
+        failed.append({"file": str(path), "reason": reason})
 
     rgb_thermal = []  # radiometric thermal files given among the RGB images (a DJI folder given to --rgb)
     for k, (kind, path) in enumerate(items):
@@ -667,10 +683,7 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
             else:
                 decoded = _decode(path, opt.input_unit, opt.video_overlap)
         except (ThermogrammetryError, OSError, ValueError, MemoryError) as exc:
-            reason = str(exc)
-            if "pass unit='K' or unit='C'" in reason:
-                reason = reason.replace("pass unit='K' or unit='C'", "give --input-unit K or C")
-            failed.append({"file": str(path), "reason": reason})
+            fail(path, exc)
             if progress:
                 progress(k + 1, len(items))
             continue
@@ -684,28 +697,27 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
         if progress:
             progress(k + 1, len(items))
     if rgb_thermal:
-        notes.append(f"{len(rgb_thermal)} radiometric thermal file(s) among the RGB images ({', '.join(rgb_thermal[:3])}"
-                     f"{' ...' if len(rgb_thermal) > 3 else ''}): not used as RGB images")
+        notes.append(f"{len(rgb_thermal)} radiometric thermal file(s) among the RGB images ({_name_list(rgb_thermal)}): "
+                     "not used as RGB images")
     thermal_sizes = {(im["width"], im["height"]) for ims in slots for im in ims
                      if im["sensor"] == "thermal" and im["unit"] != "dn"}  # (not an 8-bit video's frames)
     others = {k for k, path, sizes in plain if thermal_sizes and not sizes & thermal_sizes}
     if others:
         names = [path.name for k, path, _ in plain if k in others]
         notes.append(f"{len(others)} ordinary 8-bit image(s) of another size than every radiometric or 16-bit thermal "
-                     f"frame ({', '.join(names[:3])}{' ...' if len(names) > 3 else ''}): visible photographs, not used "
-                     "as thermal frames (give them with --rgb to use them)")
+                     f"frame ({_name_list(names)}): visible photographs, not used as thermal frames (give them with --rgb "
+                     "to use them)")
     for k, path, _ in plain:
         if k in others:
             continue
         try:
             emit(k, "thermal", path, _decode(path, opt.input_unit, opt.video_overlap))
         except (ThermogrammetryError, OSError, ValueError, MemoryError) as exc:
-            failed.append({"file": str(path), "reason": str(exc)})
+            fail(path, exc)
     images = [im for ims in slots for im in ims]
     if not images:
-        skipped = f" ({'; '.join(notes)})" if notes else ""
         raise DataFileError("no usable input image: " + "; ".join(f["reason"] for f in failed[:5])
-                            + (f" (and {len(failed) - 5} more)" if len(failed) > 5 else "") + skipped)
+                            + (f" (and {len(failed) - 5} more)" if len(failed) > 5 else "") + skipped())
     project.write_json("work/inputs.json", {"images": images, "failed": failed, "notes": notes})
     return {"images": len(images), "failed": len(failed), "seconds": time.perf_counter() - t0}
 
@@ -1016,7 +1028,7 @@ def _gnss_xyz(inputs: dict, opt: SurveyOptions, crs_out: str | None):
             sig[k] = s
         miss = [inputs["images"][k]["name"] for k in np.nonzero(~have)[0]]
         if miss:
-            notes.append(f"{len(miss)} image(s) without GNSS: {', '.join(miss[:5])}{' ...' if len(miss) > 5 else ''}")
+            notes.append(f"{len(miss)} image(s) without GNSS: {_name_list(miss, 5)}")
         notes.append("GNSS heights used as written in the files (no geoid/ellipsoid conversion)")
     else:
         from ..io.testfield_csv import read_gnss_csv
@@ -1039,7 +1051,7 @@ def _gnss_xyz(inputs: dict, opt: SurveyOptions, crs_out: str | None):
             notes.append(f"{g.source}: no sX,sY,sZ columns: σ 0.05 m horizontal, 0.10 m vertical assumed")
         miss = [im["name"] for k, im in enumerate(inputs["images"]) if not np.isfinite(xyz[k]).all()]
         if miss:
-            notes.append(f"{len(miss)} image(s) without a GNSS position in {g.source}: {', '.join(miss[:5])}{' ...' if len(miss) > 5 else ''}")
+            notes.append(f"{len(miss)} image(s) without a GNSS position in {g.source}: {_name_list(miss, 5)}")
         if unknown:
             notes.append(f"{g.source}: {len(unknown)} image name(s) not among the inputs, ignored: {', '.join(unknown[:5])}")
     if opt.gnss_sigma_m is not None:
@@ -1654,7 +1666,7 @@ def _read_manual_ties(path_meas, names, exclude_ids, default_sigma_px):
         s = meas.std[r] if meas.std is not None else np.array([default_sigma_px, default_sigma_px])
         obs.append((k, ids.setdefault(pid, len(ids)), meas.xy[r], s))
     notes = [f"{meas.source}: {len(ids)} id(s) in neither the GCP nor the check-point file used as manual tie points "
-             f"(unknown 3D points): {', '.join(list(ids)[:5])}{' ...' if len(ids) > 5 else ''}"] if ids else []
+             f"(unknown 3D points): {_name_list(list(ids), 5)}"] if ids else []
     return list(ids), obs, notes
 
 
