@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from ..pipeline import ProjectStore
+from ..store import ProjectStore
 from .bundle import PARAM_NAMES, PARAM_UNITS
 from .selfcal import CalibrationResult, CameraCalibration
 from .workflow import CalibrationRun

@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import CorruptFileError
-from ..pipeline import ProjectStore, Step
+from ..store import ProjectStore, Step
 from .selfcal import CameraSetup, ImageMeasurements, ImageVerdict, SelfCalibrationOptions, calibrate
 from .workflow import CalibrationRun
 

@@ -45,8 +45,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
-from ..pipeline import Step
-from ..pipeline.project import ProjectStore
+from ..store import ProjectStore, Step
 from . import network as nw
 from .solve import NetworkResult, Observations, solve_network
 from .tables import parse_control, parse_measurements, parse_planes

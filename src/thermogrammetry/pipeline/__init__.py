@@ -1,6 +1,8 @@
-"""Workflows as ordered steps over a project store (folder or in-memory twin)."""
+"""Workflows as ordered steps over a project store (folder or in-memory twin).
 
-from .project import FolderProject, MemoryProject, ProjectStore, write_atomic
-from .steps import Step, StepReport, run_steps
+One driver per verb lives here; the store itself (:mod:`thermogrammetry.store`) is in the foundation.
+"""
+
+from ..store import FolderProject, MemoryProject, ProjectStore, Step, StepReport, run_steps, write_atomic
 
 __all__ = ["ProjectStore", "FolderProject", "MemoryProject", "write_atomic", "Step", "StepReport", "run_steps"]
