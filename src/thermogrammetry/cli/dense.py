@@ -27,7 +27,7 @@ def dense(
     """Dense matching of an oriented survey: point cloud with each point's frame value, and a DSM GeoTIFF."""
     from rich.console import Console
 
-    from ..dense.workflow import run_dense
+    from ..pipeline.dense import run_dense
     from ..errors import ThermogrammetryError
 
     from .progress import progress

@@ -33,7 +33,7 @@ def ortho(
 
     from ..errors import ThermogrammetryError
     from ..products.correction import CorrectionConfig
-    from ..products.ortho import run_ortho
+    from ..pipeline.ortho import run_ortho
 
     console = Console(stderr=True)
     try:

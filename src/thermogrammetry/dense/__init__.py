@@ -3,7 +3,7 @@
 - :func:`disparity` — disparity of a rectified pair (full dynamic range of 16-bit/float frames);
 - :mod:`.rectify` — epipolar rectification with our camera model (distortion included);
 - :mod:`.fusion` — pair selection by overlap and base/height ratio, depth maps, geometric consistency;
-- :mod:`.workflow` — ``thermogrammetry dense`` over a survey folder (cloud + DSM, tiles, dask).
+- the ``dense`` verb over a survey folder (cloud + DSM, tiles, tasks) is :mod:`thermogrammetry.pipeline.dense`.
 """
 
 from __future__ import annotations

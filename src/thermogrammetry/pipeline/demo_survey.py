@@ -104,8 +104,8 @@ def _product_rows(scene, root: Path) -> list[DemoRow]:
     import rasterio
     from scipy.ndimage import map_coordinates, maximum_filter, minimum_filter
 
-    from ..dense.workflow import run_dense
-    from ..products.ortho import run_ortho
+    from .dense import run_dense
+    from .ortho import run_ortho
     from ..synthetic.survey import render_frame
 
     sec = SECTION

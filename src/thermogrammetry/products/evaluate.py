@@ -27,11 +27,11 @@ __all__ = ["dsm_difference", "difference_stats", "sample_bilinear", "read_checkp
 
 def sample_bilinear(a, grid: Grid, x, y) -> np.ndarray:
     """Bilinear value of raster ``a`` on ``grid`` at world (x, y); NaN outside or next to no data."""
-    from .ortho import _bilinear
+    from .ortho import bilinear
 
     r = (grid.y0 - np.asarray(y, float)) / grid.gsd - 0.5
     c = (np.asarray(x, float) - grid.x0) / grid.gsd - 0.5
-    return _bilinear(np.asarray(a, float), r, c)
+    return bilinear(np.asarray(a, float), r, c)
 
 
 def difference_stats(diff, bins: int = 41, half_range: float | None = None) -> dict:

@@ -1,0 +1,203 @@
+"""The ``dense`` verb's driver: a survey folder → depth maps per reference image → fused cloud → DSM.
+
+Unit of work: one reference image (rank its partners, match its pairs, fuse its depth maps; the algorithms are
+in :mod:`thermogrammetry.dense.fusion`). Work units run on the task runner (:mod:`thermogrammetry.tasks`: in
+this process for ``workers`` 0 or 1, on a local dask.distributed cluster for ``workers`` >= 2, or on an existing
+scheduler); results are collected in image order, so the cloud and the DSM are identical whichever way they
+ran. Points are spilled to per-tile files; the DSM and the cloud files are then written tile by tile, the spill
+files read in chunks (memory bounded by the tile size); worker results are released as soon as they are fetched.
+
+Outputs in ``out`` (one output set, :class:`~thermogrammetry._atomic.OutputSet`: OUT appears complete or not at
+all, a user's own files in OUT are kept): ``cloud.las``, ``cloud.ply``, ``dsm.tif`` (COG; band 1 height in m,
+nodata NaN; with ``fill=True`` a band 2 flags filled cells), ``dense.json``.
+
+References
+----------
+M. Khodaei, F. Samadzadegan, F. Dadras Javan, H. Hasani, "3D surface generation from aerial thermal imagery".
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .._atomic import OutputSet
+from ..dense.fusion import POINT_DTYPE, DenseConfig, rank_pairs, reference_points
+from ..errors import ConfigError, DataFileError
+from ..tasks import open_client, ordered_results
+from .frames import SurveyFrames, open_survey
+
+__all__ = ["run_dense"]
+
+
+def _survey(path: str) -> SurveyFrames:
+    return open_survey(path)
+
+
+def _reference_task(survey_path: str, i: int, config: DenseConfig):
+    sv = _survey(survey_path)
+    cands = rank_pairs(i, sv.cameras, sv.poses, sv, config)
+    pts, info = reference_points(i, sv.cameras, sv.poses, sv, config, pairs=cands)
+    depth = info.get("depth_m", float("nan"))
+    if np.isfinite(depth):
+        cam = sv.cameras[i]
+        R, t = sv.poses[i]
+        w, h = cam.image_size
+        rays = np.asarray(cam.unproject(np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], float)))
+        info["footprint"] = ((rays * depth) @ R + (-R.T @ t))[:, :2].tolist()
+    return pts, info
+
+
+def _in_quad(px, py, quad) -> np.ndarray:
+    """Points inside a convex quadrilateral (either orientation)."""
+    q = np.asarray(quad, float)
+    area2 = sum(q[k, 0] * q[(k + 1) % 4, 1] - q[(k + 1) % 4, 0] * q[k, 1] for k in range(4))
+    sgn = 1.0 if area2 >= 0 else -1.0
+    inside = np.ones(np.shape(px), bool)
+    for k in range(4):
+        a, b = q[k], q[(k + 1) % 4]
+        inside &= ((b[0] - a[0]) * (py - a[1]) - (b[1] - a[1]) * (px - a[0])) * sgn >= 0
+    return inside
+
+
+def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseConfig | None = None,
+              workers: int = 1, scheduler: str | None = None, fill: bool = False, tile: int = 512,
+              on_image=None) -> dict:
+    """Dense cloud and DSM of a survey folder (see the module docstring). Returns the ``dense.json`` dict.
+
+    ``on_image(done, total)`` is called after each reference image (progress).
+    """
+    t0 = time.perf_counter()
+    cfg = config or DenseConfig()
+    sv = SurveyFrames(survey_dir)
+    if gsd is not None and not (np.isfinite(gsd) and gsd > 0):
+        raise ConfigError(f"--gsd {gsd!r}: expected a positive ground sampling distance in metres")
+    with OutputSet(out_dir, "dense") as stage:
+        report = _write_dense(Path(stage.stage), sv, survey_dir, gsd, cfg, workers, scheduler, fill, tile, on_image, t0)
+        stage.commit({"seconds": report["seconds"]})
+    return report
+
+
+def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig, workers, scheduler, fill: bool,
+                 tile: int, on_image, t0: float) -> dict:
+    """The cloud, the DSM and ``dense.json`` of :func:`run_dense`, written into the staging folder ``out``."""
+    from .._atomic import write_atomic_text
+    from ..products.cloud import CloudWriter, value_dimension
+    from ..products.dsm import TileSpill, fill_holes, grid_median
+    from ..products.raster import Grid
+    from ..products.raster import write_cog
+
+    n = len(sv)
+    client = open_client(workers, scheduler)
+    results: list = []
+    infos: list[dict] = []
+    spill = None
+    try:
+        path = str(Path(survey_dir).resolve())
+        if client is not None:
+            it = ordered_results(client, _reference_task, [path] * n, list(range(n)), [cfg] * n)
+        else:
+            it = (_reference_task(path, i, cfg) for i in range(n))
+        # the DSM gsd needs the image GSD: collect the first results before spilling
+        pending = []
+        for i, (pts, info) in enumerate(it):
+            infos.append(info)
+            if spill is None:
+                pending.append(pts)
+                depths = [x["depth_m"] for x in infos if np.isfinite(x.get("depth_m", np.nan))]
+                if depths and (len(pending) >= min(n, 3) or i == n - 1):
+                    f_px = float(np.mean([c.K[0, 0] for c in sv.cameras]))
+                    image_gsd = float(np.median(depths)) / f_px
+                    gsd = float(gsd) if gsd is not None else float(np.round(2.0 * image_gsd, 3))
+                    spill = TileSpill(out / ".dense_tiles", POINT_DTYPE, gsd, tile)
+                    for p in pending:
+                        spill.append(p)
+                    pending = []
+            else:
+                spill.append(pts)
+            if on_image:
+                on_image(i + 1, n)
+    finally:
+        if client is not None:
+            client.close()
+    if spill is None or spill.count == 0:
+        raise DataFileError(f"{survey_dir}: dense matching produced no consistent points (no image had ≥ "
+                            f"{cfg.min_consistent} usable partners); check overlap and orientation")
+    feet = [x["footprint"] for x in infos if "footprint" in x]
+    # extent: the points' box clipped to the images' footprints (stray points far outside are not gridded)
+    fx = np.array([p for q in feet for p in q])
+    xmin, ymin, xmax, ymax = spill.bbox
+    if len(fx):
+        xmin, ymin = max(xmin, fx[:, 0].min()), max(ymin, fx[:, 1].min())
+        xmax, ymax = min(xmax, fx[:, 0].max()), min(ymax, fx[:, 1].max())
+    grid = Grid.covering(xmin, ymin, xmax, ymax, spill.gsd, tile)
+    offset = (0.5 * (xmin + xmax), 0.5 * (ymin + ymax), 0.0)
+    cw = CloudWriter(out / "cloud.las", out / "cloud.ply", unit=sv.unit, crs=sv.crs, offset_xyz=offset)
+    stats = {"valid": 0, "covered": 0, "valid_covered": 0, "filled": 0}
+
+    def dsm_tile(r0, c0, rows, cols):
+        x, y, zp = spill.window_xyz(grid, r0, c0, rows, cols)
+        z = grid_median(x, y, zp, grid, r0, c0, rows, cols)
+        del x, y, zp
+        X, Y = grid.cell_centres(r0, c0, rows, cols)
+        cover = np.zeros((rows, cols), np.int32)
+        for q in feet:
+            cover += _in_quad(X, Y, q)
+        covered = cover >= 1 + cfg.min_consistent
+        ok = np.isfinite(z)
+        stats["valid"] += int(ok.sum())
+        stats["covered"] += int(covered.sum())
+        stats["valid_covered"] += int((ok & covered).sum())
+        if fill:
+            zf, m = fill_holes(z, max_distance_px=8)
+            zf = np.where(covered, zf, z)
+            m = np.where(covered, m, 0)
+            stats["filled"] += int(m.sum())
+            return np.stack([zf, m.astype(float)]).astype(np.float32)
+        return z.astype(np.float32)
+
+    try:
+        for key in sorted(spill.keys):
+            for chunk in spill.iter_chunks(key):  # arrival order, as one read of the tile
+                cw.write(chunk)
+        write_cog(out / "dsm.tif", grid, np.float32, dsm_tile, crs=sv.crs, nodata=float("nan"), unit="m",
+                  bands=2 if fill else 1,
+                  description=["height (m), median of the dense points per cell", "1 = filled (not measured)"]
+                  if fill else "height (m), median of the dense points per cell",
+                  tags={"product": "thermogrammetry dense DSM", "gsd_m": grid.gsd})
+        cw.close()
+    except BaseException:
+        cw.abort()
+        raise
+    finally:
+        spill.cleanup()
+    completeness = stats["valid_covered"] / max(1, stats["covered"])
+    notes = []
+    if sv.unit == "dn":
+        notes.append("frames are display numbers of an 8-bit rendering: the cloud carries geometry only, no temperature")
+    if sv.unit == "counts":
+        notes.append("frames are raw sensor counts: the cloud's value dimension is raw_counts, not a temperature")
+    report = {
+        "points": int(cw.count),
+        "gsd_m": grid.gsd,
+        "completeness": round(float(completeness), 4),
+        "seconds": round(time.perf_counter() - t0, 2),
+        "unit": sv.unit,
+        "value_dimension": value_dimension(sv.unit),
+        "crs": sv.crs,
+        "dsm": {"width": grid.width, "height": grid.height, "x0": grid.x0, "y0": grid.y0, "valid_cells": stats["valid"],
+                "filled_cells": stats["filled"] if fill else None},
+        "completeness_definition": "share of DSM cells inside >= min_consistent + 1 (default 3) image footprints (at each image's matched depth) "
+                                   "that hold a measured height",
+        "images": sv.names,
+        "pairs": infos,
+        "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
+        "workers": int(workers) if not scheduler else None,
+        "scheduler": scheduler,
+        "notes": notes,
+    }
+    write_atomic_text(out / "dense.json", json.dumps(report, indent=1, default=float) + "\n")
+    return report
