@@ -127,7 +127,7 @@ def survey(
 
     from ..camera import Camera
     from ..errors import ThermogrammetryError
-    from .._atomic import sync_folder
+    from .._atomic import OutputSet, sync_folder
     from ..pipeline.project import FolderProject
     from ..pipeline.survey import SurveyInput, SurveyOptions, run_survey
 
@@ -208,44 +208,31 @@ def survey(
                           str(check_measurements) if check_measurements else None, rig=rig_file)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         fail(str(exc))
-    parent = out.resolve().parent
     try:
-        parent.mkdir(parents=True, exist_ok=True)
-        # stale staging folders of runs that were killed
-        for old in parent.glob(f".{out.name}.partial-*"):
-            pid = old.name.rsplit("-", 1)[-1]
-            if pid.isdigit() and not _alive(int(pid)):
-                shutil.rmtree(old, ignore_errors=True)
-        stage = parent / f".{out.name}.partial-{os.getpid()}"
-        shutil.rmtree(stage, ignore_errors=True)
-        stage.mkdir()
-    except OSError as exc:
-        fail(f"-o {out}: cannot create the output folder ({exc.strerror or exc})")
-    t0 = time.perf_counter()
-    ok = False
-    try:
-        # files are flushed once before the staging folder is published, not one by one (several hundred)
-        project = FolderProject(stage, durable=False)
-        with _Progress(console) as prog:
-            reports = run_survey(project, inp, opt, progress=prog)
-        failed = [r for r in reports if not r.ok]
-        if failed:
-            r = failed[0]
-            first = r.error.strip().splitlines()[-1] if r.error else "failed"
-            if r.name == "inputs":  # unusable input: exit 2
-                fail(first.split(": ", 1)[-1] if first.startswith(("DataFileError", "UnsupportedFormatError")) else first)
-            fail(f"step {r.name} failed: {first}", code=1)
-        s = project.read_json("survey.json")
-        sync_folder(stage)
-        _publish(stage, out)
-        ok = True
-    except typer.Exit:
-        raise
-    except (ThermogrammetryError, OSError, ValueError) as exc:
+        outputs = OutputSet(out, "survey")  # staged beside OUT; a user's own files in OUT are kept
+    except (ThermogrammetryError, OSError) as exc:
         fail(str(exc))
-    finally:
-        if not ok:
-            shutil.rmtree(stage, ignore_errors=True)
+    t0 = time.perf_counter()
+    with outputs:
+        try:
+            # files are flushed once before the staging folder is published, not one by one (several hundred)
+            project = FolderProject(outputs.stage, durable=False)
+            with _Progress(console) as prog:
+                reports = run_survey(project, inp, opt, progress=prog)
+            failed = [r for r in reports if not r.ok]
+            if failed:
+                r = failed[0]
+                first = r.error.strip().splitlines()[-1] if r.error else "failed"
+                if r.name == "inputs":  # unusable input: exit 2
+                    fail(first.split(": ", 1)[-1] if first.startswith(("DataFileError", "UnsupportedFormatError")) else first)
+                fail(f"step {r.name} failed: {first}", code=1)
+            s = project.read_json("survey.json")
+            sync_folder(outputs.stage)
+            outputs.commit({"images_oriented": s["images_oriented"], "images_total": s["images_total"]})
+        except typer.Exit:
+            raise
+        except (ThermogrammetryError, OSError, ValueError) as exc:
+            fail(str(exc))
     dt = time.perf_counter() - t0
     console.print(f"{s['images_oriented']}/{s['images_total']} images oriented in {len(s['components'])} block(s) "
                   f"{s['components']}, reprojection RMS {s['reprojection_rms_px'] or float('nan'):.3f} px, "
@@ -261,23 +248,3 @@ def survey(
     if s["images_oriented"] == 0:
         raise typer.Exit(1)
 
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def _publish(stage: Path, out: Path) -> None:
-    """Rename the finished staging folder to OUT (an existing OUT is replaced only after success)."""
-    if out.exists():
-        old = out.parent / f".{out.name}.old-{os.getpid()}"
-        os.replace(out, old)
-        os.replace(stage, out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.replace(stage, out)

@@ -260,51 +260,55 @@ def _write_outputs(out_dir, mos, counts: bool, u_t, head: dict, grid_conv: str, 
     from ..io.tiff import encode_raster_tiff, encode_temperature_tiff
     from ..products import texture_export as tx
     from ..radiometry.encoding import from_kelvin
-    from .project import FolderProject
+    from .._atomic import OutputSet, sync_folder
+    from ..store import FolderProject
 
     grid = mos.grid
-    store = FolderProject(out_dir)
-    vals = mos.temperature_k.astype(np.float32) if counts else from_kelvin(mos.temperature_k, u_t).astype(np.float32)
-    if counts:
-        store.write_bytes("facade_temperature.tif", tx.counts_float_tiff_bytes(vals))
-    else:
-        data, _ = encode_temperature_tiff(mos.temperature_k, unit=u_t.value, encoding="float32")
-        store.write_bytes("facade_temperature.tif", data)
-    store.write_bytes("facade_source.tif", tx.int32_tiff_bytes(mos.source))
-    files = ["facade_temperature.tif", "facade_source.tif"]
-    if mos.angle_deg is not None:
-        store.write_bytes("facade_angle.tif", encode_raster_tiff(mos.angle_deg, unit="deg",
-                                                                 description="viewing angle of the source image (deg); NaN = none"))
-        files.append("facade_angle.tif")
-    store.write_bytes("facade_resolution.tif", encode_raster_tiff(mos.resolution_px_per_m, unit="px/m",
-                                                                  description="resolution of the source image on the facade"))
-    unit_out = "counts" if counts else u_t.value
-    store.write_bytes("facade.png", _preview_png(vals, unit_out))
-    files += ["facade_resolution.tif", "facade.png", "facade.json"]
-    filled = int((mos.source >= 0).sum())
-    used = sorted({int(s) for s in np.unique(mos.source) if s >= 0})
-    lev = mos.levelling
-    out = {"format": "thermogrammetry/facade", "version": 1, **head, "unit": unit_out,
-           "quantity": "raw_counts" if counts else "temperature",
-           "grid": {"a0": grid.a0, "a1": grid.a1, "b0": grid.b0, "b1": grid.b1, "cell": grid.cell_m, "shape": list(grid.shape),
-                    "convention": grid_conv},
-           "cells_total": int(mos.source.size), "cells_filled": filled,
-           "index": {str(k): n for k, n in enumerate(mos.names)}, "images_used": len(used),
-           "cells_per_image": {n: int(c) for n, c in zip(mos.names, np.bincount(mos.source[mos.source >= 0],
-                                                                               minlength=len(mos.names)))},
-           "skipped": [{"image": n, "reason": r} for n, r in skipped],
-           "tile": tile_m, "notes": mos.notes,
-           **_levelling_json(mos, counts),
-           "values_altered": lev is not None,
-           "values": ("each cell's value is sampled (bilinear) from one image, chosen per tile; nothing blended or filled"
-                      + ("; per-image offsets ADDED (levelling=offsets)" if lev is not None else "")),
-           "files": files}
-    if mos.angle_deg is None:
-        out["angle"] = ("facade_angle.tif not written: without an orientation (homography route) the viewing angle "
-                        "is not known")
-    if extra:
-        out.update(extra)
-    store.write_text("facade.json", json.dumps(out, indent=1))
+    with OutputSet(out_dir, "facade") as outputs:  # OUT complete or absent; a user's own files in OUT kept
+        store = FolderProject(outputs.stage, durable=False)
+        vals = mos.temperature_k.astype(np.float32) if counts else from_kelvin(mos.temperature_k, u_t).astype(np.float32)
+        if counts:
+            store.write_bytes("facade_temperature.tif", tx.counts_float_tiff_bytes(vals))
+        else:
+            data, _ = encode_temperature_tiff(mos.temperature_k, unit=u_t.value, encoding="float32")
+            store.write_bytes("facade_temperature.tif", data)
+        store.write_bytes("facade_source.tif", tx.int32_tiff_bytes(mos.source))
+        files = ["facade_temperature.tif", "facade_source.tif"]
+        if mos.angle_deg is not None:
+            store.write_bytes("facade_angle.tif", encode_raster_tiff(mos.angle_deg, unit="deg",
+                                                                     description="viewing angle of the source image (deg); NaN = none"))
+            files.append("facade_angle.tif")
+        store.write_bytes("facade_resolution.tif", encode_raster_tiff(mos.resolution_px_per_m, unit="px/m",
+                                                                      description="resolution of the source image on the facade"))
+        unit_out = "counts" if counts else u_t.value
+        store.write_bytes("facade.png", _preview_png(vals, unit_out))
+        files += ["facade_resolution.tif", "facade.png", "facade.json"]
+        filled = int((mos.source >= 0).sum())
+        used = sorted({int(s) for s in np.unique(mos.source) if s >= 0})
+        lev = mos.levelling
+        out = {"format": "thermogrammetry/facade", "version": 1, **head, "unit": unit_out,
+               "quantity": "raw_counts" if counts else "temperature",
+               "grid": {"a0": grid.a0, "a1": grid.a1, "b0": grid.b0, "b1": grid.b1, "cell": grid.cell_m, "shape": list(grid.shape),
+                        "convention": grid_conv},
+               "cells_total": int(mos.source.size), "cells_filled": filled,
+               "index": {str(k): n for k, n in enumerate(mos.names)}, "images_used": len(used),
+               "cells_per_image": {n: int(c) for n, c in zip(mos.names, np.bincount(mos.source[mos.source >= 0],
+                                                                                   minlength=len(mos.names)))},
+               "skipped": [{"image": n, "reason": r} for n, r in skipped],
+               "tile": tile_m, "notes": mos.notes,
+               **_levelling_json(mos, counts),
+               "values_altered": lev is not None,
+               "values": ("each cell's value is sampled (bilinear) from one image, chosen per tile; nothing blended or filled"
+                          + ("; per-image offsets ADDED (levelling=offsets)" if lev is not None else "")),
+               "files": files}
+        if mos.angle_deg is None:
+            out["angle"] = ("facade_angle.tif not written: without an orientation (homography route) the viewing angle "
+                            "is not known")
+        if extra:
+            out.update(extra)
+        store.write_text("facade.json", json.dumps(out, indent=1))
+        sync_folder(outputs.stage)
+        outputs.commit()
     return out
 
 

@@ -552,7 +552,8 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     from ..products import texture_export as tx
     from ..products.texture import TextureConfig, texture_mesh
     from ..radiometry.encoding import TemperatureUnit, from_kelvin
-    from .project import FolderProject
+    from .._atomic import OutputSet, sync_folder
+    from ..store import FolderProject
 
     cameras = OrientedCameras.load(survey_dir)
     V, F = read_mesh(mesh_path)
@@ -600,66 +601,70 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     result = texture_mesh(V, F, views, cfg)
     if not np.any(result.faces_textured):
         check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs, textured=0)
-    store = FolderProject(out_dir)
-    # result.temperature_k holds kelvin for temperature frames and the frames' raw counts for count frames
-    t_unit = result.temperature_k.astype(np.float32) if counts else from_kelvin(result.temperature_k, u).astype(np.float32)
-    preview = tx.preview_rgb(t_unit)
-    palette = None
-    if counts:
-        lo, hi = tx.palette_range(t_unit)
-        palette = {"colormap": "inferno", "quantity": "raw_counts", "unit": "counts", "label": "raw counts",
-                   "min": lo, "max": hi, "note": "colours span the 1st-99th percentile of the raw counts (not temperatures)"}
-    store.write_bytes("textured.png", tx.png_bytes(preview, text=None if palette is None else tx.palette_png_text(palette)))
-    glb = tx.glb_bytes(result, preview, extras=palette)
-    store.write_bytes("textured.glb", glb)
-    store.write_text("viewer.html", tx.viewer_html(glb))
-    store.write_text("textured.obj", tx.obj_text(result, quantity="raw counts" if counts else "temperatures"))
-    store.write_text("textured.mtl", tx.mtl_text("textured.png"))
-    mapping = None
-    u16_info = None
-    if counts:
-        store.write_bytes("temperature_texture.tif", tx.counts_float_tiff_bytes(t_unit))
-        if np.any(np.isfinite(t_unit)):
-            store.write_bytes("temperature_texture_u16.tif", tx.counts_u16_tiff_bytes(t_unit))
-            u16_info = {"scale": 1.0, "offset": 0.0, "unit": "counts", "nodata_code": 0,
-                        "max_quantisation_error": 0.5,
-                        "note": "counts rounded to the nearest integer (bilinear samples are fractional), clipped to 1..65535"}
-    else:
-        data, _ = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="float32")
-        store.write_bytes("temperature_texture.tif", data)
-        if np.any(np.isfinite(result.temperature_k)):
-            data16, mapping = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="uint16")
-            store.write_bytes("temperature_texture_u16.tif", data16)
-            u16_info = {"scale": mapping.scale, "offset": mapping.offset, "unit": u.value, "nodata_code": 0}
-    if photo_fit.get("applied") and rig_path is not None:
-        # rig mode: the thermal views are not images of cameras.json; their refined poses are listed here instead
-        photo_fit["poses"] = {v.name: {"cam_from_world": {"R": np.asarray(v.pose.R).tolist(), "t": np.asarray(v.pose.t).tolist()},
-                                       "center": np.asarray(v.pose.center).tolist()} for v in views}
-    if (pose_fit.get("applied") or photo_fit.get("applied")) and rig_path is None:
-        fitted = {v.name: v.pose for v in views}
-        doc = cameras.to_dict()
-        for im in doc["images"]:
-            if im["name"] in fitted:
-                pz = fitted[im["name"]]
-                im["cam_from_world"] = {"R": np.asarray(pz.R).tolist(), "t": np.asarray(pz.t).tolist()}
-                im["center"] = np.asarray(pz.center).tolist()
-            if im.get("frame"):  # the frames stay in the survey folder: their paths from here
-                im["frame"] = str(cameras.frame_path(im["name"]).resolve())
-        store.write_text("cameras_fitted.json", json.dumps(doc, indent=1) + "\n")
-    store.write_bytes("source_texture.tif", tx.int32_tiff_bytes(result.source))
-    store.write_bytes("angle_texture.tif", tx.float32_tiff_bytes(result.angle_deg))
-    store.write_bytes("vertices.ply", tx.ply_bytes(V, F, result.vertex_temperature_k,
-                                                   name="raw_counts" if counts else "temperature_k"))
-    extra = {"skipped": [{"image": n, "reason": r} for n, r in skipped],
-             "uint16_mapping": u16_info,
-             "rig": None if rig_path is None else str(rig_path),
-             "clean_radius_px": {"value": int(cfg.clean_radius_px), "reason": clean_note or "default"},
-             "pose_fit": pose_fit, "photometric_fit": photo_fit}
-    if winding_note:
-        extra["mesh_winding"] = {"reversed": True, "reason": winding_note}
-    if counts:
-        extra["preview_palette"] = palette
-    text = tx.texture_json(result, unit_out, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
-    store.write_text("texture.json", text)
-    store.write_text("report.html", texture_report_html(result, views, skipped, unit_out, pose_fit, photo_fit))
+    with OutputSet(out_dir, "texture") as outputs:  # OUT complete or absent; a user's own files in OUT kept
+        store = FolderProject(outputs.stage, durable=False)
+        # result.temperature_k holds kelvin for temperature frames and the frames' raw counts for count frames
+        t_unit = result.temperature_k.astype(np.float32) if counts else from_kelvin(result.temperature_k, u).astype(np.float32)
+        preview = tx.preview_rgb(t_unit)
+        palette = None
+        if counts:
+            lo, hi = tx.palette_range(t_unit)
+            palette = {"colormap": "inferno", "quantity": "raw_counts", "unit": "counts", "label": "raw counts",
+                       "min": lo, "max": hi, "note": "colours span the 1st-99th percentile of the raw counts (not temperatures)"}
+        store.write_bytes("textured.png", tx.png_bytes(preview, text=None if palette is None else tx.palette_png_text(palette)))
+        glb = tx.glb_bytes(result, preview, extras=palette)
+        store.write_bytes("textured.glb", glb)
+        store.write_text("viewer.html", tx.viewer_html(glb))
+        store.write_text("textured.obj", tx.obj_text(result, quantity="raw counts" if counts else "temperatures"))
+        store.write_text("textured.mtl", tx.mtl_text("textured.png"))
+        mapping = None
+        u16_info = None
+        if counts:
+            store.write_bytes("temperature_texture.tif", tx.counts_float_tiff_bytes(t_unit))
+            if np.any(np.isfinite(t_unit)):
+                store.write_bytes("temperature_texture_u16.tif", tx.counts_u16_tiff_bytes(t_unit))
+                u16_info = {"scale": 1.0, "offset": 0.0, "unit": "counts", "nodata_code": 0,
+                            "max_quantisation_error": 0.5,
+                            "note": "counts rounded to the nearest integer (bilinear samples are fractional), clipped to 1..65535"}
+        else:
+            data, _ = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="float32")
+            store.write_bytes("temperature_texture.tif", data)
+            if np.any(np.isfinite(result.temperature_k)):
+                data16, mapping = encode_temperature_tiff(result.temperature_k, unit=u.value, encoding="uint16")
+                store.write_bytes("temperature_texture_u16.tif", data16)
+                u16_info = {"scale": mapping.scale, "offset": mapping.offset, "unit": u.value, "nodata_code": 0}
+        if photo_fit.get("applied") and rig_path is not None:
+            # rig mode: the thermal views are not images of cameras.json; their refined poses are listed here instead
+            photo_fit["poses"] = {v.name: {"cam_from_world": {"R": np.asarray(v.pose.R).tolist(), "t": np.asarray(v.pose.t).tolist()},
+                                           "center": np.asarray(v.pose.center).tolist()} for v in views}
+        if (pose_fit.get("applied") or photo_fit.get("applied")) and rig_path is None:
+            fitted = {v.name: v.pose for v in views}
+            doc = cameras.to_dict()
+            for im in doc["images"]:
+                if im["name"] in fitted:
+                    pz = fitted[im["name"]]
+                    im["cam_from_world"] = {"R": np.asarray(pz.R).tolist(), "t": np.asarray(pz.t).tolist()}
+                    im["center"] = np.asarray(pz.center).tolist()
+                if im.get("frame"):  # the frames stay in the survey folder: their paths from here
+                    im["frame"] = str(cameras.frame_path(im["name"]).resolve())
+            store.write_text("cameras_fitted.json", json.dumps(doc, indent=1) + "\n")
+        store.write_bytes("source_texture.tif", tx.int32_tiff_bytes(result.source))
+        store.write_bytes("angle_texture.tif", tx.float32_tiff_bytes(result.angle_deg))
+        store.write_bytes("vertices.ply", tx.ply_bytes(V, F, result.vertex_temperature_k,
+                                                       name="raw_counts" if counts else "temperature_k"))
+        extra = {"skipped": [{"image": n, "reason": r} for n, r in skipped],
+                 "uint16_mapping": u16_info,
+                 "rig": None if rig_path is None else str(rig_path),
+                 "clean_radius_px": {"value": int(cfg.clean_radius_px), "reason": clean_note or "default"},
+                 "pose_fit": pose_fit, "photometric_fit": photo_fit}
+        if winding_note:
+            extra["mesh_winding"] = {"reversed": True, "reason": winding_note}
+        if counts:
+            extra["preview_palette"] = palette
+        text = tx.texture_json(result, unit_out, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
+        store.write_text("texture.json", text)
+        store.write_text("report.html", texture_report_html(result, views, skipped, unit_out, pose_fit, photo_fit))
+        sync_folder(outputs.stage)
+        outputs.commit()
+
     return json.loads(text)
