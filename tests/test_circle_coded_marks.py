@@ -364,4 +364,4 @@ def test_cli_help_names_coded_marks(capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "400")
     main(["calibrate", "--help"])
     text = capsys.readouterr().out
-    assert "--coded-marks" in text and "COLUMNxROW=CODE" in text and "seed-003" in text
+    assert "--coded-marks" in text and "COLUMNxROW=CODE" in text and "Khodaei et al. 2015" in text

@@ -5,7 +5,7 @@ Routes (public contract)::
     thermogrammetry calibrate IMAGES... --target chessboard --corners 6x5 --spacing-mm 100 -o OUT
     thermogrammetry calibrate IMAGES... --target circles --grid 7x4 --spacing-mm 50 [--asymmetric] -o OUT
     thermogrammetry calibrate IMAGES... --target circles --grid 7x4 --spacing-mm 50 --diameter-mm 20 \
-        --coded-marks default -o OUT          (seed 003: 28 circles, 4 ring-coded marks)
+        --coded-marks default -o OUT          (Khodaei et al. 2015: 28 circles, 4 ring-coded marks)
     thermogrammetry calibrate IMAGES... --target coded --corners 11x9 --spacing-mm 50.5 --marker-mm 161.5 -o OUT
     thermogrammetry calibrate IMAGES... --target coded --target-file parameters.yaml -o OUT
     thermogrammetry calibrate --control control.csv --measurements measurements.csv \\
@@ -115,12 +115,12 @@ def calibrate(
     dictionary: Optional[str] = typer.Option(None, "--dictionary", help="Coded target: a predefined cv2.aruco dictionary (e.g. DICT_4X4_50) instead of the custom one."),
     marker_id: Optional[int] = typer.Option(None, "--marker-id", help="Coded target: id of the marker in its dictionary (default 0)."),
     bottom_left_square: Optional[str] = typer.Option(None, "--bottom-left-square", help="Coded target: colour of the board's bottom-left square as printed, white or black (default white)."),
-    target_file: Optional[Path] = typer.Option(None, "--target-file", help="Coded target: the target's own description (MRT parameters.yaml: gridSize, arucoSize, gridMaxWidth/Height, aruCoHiddenSize, aruco_dict, bottomLeftField); flags given as well override it."),
+    target_file: Optional[Path] = typer.Option(None, "--target-file", help="Coded target: its own description (MRT parameters.yaml); flags given as well override it."),
     grid: Optional[str] = typer.Option(None, "--grid", help="Circle grid COLUMNSxROWS of centres, e.g. 7x4."),
     spacing_mm: Optional[float] = typer.Option(None, "--spacing-mm", help="Square size / centre spacing in mm."),
     asymmetric: bool = typer.Option(False, "--asymmetric", help="Asymmetric (staggered) circle grid."),
-    diameter_mm: Optional[float] = typer.Option(None, "--diameter-mm", help="Circle diameter in mm: the centroid bias of each circle (perspective and distortion) is computed from the calibrated camera and poses and removed, iterated with the calibration (3 rounds)."),
-    coded_marks: Optional[str] = typer.Option(None, "--coded-marks", help="Circle grid whose circles partly carry ring-coded marks (seed 003; design in thermogrammetry.targets.coded_marks: a ring of 12 sectors at 1.5-2.5 disc radii, sector k cut out for a 1-bit, code ids 0-15): 'default' = the seed-003 layout of a 7x4 grid (1x1=0,5x1=1,2x2=2,4x2=3), or a comma-separated list COLUMNxROW=CODE (0-based column and row of the marked circle). The decoded marks fix the grid's numbering (180° turn, partial views); needs --diameter-mm."),
+    diameter_mm: Optional[float] = typer.Option(None, "--diameter-mm", help="Circle diameter in mm: each circle's centroid bias is removed, iterated with the calibration (see docs/verbs/calibrate.md)."),
+    coded_marks: Optional[str] = typer.Option(None, "--coded-marks", help="Ring-coded marks on the circle grid: 'default' (Khodaei et al. 2015's 7x4 layout) or COLUMNxROW=CODE,...; needs --diameter-mm (see docs/verbs/calibrate.md)."),
     control: Optional[Path] = typer.Option(None, "--control", help="Control points CSV: id,X,Y,Z[,sX,sY,sZ] (metres)."),
     measurements: Optional[Path] = typer.Option(None, "--measurements", help="Image measurements CSV: image,id,x,y[,sx,sy] (pixels)."),
     image_size: Optional[str] = typer.Option(None, "--image-size", help="WIDTHxHEIGHT in pixels (CSV route), e.g. 320x240."),

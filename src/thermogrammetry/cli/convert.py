@@ -77,7 +77,7 @@ def convert(
     jobs: int = typer.Option(1, "--jobs", "-j", min=1, help="Files converted at once (threads), >= 1."),
     input_unit: Optional[str] = typer.Option(None, "--input-unit", help="Unit (K or C) of CSV/NPY temperature matrices, which carry none, and of --scale/--offset."),
     raw: bool = typer.Option(False, "--raw", help="Write the raw sensor counts (uint16 TIFF labelled as counts, not temperatures) of every input that has them, e.g. DJI R-JPEGs."),
-    references: Optional[Path] = typer.Option(None, "--references", help="refs.csv: image, x,y or polygon, temperature_c|temperature_k[, sigma_k]; >= 2 in-scene references give an empirical counts->temperature mapping (Kelly et al. 2019)."),
+    references: Optional[Path] = typer.Option(None, "--references", help="refs.csv: >= 2 in-scene references give an empirical counts->temperature line (see docs/verbs/convert.md)."),
     scale: Optional[float] = typer.Option(None, "--scale", help="Temperature per count for 16-bit TIFFs without a mapping (Workswell WIRIS), in --input-unit."),
     offset: Optional[float] = typer.Option(None, "--offset", help="Temperature at count 0 for --scale, in --input-unit."),
     range_: Optional[Tuple[float, float]] = typer.Option(None, "--range", help="MIN MAX (in --unit) of the one 16-bit mapping of the batch; default: from all inputs."),

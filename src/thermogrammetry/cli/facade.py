@@ -1,4 +1,4 @@
-"""``thermogrammetry facade``: thermal orthoimage of a flat facade, without a mesh (seed 002).
+"""``thermogrammetry facade``: thermal orthoimage of a flat facade, without a mesh (Barazzetti et al. 2013).
 
 Two routes, the same outputs::
 
@@ -35,20 +35,16 @@ def facade(
                                                   "`thermogrammetry survey`; with --plane-points: more thermal frames "
                                                   "(so that --images *.jpg works)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder."),
-    plane: str = typer.Option("auto", "--plane", help="Oriented route. auto: fitted to the survey's sparse cloud (RANSAC, "
-                              "the dominant plane); or X,Y,Z,nx,ny,nz: a point of the facade and its normal in the "
-                              "survey's coordinates."),
+    plane: str = typer.Option("auto", "--plane", help="Oriented route. auto: fitted to the survey's sparse cloud; or "
+                              "X,Y,Z,nx,ny,nz: a point of the facade and its normal."),
     cell: Optional[float] = typer.Option(None, "--cell", help="Cell size in metres (default: one pixel of the median image on the facade)."),
     unit: Optional[str] = typer.Option(None, "--unit", help="K or C for temperature frames (default K); not allowed for raw counts."),
     tile: float = typer.Option(1.0, "--tile", help="Tile size in metres: the image choice is made per tile (seams follow tile edges)."),
     occluders: Optional[Path] = typer.Option(None, "--occluders", help="Oriented route. Mesh of what stands in front of the "
                                              "facade (balconies, trees): cells behind it are not taken from images that "
                                              "cannot see them."),
-    levelling: str = typer.Option("none", "--levelling", help="none: every cell holds its image's value as sampled. "
-                                  "offsets: per-image additive offsets estimated from the cells two or more images can "
-                                  "serve (least squares, the image supplying most cells held at 0) and ADDED to every "
-                                  "cell of their image: this ALTERS the values; each offset, its sigma and the overlap "
-                                  "RMS before/after are in facade.json (counts for count frames)."),
+    levelling: str = typer.Option("none", "--levelling", help="none: values as sampled. offsets: per-image offsets from the "
+                                  "overlaps ADDED: this ALTERS the values (see docs/verbs/facade.md)."),
     images: List[Path] = typer.Option([], "--images", help="Homography route. Thermal frames: files and/or folders (FLIR/DJI "
                                       "R-JPEG, TIFF incl. float kelvin, SEQ/CSQ); repeat the flag or list them after it."),
     plane_points: Optional[Path] = typer.Option(None, "--plane-points", help="Homography route. points.csv: id,u,v in metres "
@@ -57,9 +53,8 @@ def facade(
                                                       "in pixels ((0,0) = centre of the top-left pixel), image named with "
                                                       "or without extension; >= 4 points per image, no 3 on a line."),
     input_unit: Optional[str] = typer.Option(None, "--input-unit", help="Homography route. K or C: unit of float TIFFs that declare none."),
-    camera: Optional[Path] = typer.Option(None, "--camera", help="Homography route. camera.json from `calibrate`: measured points "
-                                          "are undistorted and the distortion re-applied when sampling (default: frames "
-                                          "taken as distortion-free)."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="Homography route. camera.json from `calibrate` for the lens "
+                                          "distortion (default: frames taken as distortion-free)."),
     extent: Optional[str] = typer.Option(None, "--extent", help="Homography route. u0,u1,v0,v1 in metres (default: the "
                                          "images' footprints, clipped to the points' bounding box grown by half its size)."),
 ) -> None:

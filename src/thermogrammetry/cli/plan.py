@@ -39,7 +39,7 @@ def plan(
     fps: Optional[float] = typer.Option(None, "--fps", help="Video frame rate (Hz): frame-extraction stride and rate."),
     ground_z: float = typer.Option(0.0, "--ground-z", help="Ground elevation (m) added to the height in waypoints.csv."),
 ) -> None:
-    """Plan a survey flight (Khodaei et al. 2015): height from the GSD, lines, triggers, video extraction rate."""
+    """Plan a survey flight: height from the GSD, lines, triggers, video extraction rate (Khodaei et al. 2015)."""
     import numpy as np
     from rich.console import Console
 

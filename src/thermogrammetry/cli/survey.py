@@ -70,23 +70,13 @@ def survey(
     input_unit: Optional[str] = typer.Option(None, "--input-unit", help="K or C: unit of float TIFFs that declare none."),
     camera: Optional[Path] = typer.Option(None, "--camera", help="camera.json from `calibrate`: intrinsics held fixed (else self-calibration)."),
     rgb: List[Path] = typer.Option([], "--rgb", help="RGB images (folder or files) oriented in the same block."),
-    rig: Optional[Path] = typer.Option(None, "--rig", help="rig.json (needs --rgb): RGB and thermal exposed together with a constant "
-                                       "relative orientation cam_thermal_from_cam_rgb {R, t (m)} (Barazzetti et al. 2013 eq. 4-5). "
-                                       "Each thermal image paired with an oriented RGB image (\"frames\": {rgb: thermal}, "
-                                       "\"pairing\": {\"rgb_suffix\", \"thermal_suffix\"}, or identical names) takes its pose "
-                                       "from it; R, t held fixed, or estimated in the block with σ (\"estimate\": true; only "
-                                       "with >= 3 thermal frames with own tie points spread over the block and a converged "
-                                       "adjustment, else refused with the reason). Thermal images posed by the rig alone (no "
-                                       "own tie points) are listed in survey.json images_rig_only / rig.rig_only. "
-                                       "Schema: thermogrammetry.sfm.rig."),
+    rig: Optional[Path] = typer.Option(None, "--rig", help="rig.json (needs --rgb): thermal poses from the paired RGB poses through R, t, "
+                                       "held or estimated (Barazzetti et al. 2013; see docs/verbs/survey.md)."),
     gnss: str = typer.Option("auto", "--gnss", help="auto (EXIF/XMP, RTK σ), none, or gnss.csv (image,X,Y,Z[,sX,sY,sZ] in --crs)."),
     crs: Optional[str] = typer.Option(None, "--crs", help="Output CRS, e.g. EPSG:2056 (default: UTM zone of the GNSS)."),
     gcps: Optional[Path] = typer.Option(None, "--gcps", help="gcps.csv: id,X,Y,Z[,sX,sY,sZ] (E,N,H accepted), metres in --crs."),
     gcp_measurements: Optional[Path] = typer.Option(None, "--gcp-measurements", help="image,id,x,y[,sx,sy] (px, (0,0) = centre of the "
-                                                    "top-left pixel). Rows whose id is in neither gcps.csv nor cp.csv are "
-                                                    "manual tie points: measured by hand in RGB and/or thermal images, they "
-                                                    "enter the adjustment as unknown 3D points and always tie the two "
-                                                    "modalities (usable without --gcps)."),
+                                                    "top-left pixel); ids in no control file are manual tie points (see docs/formats/csv.md)."),
     checkpoints: Optional[Path] = typer.Option(None, "--checkpoints", help="cp.csv: id,X,Y,Z — never used in the adjustment."),
     check_measurements: Optional[Path] = typer.Option(None, "--check-measurements", help="image,id,x,y of the check points."),
     workers: int = typer.Option(2, "--workers", help="Local dask worker processes for features and matching (0 = in this process)."),
@@ -95,29 +85,16 @@ def survey(
                                             "frame (x right, y down, z forward); default 0,0,0."),
     gnss_sigma: Optional[str] = typer.Option(None, "--gnss-sigma", help="σ of every GNSS position, H,V or X,Y,Z in metres "
                                              "(overrides the RTK status / CSV columns)."),
-    low_texture: str = typer.Option("auto", "--low-texture", help="auto (default): when < 80 % of the thermal frames find a "
-                                    "verified pair or end in one block, also try low-texture tie points (sensor fixed "
-                                    "pattern estimated from the frames and removed; without GNSS the frames are tracked "
-                                    "as a sequence in input order, e.g. a walk or video along a plain wall; with GNSS "
-                                    "homography-guided SIFT); a tracked block whose coplanar points do not lie flat is "
-                                    "refused and reported (see SurveyOptions.low_texture). off: never."),
-    refine_ties: str = typer.Option("off", "--refine-ties", help="lsm: move every tie observation onto its track's "
-                                    "reference patch by affine least-squares matching before the orientation (sharper "
-                                    "tie points on smooth thermal blobs; measured mixed, see sfm/lsm.py). off: keypoints."),
-    detector: str = typer.Option("sift", "--detector", help="Tie-point detector: sift (default), asift (SIFT on simulated "
-                                 "tilted views, 6000 features: frames taken 30-60° apart, e.g. a hand-held facade; "
-                                 "~20x the feature time) or orb."),
+    low_texture: str = typer.Option("auto", "--low-texture", help="auto (default): fallback tie points for weak thermal texture, its "
+                                    "blocks refused when not flat; off: never (see docs/verbs/survey.md)."),
+    refine_ties: str = typer.Option("off", "--refine-ties", help="lsm: affine least-squares matching of the tie points (measured "
+                                    "mixed); off: keypoints (see docs/verbs/survey.md)."),
+    detector: str = typer.Option("sift", "--detector", help="Tie-point detector: sift (default), asift (frames taken 30-60° "
+                                 "apart; ~20x the feature time) or orb (see docs/verbs/survey.md)."),
     video_overlap: float = typer.Option(0.8, "--video-overlap", help="Forward overlap of the frames extracted from a "
-                                        "video or a FLIR SEQ/CSQ recording (a fraction in [0, 1), measured from the "
-                                        "images: the frame-to-frame motion with the fixed pattern or a burned-in "
-                                        "display taken out). A walk along a plain wall needs >= 0.8; a textured UAV "
-                                        "flight 0.6-0.8."),
-    mapper: str = typer.Option("auto", "--mapper", help="Orientation from the tie points: incremental, "
-                               "global (rotation averaging over the pairs that close triangles, then camera centres and "
-                               "one bundle adjustment per rigid part: frames whose tracks rarely reach a third frame) or "
-                               "auto (default: incremental, and global too when the incremental's largest block holds "
-                               "< 80 % of the images; global is kept when its largest block is larger and it orients "
-                               "no fewer images in all)."),
+                                        "video or SEQ/CSQ, measured from the images (see docs/verbs/survey.md)."),
+    mapper: str = typer.Option("auto", "--mapper", help="incremental, global, or auto (default: global too when the "
+                               "incremental's largest block holds < 80 % of the images; see docs/verbs/survey.md)."),
 ) -> None:
     """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report.
 

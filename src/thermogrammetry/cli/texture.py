@@ -30,20 +30,15 @@ def texture(
     survey_dir: Path = typer.Argument(..., help="Survey folder (cameras.json + frames/) from `thermogrammetry survey`, or a cameras.json."),
     mesh: Path = typer.Option(..., "--mesh", help="Mesh in the survey's frame: OBJ, PLY, glTF/GLB, STL, OFF."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder."),
-    unit: Optional[str] = typer.Option(None, "--unit", help="K or C: unit of temperature_texture.tif for kelvin frames (default K; "
-                                       "vertices.ply is always kelvin). Not allowed for frames in raw counts: the products "
-                                       "then hold counts, labelled as such."),
+    unit: Optional[str] = typer.Option(None, "--unit", help="K or C: unit of temperature_texture.tif (default K; vertices.ply "
+                                       "is always kelvin); refused for frames in raw counts."),
     correct: bool = typer.Option(False, "--correct", help="Per-texel angle/emissivity/transmission correction (alters values; "
                                  "needs frames in kelvin)."),
     levelling: str = typer.Option("none", "--levelling", help="none, or offsets: per-image offsets from overlaps (alters values)."),
     rig: Optional[Path] = typer.Option(None, "--rig", help="rig.json: thermal frames + cam_thermal_from_cam_rgb for oriented RGB images."),
     texel_size: Optional[float] = typer.Option(None, "--texel-size", help="Texel size in metres (default: half the surface pixel size)."),
-    fit_poses: str = typer.Option("auto", "--fit-poses", help="auto: refine the survey's poses so that its tie points "
-                                  "(SURVEY_DIR/colmap) lie on the mesh, kept only when they meet it and the fit converges "
-                                  "without bending the block (texture.json pose_fit, cameras_fitted.json), then refine them "
-                                  "until the images agree on the mesh's temperatures (texture.json photometric_fit; poses "
-                                  "only, no value changed). mesh: the first step only. off: the poses of cameras.json as "
-                                  "they are."),
+    fit_poses: str = typer.Option("auto", "--fit-poses", help="auto: fit the poses to the mesh, then refine them photometrically "
+                                  "(poses only); mesh: the first step; off: as they are (see docs/verbs/texture.md)."),
 ) -> None:
     """Texture a mesh with temperatures: best image per face, occlusion by ray casting, source of every texel."""
     from rich.console import Console
