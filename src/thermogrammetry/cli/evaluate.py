@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
 
@@ -22,59 +21,12 @@ def evaluate(
     """DSM against a reference DSM (difference statistics and histogram) and against check points (per axis)."""
     from rich.console import Console
 
-    from .._atomic import write_atomic_text
-    from ..errors import ConfigError, DataFileError, ThermogrammetryError
-    from ..products.evaluate import checkpoint_errors, difference_stats, dsm_difference, read_checkpoints
-    from ..products.raster import read_raster
+    from ..errors import ThermogrammetryError
+    from ..pipeline.evaluate import run_evaluate
 
     console = Console(stderr=True)
     try:
-        if reference is None and checkpoints is None:
-            raise ConfigError("nothing to evaluate against: give --reference REF.tif and/or --checkpoints cp.csv")
-        from ..products.raster import same_horizontal_crs
-
-        z, g, crs, _ = read_raster(dsm)
-        rep: dict = {"dsm": str(dsm), "crs": crs, "dsm_vs_reference": None, "checkpoints": None}
-        if reference is not None:
-            zr, gr, crs_r, _ = read_raster(reference)
-            if not same_horizontal_crs(crs, crs_r):
-                raise DataFileError(f"{reference}: CRS {crs_r} differs from the DSM's {crs}; expected the same CRS")
-            diff = dsm_difference(z, g, zr, gr)
-            rep["dsm_vs_reference"] = difference_stats(diff)
-            rep["dsm_vs_reference"]["unit"] = "m"
-        if checkpoints is not None:
-            try:
-                text = checkpoints.read_text(encoding="utf-8")
-            except OSError as exc:
-                raise DataFileError(f"{checkpoints}: cannot read ({exc.strerror or exc})") from None
-            pts = read_checkpoints(text, str(checkpoints))
-            o = og = None
-            if ortho is not None:
-                o, og, _, _ = read_raster(ortho)
-            rep["checkpoints"] = checkpoint_errors(pts, z, g, o, og)
-        write_atomic_text(out / "evaluate.json", json.dumps(rep, indent=1) + "\n")
-        h = (rep["dsm_vs_reference"] or {}).get("histogram")
-        if h:
-            import matplotlib
-
-            matplotlib.use("Agg")
-            import io
-
-            import matplotlib.pyplot as plt
-
-            from .._atomic import write_atomic
-
-            fig, ax = plt.subplots(figsize=(6, 3.5))
-            e = h["edges"]
-            ax.bar(e[:-1], h["counts"], width=e[1] - e[0], align="edge")
-            s = rep["dsm_vs_reference"]
-            ax.set_xlabel("DSM − reference (m)")
-            ax.set_ylabel("cells")
-            ax.set_title(f"n={s['n']} mean={s['mean']:.3f} RMSE={s['rmse']:.3f} m")
-            buf = io.BytesIO()
-            fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
-            plt.close(fig)
-            write_atomic(out / "evaluate_histogram.png", buf.getvalue())
+        rep = run_evaluate(dsm, out, reference=reference, checkpoints=checkpoints, ortho=ortho)
     except (ThermogrammetryError, OSError, ValueError) as exc:
         console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2)

@@ -43,7 +43,7 @@ def plan(
     import numpy as np
     from rich.console import Console
 
-    from .._atomic import write_atomic_text
+    from .._atomic import OutputSet, write_atomic_text
     from ..errors import ConfigError, DataFileError, ThermogrammetryError
     from ..sfm.plan import plan_flight, read_area, utm_epsg, waypoints_csv, waypoints_kml
 
@@ -103,11 +103,12 @@ def plan(
             lonlat = np.c_[tr.transform([w.x for w in p.waypoints], [w.y for w in p.waypoints])]
         else:
             p.notes.append("no CRS: waypoints are in the local frame of --corners; no KML written")
-        out.mkdir(parents=True, exist_ok=True)
-        write_atomic_text(out / "waypoints.csv", waypoints_csv(p, lonlat))
-        if lonlat is not None:
-            write_atomic_text(out / "waypoints.kml", waypoints_kml(p, lonlat))
-        write_atomic_text(out / "plan.json", json.dumps(p.summary(), indent=1) + "\n")
+        with OutputSet(out, "plan") as stage:  # OUT complete or absent; a user's own files in OUT kept
+            write_atomic_text(stage.path("waypoints.csv"), waypoints_csv(p, lonlat))
+            if lonlat is not None:
+                write_atomic_text(stage.path("waypoints.kml"), waypoints_kml(p, lonlat))
+            write_atomic_text(stage.path("plan.json"), json.dumps(p.summary(), indent=1) + "\n")
+            stage.commit()
     except (ThermogrammetryError, OSError, ValueError) as exc:
         console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2)

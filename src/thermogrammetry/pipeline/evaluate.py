@@ -1,0 +1,73 @@
+"""The ``evaluate`` verb's driver: a DSM against a reference DSM and/or check points → ``evaluate.json`` (+ histogram).
+
+The statistics are computed by :mod:`thermogrammetry.products.evaluate` on arrays; this module reads the files and
+writes OUT as one output set (:class:`~thermogrammetry._atomic.OutputSet`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+__all__ = ["run_evaluate"]
+
+
+def run_evaluate(dsm, out, *, reference=None, checkpoints=None, ortho=None) -> dict:
+    """Evaluate ``dsm`` (GeoTIFF path) and write ``out/evaluate.json`` (and ``evaluate_histogram.png`` with a
+    reference DSM); returns the ``evaluate.json`` dict."""
+    from .._atomic import OutputSet, write_atomic, write_atomic_text
+    from ..errors import ConfigError, DataFileError
+    from ..products.evaluate import checkpoint_errors, difference_stats, dsm_difference, read_checkpoints
+    from ..products.raster import read_raster
+
+    checkpoints = None if checkpoints is None else Path(checkpoints)
+    png = None
+    if reference is None and checkpoints is None:
+        raise ConfigError("nothing to evaluate against: give --reference REF.tif and/or --checkpoints cp.csv")
+    from ..products.raster import same_horizontal_crs
+
+    z, g, crs, _ = read_raster(dsm)
+    rep: dict = {"dsm": str(dsm), "crs": crs, "dsm_vs_reference": None, "checkpoints": None}
+    if reference is not None:
+        zr, gr, crs_r, _ = read_raster(reference)
+        if not same_horizontal_crs(crs, crs_r):
+            raise DataFileError(f"{reference}: CRS {crs_r} differs from the DSM's {crs}; expected the same CRS")
+        diff = dsm_difference(z, g, zr, gr)
+        rep["dsm_vs_reference"] = difference_stats(diff)
+        rep["dsm_vs_reference"]["unit"] = "m"
+    if checkpoints is not None:
+        try:
+            text = checkpoints.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise DataFileError(f"{checkpoints}: cannot read ({exc.strerror or exc})") from None
+        pts = read_checkpoints(text, str(checkpoints))
+        o = og = None
+        if ortho is not None:
+            o, og, _, _ = read_raster(ortho)
+        rep["checkpoints"] = checkpoint_errors(pts, z, g, o, og)
+    h = (rep["dsm_vs_reference"] or {}).get("histogram")
+    if h:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import io
+
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        e = h["edges"]
+        ax.bar(e[:-1], h["counts"], width=e[1] - e[0], align="edge")
+        s = rep["dsm_vs_reference"]
+        ax.set_xlabel("DSM − reference (m)")
+        ax.set_ylabel("cells")
+        ax.set_title(f"n={s['n']} mean={s['mean']:.3f} RMSE={s['rmse']:.3f} m")
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+        plt.close(fig)
+        png = buf.getvalue()
+    with OutputSet(out, "evaluate") as stage:
+        write_atomic_text(stage.path("evaluate.json"), json.dumps(rep, indent=1) + "\n")
+        if png is not None:
+            write_atomic(stage.path("evaluate_histogram.png"), png)
+        stage.commit()
+    return rep
