@@ -501,7 +501,7 @@ class BundleProblem:
 
     def poses(self):
         """Current poses as :class:`thermogrammetry.geometry.Pose` (one per pose block)."""
-        from ..geometry import Pose
+        from ..geometry.pose import Pose
 
         return [Pose(R, t) for R, t in zip(self.pose_R, self.pose_t)]
 

@@ -640,7 +640,7 @@ def gimbal_angles(scene: SurveyScene) -> np.ndarray:
     attitude turned by ``gimbal_tilt_deg`` and ``gimbal_sigma_deg`` noise (drawn from ``config.seed``, independent of
     every other draw of the scene)."""
     from ..geometry.rotations import matrix_from_axis_angle
-    from ..sfm.attitude import gimbal_from_cam_from_world, meridian_convergence_deg
+    from ..geometry.attitude import gimbal_from_cam_from_world, meridian_convergence_deg
 
     from pyproj import Transformer
 
