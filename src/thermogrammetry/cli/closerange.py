@@ -2,41 +2,12 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import List, Optional
 
 import typer
 
 from .app import app
-
-
-def _unit_of(img) -> str:
-    """Unit the input file stored its temperatures in (K unless the reader says °C)."""
-    m = img.metadata.extra.get("uint16_mapping") if img.metadata.extra else None
-    if m is not None:
-        return str(getattr(m, "unit", "K")).upper().lstrip("°")[:1]
-    for note in img.metadata.notes:
-        if note.strip().endswith(" in C"):
-            return "C"
-    return "K"
-
-
-def read_text(path: Path, what: str) -> str:
-    from ..errors import DataFileError
-
-    from ..errors import CorruptFileError
-
-    try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise DataFileError(f"{what} {path}: cannot be read ({exc.strerror or exc})") from None
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = data[: exc.start].count(b"\n") + 1
-        raise CorruptFileError(f"{what} {path}: not UTF-8 text (line {line}, byte {exc.start}: "
-                               f"{data[exc.start:exc.start + 1]!r}); save it as UTF-8") from None
 
 
 @app.command("closerange")
@@ -65,12 +36,9 @@ def closerange(
     from rich.console import Console
     from rich.table import Table
 
-    from ..closerange.pipeline import closerange_steps, write_inputs
     from ..closerange.workflow import CloseRangeConfig
-    from .._atomic import OutputSet
-    from ..closerange.tables import parse_control, parse_measurements, parse_planes
-    from ..errors import ConfigError, ThermogrammetryError
-    from ..pipeline import FolderProject, run_steps
+    from ..errors import ThermogrammetryError
+    from ..pipeline.closerange import run_closerange
 
     console = Console()
     try:
@@ -79,51 +47,21 @@ def closerange(
             if "=" not in spec:
                 raise typer.BadParameter(f"--camera {spec!r}: expected IMAGE_NAME=camera.json")
             name, path = spec.split("=", 1)
-            from ..camera import Camera
-
-            cams[name.strip()] = Camera.load(Path(path)).to_dict()
-        thermal_k, unit = None, "K"
-        if thermal_image is not None:
-            from ..io import read_thermal
-
-            img = read_thermal(thermal_image, unit=thermal_unit)
-            thermal_k = img.require_temperature()
-            unit = (thermal_unit or _unit_of(img)).upper().lstrip("°")
+            cams[name.strip()] = Path(path)
         cfg = CloseRangeConfig(ambient_c=ambient_c, sigma_px=sigma_px, max_angle_deg=max_angle_deg, bundle=bundle,
                                emissivity=emissivity, refractive_index=refractive_index, transmission=transmission,
                                relative_humidity=humidity / 100.0,
                                control_sigma_m=None if control_sigma_mm is None else control_sigma_mm / 1000.0,
                                additional_parameters=tuple(a for a in additional.split(",") if a.strip()))
-        texts = {"control": read_text(control, "control file"), "measurements": read_text(measurements, "measurements file"),
-                 "planes": read_text(planes, "planes file")}
-        # validated here, so messages name the user's files and a bad input leaves nothing behind
-        parse_control(texts["control"], str(control))
-        rows = parse_measurements(texts["measurements"], str(measurements))
-        parse_planes(texts["planes"], str(planes))
-        images = sorted({r[0] for r in rows})
-        if thermal not in images:
-            raise ConfigError(f"--thermal {thermal!r}: no such image in {measurements}; images: {', '.join(images)}")
-        for name, v, ok in (("--ambient-c", ambient_c, ambient_c > -273.15), ("--sigma-px", sigma_px, sigma_px > 0),
-                            ("--humidity", humidity, 0 <= humidity <= 100),
-                            ("--max-angle-deg", max_angle_deg, 0 < max_angle_deg < 90),
-                            ("--refractive-index", refractive_index, refractive_index > 1)):
-            if not math.isfinite(v) or not ok:
-                raise ConfigError(f"{name} {v}: out of range (ambient above absolute zero, sigma > 0, humidity 0-100 %, "
-                                  "max angle in (0, 90) deg, refractive index > 1; all finite)")
-        with OutputSet(out, "closerange") as stage:
-            project = FolderProject(stage.stage)
-            write_inputs(project, control_csv=texts["control"], measurements_csv=texts["measurements"],
-                         planes_csv=texts["planes"], thermal=thermal, config=cfg, cameras=cams,
-                         thermal_k=thermal_k, thermal_unit=unit)
-            reports = run_steps(project, closerange_steps(),
-                                on_step=lambda r: console.print(f"[{'green' if r.ok else 'red'}]{r.name}[/] {r.seconds:.2f} s"))
-            failed = [r for r in reports if not r.ok]
-            if failed:
-                err = str(failed[0].error).replace(str(stage.stage), str(out))
-                console.print(f"error in step {failed[0].name}: {err}", markup=False, highlight=False, soft_wrap=True)
-                raise typer.Exit(2)
-            planes_text = project.read_text("planes.csv")
-            stage.commit({"thermal": thermal})
+        run = run_closerange(out, control=control, measurements=measurements, planes=planes, thermal=thermal,
+                             config=cfg, cameras=cams, thermal_image=thermal_image, thermal_unit=thermal_unit,
+                             ambient_c=ambient_c, sigma_px=sigma_px, humidity=humidity, max_angle_deg=max_angle_deg,
+                             refractive_index=refractive_index,
+                             on_step=lambda r: console.print(f"[{'green' if r.ok else 'red'}]{r.name}[/] {r.seconds:.2f} s"))
+        if run.failed is not None:
+            console.print(f"error in step {run.failed.name}: {run.error}", markup=False, highlight=False, soft_wrap=True)
+            raise typer.Exit(2)
+        planes_text = run.planes_csv
     except ThermogrammetryError as exc:
         console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(2)
