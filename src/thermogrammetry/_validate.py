@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from .errors import NonFiniteError, ShapeError
 
-__all__ = ["as_points", "as_array", "check_finite", "config_keys"]
+__all__ = ["as_points", "as_array", "check_finite", "config_keys", "parse_size"]
 
 
 def _describe(a) -> str:
@@ -78,3 +80,14 @@ def config_keys(cls, d, what: str | None = None) -> dict:
     if bad:
         raise ConfigError(f"{what}: unknown key(s) {bad}; valid: {sorted(known)}")
     return dict(d)
+
+
+_SIZE = re.compile(r"^\s*(\d+)\s*[xX×]\s*(\d+)\s*$")
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    """``"640x512"`` (also ``X`` or ``×``, spaces allowed) → (640, 512); None unless two positive integers."""
+    m = _SIZE.match(text or "")
+    if not m or int(m.group(1)) <= 0 or int(m.group(2)) <= 0:
+        return None
+    return int(m.group(1)), int(m.group(2))

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import re
-
 import typer
 
 from .. import __version__
+from .._validate import parse_size  # noqa: F401 (the verbs import it from here)
 
 app = typer.Typer(
     name="thermogrammetry",
@@ -15,17 +14,6 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-
-
-_SIZE = re.compile(r"^\s*(\d+)\s*[xX×]\s*(\d+)\s*$")
-
-
-def parse_size(text: str | None) -> tuple[int, int] | None:
-    """``"640x512"`` (also ``X`` or ``×``, spaces allowed) → (640, 512); None unless two positive integers."""
-    m = _SIZE.match(text or "")
-    if not m or int(m.group(1)) <= 0 or int(m.group(2)) <= 0:
-        return None
-    return int(m.group(1)), int(m.group(2))
 
 
 def _version_callback(value: bool) -> None:
