@@ -93,7 +93,8 @@ def convert(
     from rich.table import Table
 
     from ..errors import ConfigError, ThermogrammetryError
-    from ..io.convert import ConvertOptions, convert_files
+    from ..io.convert import ConvertOptions
+    from ..pipeline.convert import convert_files
 
     console = Console()
     try:
