@@ -407,7 +407,7 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
     figs_all = {}
     for ci, cc in enumerate(r.cameras):
         out.append(f"<h2>Camera {ci + 1}: {e(cc.name)} ({cc.image_size[0]}×{cc.image_size[1]} px, pitch {cc.pixel_pitch_um[0]:g} µm)</h2>")
-        out.append("<h3>Interior orientation and additional parameters (layout of seed 001 Table 2)</h3>")
+        out.append("<h3>Interior orientation and additional parameters (layout of Yastikli &amp; Guler 2013, Table 2)</h3>")
         out.append("<table><tr><th>Additional parameters</th><th>Parameter</th><th>Standard deviation</th><th>scale</th>"
                    "<th>t</th><th>significant</th><th>in pixels</th></tr>")
         tests = {t.name: t for t in cc.tests}
@@ -431,7 +431,7 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
                 f"{a}–{b} ρ = {rho:+.3f}" for a, b, rho in cc.correlation_warnings) + "</p>")
         sx, sy = cc.sigma_xy_px
         ux, uy = cc.sigma_xy_um
-        out.append("<h3>Standard deviation of the measured image coordinates (layout of seed 001 Table 4)</h3>")
+        out.append("<h3>Standard deviation of the measured image coordinates (layout of Yastikli &amp; Guler 2013, Table 4)</h3>")
         out.append("<table><tr><th>Camera</th><th>σ<sub>x</sub> (mm)</th><th>σ<sub>y</sub> (mm)</th><th>σ<sub>x</sub> (µm)</th>"
                    f"<th>σ<sub>y</sub> (µm)</th><th>σ<sub>x</sub> (px)</th><th>σ<sub>y</sub> (px)</th></tr><tr><td class='l'>{e(cc.name)}</td>"
                    f"<td>{ux * 1e-3:.5f}</td><td>{uy * 1e-3:.5f}</td><td>{ux:.2f}</td><td>{uy:.2f}</td><td>{sx:.3f}</td><td>{sy:.3f}</td></tr></table>")
@@ -483,7 +483,7 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
         for k, v in exports.items():
             out.append(f"<li>{e(k)}: {e(str(v))}</li>")
         out.append("</ul>")
-    out.append("<p style='font-size:small'>References: Yastikli &amp; Guler 2013 (seed 001); Khodaei et al. 2015 (seed 003); "
+    out.append("<p style='font-size:small'>References: Yastikli &amp; Guler 2013; Khodaei et al. 2015; "
                "Brown 1971; Fraser 1997; Baarda 1968; Pope 1976.</p></body></html>")
     return "\n".join(out)
 

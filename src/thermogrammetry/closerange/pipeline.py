@@ -348,7 +348,7 @@ def _step_report(project: ProjectStore) -> dict:
              "intersected, thermal camera from pass points only, planes from marked points (eq. 5–6), temperature "
              "correction eq. 7–8 per pixel. Standard deviations propagated from an a-priori image σ of "
              f"{inp['config'].sigma_px} px.</p>",
-             "<h2>Results of 3D points positioning (cf. seed 000 Table 1)</h2><table><tr><th>Point ID</th><th>X [m]</th>"
+             "<h2>Results of 3D points positioning (cf. Sawicki, Stein &amp; Więcek, Table 1)</h2><table><tr><th>Point ID</th><th>X [m]</th>"
              "<th>Y [m]</th><th>Z [m]</th><th>σX [mm]</th><th>σY [mm]</th><th>σZ [mm]</th></tr>"]
     for title, kind in (("3D Control Points Coordinates", "control"), ("Final Computed 3D Pass Points Coordinates",
                                                                           "pass")):

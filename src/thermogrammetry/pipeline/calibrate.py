@@ -205,7 +205,7 @@ def _coded_marks(value: str, cols: int, rows: int, diameter_mm) -> tuple:
                                  "diameter, e.g. --diameter-mm 20)")
     if text.lower() in ("default", "seed003", "seed-003"):
         if (cols, rows) != (7, 4):
-            raise CalibrateUsageError(f"--coded-marks {value!r} is the seed-003 layout of a 7x4 grid, but --grid is "
+            raise CalibrateUsageError(f"--coded-marks {value!r} is the layout of Khodaei et al. 2015 on a 7x4 grid, but --grid is "
                                      f"{cols}x{rows}: give the marks as COLUMNxROW=CODE,... (e.g. 1x1=0,3x2=1)")
         return SEED003_MARKS
     marks = []
