@@ -599,16 +599,17 @@ def test_image_observations_stored_once_compact_and_unchanged(rng):
 
 def test_robust_cost_and_weights_in_pieces_equal_the_whole(monkeypatch, rng):
     """_robust in pieces of observations gives exactly the values of one piece (element-wise terms, one sum)."""
+    from thermogrammetry.adjustment import residuals
     from thermogrammetry.adjustment import solver as S
 
     r = rng.normal(0, 3, 2 * 1001 + 7)
     for loss in ("huber", "cauchy"):
         opt = SolverOptions(loss=loss, loss_scale=2.0)
         w1, c1 = S._robust(r, 1001, opt)
-        monkeypatch.setattr(S, "_ROBUST_CHUNK", 64)
+        monkeypatch.setattr(residuals, "_ROBUST_CHUNK", 64)
         w2, c2 = S._robust(r, 1001, opt)
         _, c3 = S._robust(r, 1001, opt, weights=False)
-        monkeypatch.setattr(S, "_ROBUST_CHUNK", 65536)
+        monkeypatch.setattr(residuals, "_ROBUST_CHUNK", 65536)
         assert c1 == c2 == c3
         np.testing.assert_array_equal(w1, w2)
         assert np.all(w1[2 * 1001:] == 1.0) and np.any(w1 < 1.0)

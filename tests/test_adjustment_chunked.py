@@ -24,6 +24,7 @@ import scipy.sparse as sp
 
 from chunked_block import build_block
 from thermogrammetry.adjustment import SolverOptions, solve
+from thermogrammetry.adjustment import normal_chunked, precision, trust_region
 from thermogrammetry.adjustment import solver as S
 from thermogrammetry.errors import ConfigError
 from thermogrammetry.results import Termination
@@ -34,7 +35,7 @@ CHUNKED = 0  # always chunked
 
 @pytest.fixture
 def small_chunks(monkeypatch):
-    monkeypatch.setattr(S, "_SCHUR_CHUNK", 64)
+    monkeypatch.setattr(normal_chunked, "_SCHUR_CHUNK", 64)
 
 
 def _centres(res):
@@ -169,7 +170,8 @@ def test_threshold_option(monkeypatch):
     def boom(*a, **k):
         raise AssertionError("chunked path used below the threshold")
 
-    monkeypatch.setattr(S, "_ChunkedNormal", boom)
+    monkeypatch.setattr(trust_region, "ChunkedNormal", boom)  # (where the LM and the precision step look it up)
+    monkeypatch.setattr(precision, "ChunkedNormal", boom)
     pb, _ = build_block(n_lines=2, per_line=4, n_points=200)
     assert solve(pb, SolverOptions(compute_redundancy=False)).success
 

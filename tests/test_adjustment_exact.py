@@ -4,9 +4,9 @@ The survey's final adjustment reacts to rounding in the reduced system (a differ
 complement flipped tie-point rejections on the 64-station ring of tests/test_texture_survey_poses.py), so
 these paths are checked for exact equality, not within a tolerance:
 
-- :func:`solver._csr_product` (scipy's own CSR product kernel with a bound on the entries per row instead of
+- :func:`linalg.csr_product` (scipy's own CSR product kernel with a bound on the entries per row instead of
   scipy's symbolic count, rows optionally split over threads) against scipy's ``@``;
-- :func:`solver._gram` against ``(J.T @ J).toarray()``;
+- :func:`linalg.gram` against ``(J.T @ J).toarray()``;
 - the quantiles by ``scipy.special`` against ``scipy.stats``;
 - whole solves with 1, 2 or 3 threads, and with the precision step's reuse of the LM's last linearisation
   switched off, on the block of tests/chunked_block.py (two cameras with free intrinsics, GNSS priors,
@@ -22,6 +22,7 @@ import scipy.stats
 
 from chunked_block import build_block
 from thermogrammetry.adjustment import SolverOptions, solve
+from thermogrammetry.adjustment import linalg
 from thermogrammetry.adjustment import solver as S
 from thermogrammetry.errors import ConfigError
 
@@ -49,7 +50,7 @@ def _random_csr(rng, m, n, density, empty_rows=()):
 @pytest.mark.parametrize("threads", [1, 2, 3, 7])
 def test_csr_product_equals_scipy_bit_for_bit(monkeypatch, threads):
     rng = np.random.default_rng(5)
-    monkeypatch.setattr(S, "_THREAD_MIN_NNZ", 0)  # split even these small products
+    monkeypatch.setattr(linalg, "_THREAD_MIN_NNZ", 0)  # split even these small products
     A = _random_csr(rng, 40, 900, 0.05, empty_rows=(0, 17, 39))
     B = _random_csr(rng, 900, 30, 0.1, empty_rows=(3, 4))
     # B with unsorted rows (as a kernel's product stores them): only the order of the result's entries may follow
@@ -73,7 +74,7 @@ def test_gram_equals_scipy_bit_for_bit(monkeypatch):
     J = _random_csr(rng, 3000, 60, 0.08, empty_rows=(10, 11))
     ref = (J.T @ J).toarray()
     for t in (1, 2):
-        monkeypatch.setattr(S, "_THREAD_MIN_NNZ", 0 if t > 1 else 10**9)
+        monkeypatch.setattr(linalg, "_THREAD_MIN_NNZ", 0 if t > 1 else 10**9)
         got = S._gram(J, t)
         assert np.array_equal(got, ref) and got.flags.c_contiguous
 
@@ -107,14 +108,14 @@ def _same_result(ra, rb):
 @pytest.mark.parametrize("loss", ["trivial", "huber"])
 def test_thread_count_and_linearisation_reuse_change_no_bit(monkeypatch, loss):
     pb, _ = build_block(rig=True, seed=13)
-    monkeypatch.setattr(S, "_THREAD_MIN_NNZ", 0)
+    monkeypatch.setattr(linalg, "_THREAD_MIN_NNZ", 0)
     base = dict(chunked_min_observations=FULL, loss=loss, loss_scale=2.0, compute_redundancy=False)
     r1 = solve(pb, SolverOptions(num_threads=1, **base))
     assert r1.success and r1.covariance is not None
     for t in (2, 3):
         _same_result(r1, solve(pb, SolverOptions(num_threads=t, **base)))
     # the precision step without the LM's last linearisation: evaluates and builds the normal equations again
-    precision = S._precision
+    precision = S.precision
     reused = []
 
     def fresh(pb_, lay, st, data, *a, **k):
@@ -122,7 +123,7 @@ def test_thread_count_and_linearisation_reuse_change_no_bit(monkeypatch, loss):
         data.linearisation = None
         return precision(pb_, lay, st, data, *a, **k)
 
-    monkeypatch.setattr(S, "_precision", fresh)
+    monkeypatch.setattr(S, "precision", fresh)  # (looked up by solver._solve)
     r0 = solve(pb, SolverOptions(num_threads=2, **base))
     _same_result(r1, r0)
     assert r1.reason == r0.reason

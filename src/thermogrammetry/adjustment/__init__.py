@@ -60,9 +60,9 @@ _LAZY = {
     "bal_cost": ".bal",
     "BundleProblem": ".problem",
     "Gauge": ".problem",
-    "SolverOptions": ".solver",
-    "AdjustmentResult": ".solver",
-    "Loss": ".solver",
+    "SolverOptions": ".options",
+    "AdjustmentResult": ".result",
+    "Loss": ".options",
     "solve": ".solver",
 }
 
