@@ -79,7 +79,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from .correction import CorrectionConfig
-# the seams of the texturing (re-exported here: every name below was importable from this module)
+# the steps of the texturing, one module each (re-exported: import them from here or from their module)
 from .texture_atlas import Atlas, Texels, build_atlas, rasterize_atlas
 from .texture_config import Levelling, TextureConfig
 from .texture_levelling import estimate_offsets, levelling_sample

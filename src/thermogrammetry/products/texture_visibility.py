@@ -27,8 +27,9 @@ class PixelSurface:
     offsets: np.ndarray
     center: np.ndarray
     face: np.ndarray
-    #: (n_faces,) int64, the plane of each face (:func:`plane_ids`, shared by the surfaces of one mesh) or None (each
-    #: face its own): lets :func:`usable_in_view` pass texels whose pixels all see their own plane without testing each
+    #: (n_faces,) int64, the plane of each face (:func:`~.texture_mesh.plane_ids`, shared by the surfaces of one mesh)
+    #: or None (each face its own): lets :func:`usable_in_view` pass texels whose pixels all see their own plane without
+    #: testing each
     plane_of_face: np.ndarray | None = None
 
     def points_at(self, rows, cols) -> np.ndarray:
