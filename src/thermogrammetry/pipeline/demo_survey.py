@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .demo import DemoOptions, DemoRow, DemoSection, _image_gsd_m, register_section
+from .demo import DemoOptions, DemoRow, DemoSection, register_section  # via demo: the built-in sections register first
+from .demo_uav import image_gsd_m
 from .project import FolderProject, ProjectStore
 
 SECTION = "survey-sfm"
@@ -71,7 +72,7 @@ def _survey_rows(scene, out, reports, t_render, t_survey) -> list[DemoRow]:
         return rows
     s = out.read_json("survey.json")
     cfg = scene.config
-    gsd = _image_gsd_m(cfg)
+    gsd = image_gsd_m(cfg)
     n = len(scene.frames)
     rows.append(DemoRow(sec, f"frames oriented by survey ({STARTS})", s["images_oriented"], n, "frames", kind="min",
                         note=f"{len(s['components'])} block(s), reprojection RMS {s['reprojection_rms_px']:.3f} px, "
@@ -112,7 +113,7 @@ def _product_rows(scene, root: Path) -> list[DemoRow]:
     rows: list[DemoRow] = []
     ter = scene.terrain
     cfg = scene.config
-    gsd_img = _image_gsd_m(cfg)
+    gsd_img = image_gsd_m(cfg)
     t0 = time.perf_counter()
     try:
         rep = run_dense(root / "output", root / "dense", workers=1)
@@ -218,7 +219,7 @@ def _product_rows(scene, root: Path) -> list[DemoRow]:
                         kind="info",
                         note=f"{len(d)} visible cells; {np.mean(d[:, 0] <= 0.05) * 100:.0f} % within 0.05 K, p95 "
                              f"{np.percentile(d[:, 0], 95):.3f} K: the error the chain adds through the poses and the DSM "
-                             f"(a height error shifts the sampled pixel); issue 11's target, every visible cell within "
+                             f"(a height error shifts the sampled pixel); the target, every visible cell within "
                              f"0.05 K, is {'met' if np.all(d[:, 0] <= 0.05) else 'NOT met'}: the chain's position error "
                              f"(~0.1-0.2 px) times this texture's gradient (0.2-0.5 K/px), {t_ortho:.0f} s"))
     pe = np.concatenate(pos) if pos else np.full((1, 2), np.nan)

@@ -180,12 +180,13 @@ def photometric_pose_fit(vertices, faces, views: Sequence, *, rotation_std_deg=N
     :class:`PhotoFitResult`
     """
     from ..geometry import Pose
-    from .texture import (TextureConfig, _check_mesh, _face_geometry, _intersector, local_origin, pixel_surfaces, plane_ids,
-                          usable_in_view, view_in_frame)
+    from .texture_config import TextureConfig
+    from .texture_mesh import check_mesh, face_geometry, local_origin, plane_ids, view_in_frame
+    from .texture_visibility import pixel_surfaces, ray_intersector, usable_in_view
 
     opt = options or PhotoFitOptions()
     t_start = time.perf_counter()
-    V_in, F = _check_mesh(vertices, faces)
+    V_in, F = check_mesh(vertices, faces)
     views = list(views)
     K = len(views)
     if K < 2:
@@ -209,13 +210,13 @@ def photometric_pose_fit(vertices, faces, views: Sequence, *, rotation_std_deg=N
 
     # samples on the surface, spaced by the median pixel footprint
     foot = []
-    _, area, cen = _face_geometry(V, F)
+    _, area, cen = face_geometry(V, F)
     for v in lv:
         f = 0.5 * (v.camera.K[0, 0] + v.camera.K[1, 1])
         d = np.linalg.norm(cen - v.pose.center, axis=1)
         foot.append(np.median(d) / f)
     X, fi = _surface_samples(V, F, area, opt.spacing_px * float(np.median(foot)), opt.max_points, opt.seed)
-    inter = _intersector(V, F)
+    inter = ray_intersector(V, F)
     planes = plane_ids(V, F)
     cfg = TextureConfig(texel_size_m=1.0, clean_radius_px=int(opt.clean_radius_px), max_angle_deg=opt.max_angle_deg)
     vis_idx = []

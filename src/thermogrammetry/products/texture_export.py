@@ -100,7 +100,7 @@ def glb_bytes(result, preview, extras: dict | None = None) -> bytes:
     import trimesh
     from PIL import Image
 
-    from .texture import local_origin
+    from .texture_mesh import local_origin
 
     at = result.atlas
     # glTF positions are float32: 0.25-0.5 m steps at projected-CRS coordinates (EPSG:2056, UTM). They are
@@ -202,7 +202,8 @@ def render_view(result, center, target, *, size=(480, 360), focal_px=None, up=(0
     import trimesh
 
     from ..geometry import Pose
-    from .texture import _intersector, local_origin
+    from .texture_mesh import local_origin
+    from .texture_visibility import ray_intersector
 
     w, h = size
     f = focal_px or 0.9 * w
@@ -212,7 +213,7 @@ def render_view(result, center, target, *, size=(480, 360), focal_px=None, up=(0
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     origin = local_origin(result.vertices)  # Embree casts in float32: a local frame (texture.local_origin)
     V = result.vertices - origin
-    ray = _intersector(V, result.faces)
+    ray = ray_intersector(V, result.faces)
     o = np.broadcast_to(pose.center - origin, d.shape).copy()
     tri = np.asarray(ray.intersects_first(ray_origins=o, ray_directions=d), np.int64)
     out = np.full(len(d), np.nan)
