@@ -120,6 +120,7 @@ def test_auto_mapper_keeps_the_larger_block(walk, monkeypatch):
     """``SurveyOptions(mapper="auto")``: global is tried when the incremental's largest block holds < 80 % of the
     frames, and kept only when its own largest block is larger."""
     from thermogrammetry.pipeline import survey as sv
+    from thermogrammetry.pipeline.survey import orient as sv_orient  # where _auto_global looks its globals up
 
     C, R, tracks, xy, pc = walk
     ic = np.zeros(len(C), int)
@@ -142,12 +143,12 @@ def test_auto_mapper_keeps_the_larger_block(walk, monkeypatch):
     assert np.array_equal(rec.registered, alone.registered)
     assert np.allclose(rec.R[rec.registered], alone.R[alone.registered], rtol=0, atol=1e-12)
     # an incremental block of >= 80 %: global not tried
-    monkeypatch.setattr(sv, "AUTO_GLOBAL_BELOW", n_inc / len(C))
+    monkeypatch.setattr(sv_orient, "AUTO_GLOBAL_BELOW", n_inc / len(C))
     rec2, used2, summary2 = sv._auto_global(inc, [CAM], ic, xy, tracks, pc, ReconstructionOptions(), None)
     assert rec2 is inc and used2 == "incremental" and summary2 is None
     # tried, but no larger: the incremental block stays (a tie too)
-    monkeypatch.setattr(sv, "AUTO_GLOBAL_BELOW", 0.8)
-    monkeypatch.setattr(sv, "reconstruct_global", lambda *a, **k: inc)
+    monkeypatch.setattr(sv_orient, "AUTO_GLOBAL_BELOW", 0.8)
+    monkeypatch.setattr(sv_orient, "reconstruct_global", lambda *a, **k: inc)
     rec3, used3, summary3 = sv._auto_global(inc, [CAM], ic, xy, tracks, pc, ReconstructionOptions(), None)
     assert rec3 is inc and used3 == "incremental" and summary3["kept"] == "incremental"
     assert "incremental kept" in inc.log[-1]
@@ -160,7 +161,7 @@ def test_auto_mapper_keeps_the_larger_block(walk, monkeypatch):
     big.component[:] = -1
     big.component[first] = 0
     assert len(first) > n_inc and int(big.registered.sum()) < int(inc.registered.sum())
-    monkeypatch.setattr(sv, "reconstruct_global", lambda *a, **k: big)
+    monkeypatch.setattr(sv_orient, "reconstruct_global", lambda *a, **k: big)
     rec4, used4, summary4 = sv._auto_global(inc, [CAM], ic, xy, tracks, pc, ReconstructionOptions(), None)
     assert rec4 is inc and used4 == "incremental" and summary4["kept"] == "incremental"
 

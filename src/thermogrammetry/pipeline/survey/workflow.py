@@ -1,0 +1,97 @@
+"""The survey as a list of steps over the store (:func:`survey_steps`) and the run (:func:`run_survey`)."""
+
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+from ...store import ProjectStore
+from .features import step_features
+from .georef import step_georef
+from .inputs import step_inputs
+from .lowtexture import step_orient_low_texture
+from .matching import step_matching
+from .options import SurveyInput, SurveyOptions
+from .store import SurveyStore
+from .tasks import _TASK_STEPS, _local_cluster, _release_task_state
+
+
+def _survey_camera(inp: SurveyInput):
+    """The thermal camera held fixed: ``--camera``, else the rig file's thermal camera, else None."""
+    cam = inp.camera
+    if cam is None and inp.rig is not None and inp.rig.thermal_camera is not None:
+        cam = inp.rig.thermal_camera  # the rig file's thermal camera, held fixed like --camera
+    return cam
+
+
+def _retry_low_texture(project: ProjectStore, opt: SurveyOptions, reports) -> bool:
+    """True when ``georef`` ran and oriented nothing although ``orient`` gave blocks, with ``--low-texture auto``
+    and the fallback not yet run (:func:`step_orient_low_texture` ``primary_rejected``)."""
+    if opt.low_texture != "auto" or not reports or reports[-1].name != "georef" or not reports[-1].ok:
+        return False
+    if reports[-1].summary.get("images_oriented", 1) != 0 or not SurveyStore(project).has_low_texture():
+        return False
+    orient = next((r for r in reports if r.name == "orient"), None)
+    if orient is None or not orient.summary.get("oriented"):
+        return False
+    return not SurveyStore(project).load_low_texture().get("ran", True)
+
+
+def survey_steps(inp: SurveyInput, opt: SurveyOptions, progress: Callable | None = None):
+    """The survey as a list of :class:`~thermogrammetry.pipeline.steps.Step`."""
+    from ...store import Step
+
+    cam = _survey_camera(inp)
+
+    def prog(name):
+        return (lambda k, n: progress(name, k, n)) if progress else None
+
+    return [
+        Step("inputs", lambda p: step_inputs(p, inp, opt, prog("inputs")), "decode inputs to frames/"),
+        Step("features", lambda p: step_features(p, opt, prog("features")), "tie-point features per image"),
+        Step("matching", lambda p: step_matching(p, opt, cam, prog("matching"), rig=inp.rig), "pairs, matching, geometric verification"),
+        Step("orient", lambda p: step_orient_low_texture(p, opt, cam, prog("orient"), rgb_camera=getattr(inp.rig, "rgb_camera", None),
+                                                         rig=inp.rig),
+             "tracks and incremental orientation"),
+        Step("georef", lambda p: step_georef(p, inp, opt, cam, prog("georef")), "georeferencing, final adjustment, exports"),
+    ]
+
+
+def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | None = None, *, progress: Callable | None = None,
+               on_step: Callable | None = None):
+    """Run every step; writes ``report.html`` and the step reports. Returns the list of StepReport."""
+    from ...store import run_steps
+    from .report import write_survey_report
+
+    opt = opt or SurveyOptions()
+    t0 = time.perf_counter()
+    # the steps that run tasks share one local cluster; it is closed before the orientation, whose memory then
+    # starts without the cluster's state and what the earlier steps left in the process (a later step that runs
+    # tasks again, e.g. the low-texture fallback of ``orient``, starts a cluster of its own)
+    plain = survey_steps(inp, opt, progress)
+    n_tasks = next((k for k, s in enumerate(plain) if s.name not in _TASK_STEPS), len(plain))
+    with _local_cluster(opt) as opt_run:
+        reports = run_steps(project, survey_steps(inp, opt_run, progress)[:n_tasks], on_step=on_step)
+    _release_task_state()
+    if all(r.ok for r in reports) and n_tasks < len(plain):
+        reports += run_steps(project, plain[n_tasks:], on_step=on_step)
+    if _retry_low_texture(project, opt, reports):
+        # the final adjustment rejected every block of the primary orientation: the low-texture fallback, then the
+        # georeferencing again on its blocks (steps of their own, reported beside the first ones)
+        from ...store import Step
+
+        cam = _survey_camera(inp)
+        retry = [Step("orient_low_texture", lambda p: step_orient_low_texture(
+                     p, opt, cam, (lambda k, n: progress("orient", k, n)) if progress else None,
+                     rgb_camera=getattr(inp.rig, "rgb_camera", None), rig=inp.rig, primary_rejected=True),
+                      "low-texture fallback after the final adjustment rejected the primary blocks")]
+        reports += run_steps(project, retry, on_step=on_step)
+        if reports[-1].ok:  # (also when the fallback was not kept: survey.json then says why)
+            reports += run_steps(project, [Step("georef_low_texture", plain[-1].run, plain[-1].description)], on_step=on_step)
+    if SurveyStore(project).has_survey():
+        s = SurveyStore(project).load_survey()
+        s["seconds"] = time.perf_counter() - t0
+        s["steps"] = [{"name": r.name, "seconds": r.seconds, "status": r.status} for r in reports]
+        SurveyStore(project).save_survey(s)
+        write_survey_report(project)
+    return reports

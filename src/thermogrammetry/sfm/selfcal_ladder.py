@@ -1,0 +1,171 @@
+"""The self-calibration ladder of the final adjustment: the requested intrinsics first, fewer while the block
+cannot carry them (rank deficient, σ not finite, implausible estimates; :func:`adjust_block`). Pure functions over a
+:class:`~thermogrammetry.sfm.reconstruction.Reconstruction` and the controls (no store, no paths)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .reconstruction import restore_to, snapshot_of
+
+__all__ = ["SELF_CALIBRATION_LADDER", "FIXED_INTERIOR_LADDER", "INTRINSICS_PLAUSIBLE", "intrinsics_problem",
+           "intrinsics_check", "ladder_sets", "fixed_interior_rungs", "adjust_block"]
+
+
+#: self-calibration steps down this ladder (each rung intersected with the parameters asked for) while the
+#: block cannot carry it: the adjustment stops rank deficient, a free parameter's σ is not finite, or the
+#: estimate is implausible (below)
+SELF_CALIBRATION_LADDER = (("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"), ("fx", "fy", "k1", "k2"), ("fx", "fy", "k1"),
+                           ("fx", "fy"), ())
+
+
+#: ... and the rungs a camera takes instead once its focal length was refused as implausible (more than
+#: INTRINSICS_PLAUSIBLE["focal"] from the file's EXIF value): the block does not determine its interior orientation
+#: (a single strip or a facade pass over flat ground without GCPs: focal length and ground distance trade freely),
+#: so focal length and principal point stay at their start and only the distortion, which the ties determine in
+#: the image, is self-calibrated. Measured on the M3T flight's frames 0008-0023 alone (one E-W strip on RTK, no
+#: camera file): the focal length ran to 2007-2577 px on the first three rungs, and the (fx, fy) rung was accepted
+#: at 738.6/714.9 px (the full flight's 783.2/781.0) with the orientation's distortion held: rotations 2.33 deg
+#: RMS from the full flight's block, the full flight's tie points re-intersected through the strip's cameras
+#: 0.59/3.03/6.16 m RMS off in X/Y/Z; on (k1, k2, p1, p2) with the EXIF focal length 758.3 px: 0.28 deg,
+#: 1.06/0.25/2.28 m (Z: the EXIF focal length is 3 % short; with the full flight's camera file 0.03/0.57/0.16 m)
+FIXED_INTERIOR_LADDER = (("k1", "k2", "p1", "p2"), ("k1", "k2"), ("k1",), ())
+
+
+#: plausibility of self-calibrated intrinsics against their start (EXIF focal length and pixel pitch, or the
+#: image centre): focal length within ±30 % (only when the start is the file's EXIF focal length), fy/fx within ±5 % (thermal and RGB sensors have square pixels to
+#: well under 1 %), principal point within 15 % of the frame, radial distortion at the frame corner below 20 %
+#: of the radius. Measured on the Thermitage fresco walls (thermal only, 6 frames tied by wrong matches): fy/fx
+#: 1.26 and a rank-deficient solve, reported as an oriented block before this check.
+INTRINSICS_PLAUSIBLE = {"focal": 0.30, "aspect": 0.05, "principal_point": 0.15, "corner_distortion": 0.20}
+
+
+def intrinsics_problem(fa, start_cams: dict, free_sets: dict, focal_known: dict | None = None) -> tuple[int | None, str]:
+    """Why a final adjustment's self-calibration cannot be accepted: ``(camera index, reason)`` for one camera's
+    implausible or undetermined intrinsics, ``(None, reason)`` when the solve itself failed, ``(None, "")`` when
+    it can be accepted (:func:`intrinsics_check` also says which check refused it).
+
+    ``start_cams``: camera index -> Camera before the adjustment; ``free_sets``: camera index -> free names;
+    ``focal_known``: camera index -> whether the starting focal length is the file's (only then is the focal
+    band of :data:`INTRINSICS_PLAUSIBLE` applied; default: for every camera).
+    """
+    cam, why, _ = intrinsics_check(fa, start_cams, free_sets, focal_known)
+    return cam, why
+
+
+def intrinsics_check(fa, start_cams: dict, free_sets: dict, focal_known: dict | None = None) -> tuple[int | None, str, str]:
+    """:func:`intrinsics_problem` and the check that refused: ``"solve"``, ``"sigma"``, ``"focal"``, ``"aspect"``,
+    ``"principal_point"``, ``"distortion"`` or ``""``."""
+    res = fa.result
+    if not res.success or res.termination.value == "rank_deficient":
+        return None, f"the adjustment stopped: {res.reason or res.termination.value}", "solve"
+    lim = INTRINSICS_PLAUSIBLE
+    order = sorted(start_cams)
+    for c in order:
+        free = {n.lower() for n in free_sets.get(c, ())}
+        if not free:
+            continue
+        cam0, cam = start_cams[c], fa.cameras_after[c]
+        p0, p = cam0.param_dict, cam.param_dict
+        w, h = cam.image_size
+        if res.camera_std and order.index(c) < len(res.camera_std):
+            std = dict(zip(cam.param_names, np.asarray(res.camera_std[order.index(c)], float)))
+            bad = sorted(n for n in free if n in std and not np.isfinite(std[n]))
+            if bad and fa.covariance_asked:
+                return c, f"camera {cam.name or c}: σ of {', '.join(bad)} not finite (the block does not determine them)", "sigma"
+        if "fx" in p and "fy" in p:
+            known = True if focal_known is None else bool(focal_known.get(c, False))
+            if known and (abs(p["fx"] / p0["fx"] - 1) > lim["focal"] or abs(p["fy"] / p0["fy"] - 1) > lim["focal"]):
+                return c, (f"camera {cam.name or c}: focal length {p['fx']:.1f}/{p['fy']:.1f} px from a start of {p0['fx']:.1f} px "
+                        f"(more than {lim['focal']:.0%} apart)"), "focal"
+            if abs(p["fy"] / p["fx"] - 1) > lim["aspect"]:
+                return c, f"camera {cam.name or c}: fy/fx = {p['fy'] / p['fx']:.3f} (pixels are square to within {lim['aspect']:.0%})", "aspect"
+        if "cx" in p and (abs(p["cx"] - p0["cx"]) > lim["principal_point"] * w or abs(p["cy"] - p0["cy"]) > lim["principal_point"] * h):
+            return c, (f"camera {cam.name or c}: principal point ({p['cx']:.1f}, {p['cy']:.1f}) px, more than "
+                    f"{lim['principal_point']:.0%} of the frame from its start ({p0['cx']:.1f}, {p0['cy']:.1f})"), "principal_point"
+        if "k1" in p and "fx" in p:
+            r2 = ((w / 2) ** 2 + (h / 2) ** 2) / p["fx"] ** 2
+            d = abs(p.get("k1", 0.0) * r2 + p.get("k2", 0.0) * r2**2 + p.get("k3", 0.0) * r2**3)
+            if d > lim["corner_distortion"]:
+                return c, f"camera {cam.name or c}: radial distortion {d:.0%} of the radius at the frame corner", "distortion"
+    return None, "", ""
+
+
+def ladder_sets(self_cal, cam_indices) -> dict:
+    """Rungs of :data:`SELF_CALIBRATION_LADDER` for the requested self-calibration, per camera index: a list of
+    tuples of free names, from the request down to none (no rung repeated)."""
+    out = {}
+    for c in cam_indices:
+        want = tuple(self_cal.get(int(c), ()) if isinstance(self_cal, dict) else self_cal)
+        rungs: list = []
+        for rung in (None,) + SELF_CALIBRATION_LADDER:
+            sets = want if rung is None else tuple(n for n in want if n.lower() in rung)
+            if sets not in rungs:
+                rungs.append(sets)
+        out[int(c)] = rungs
+    return out
+
+
+def fixed_interior_rungs(want, tried) -> list:
+    """:data:`FIXED_INTERIOR_LADDER` intersected with the requested parameters ``want``, without the rungs already
+    ``tried``; ends with the camera held fixed."""
+    out: list = []
+    for rung in FIXED_INTERIOR_LADDER:
+        sets = tuple(n for n in want if n.lower() in rung)
+        if sets not in out and sets not in tried:
+            out.append(sets)
+    return out if out and out[-1] == () else out + [()]
+
+
+def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dict | None = None, **kw):
+    """:func:`~thermogrammetry.sfm.georef.final_adjustment` with a self-calibration the block can carry.
+
+    The requested parameters first. When one camera's intrinsics are implausible (:data:`INTRINSICS_PLAUSIBLE`)
+    or a free parameter's σ is not finite, that camera steps one rung down :data:`SELF_CALIBRATION_LADDER`
+    (fewer parameters; after an implausible focal length the rungs of :data:`FIXED_INTERIOR_LADDER`, distortion
+    only); when the solve itself stops (rank deficient), every camera with free parameters
+    steps down. ``rec`` is restored and the block adjusted again, until the solve is accepted or every camera
+    is held fixed. (On the frescoes, RGB + thermal through a rig, the thermal camera with 2 frames of its own
+    ran to fy = 316 px while the RGB camera, 40 frames, was well determined: only the thermal one steps down.)
+    Returns the final adjustment, the free parameters used per camera index and the reasons of every step.
+    """
+    from .georef import final_adjustment
+
+    cams_in = sorted({int(c) for c in rec.image_camera[np.asarray(images)]})
+    start = {c: rec.cameras[c] for c in cams_in}
+    ladder = ladder_sets(self_cal, cams_in)
+    level = {c: 0 for c in cams_in}
+    snap = snapshot_of(rec)
+    rig0 = (rigv.R.copy(), rigv.t.copy()) if rigv is not None else None
+    steps: list[str] = []
+    first = True
+    names = lambda v: ", ".join(v) or "nothing"  # noqa: E731
+    while True:
+        sets = {c: ladder[c][level[c]] for c in cams_in}
+        if not first:
+            restore_to(rec, snap)
+            if rig0 is not None:
+                rigv.R, rigv.t = rig0[0].copy(), rig0[1].copy()
+        first = False
+        fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=sets, rig=rigv, **kw)
+        fa.cameras_after = {c: rec.cameras[c] for c in cams_in}
+        fa.covariance_asked = bool(kw.get("compute_covariance", True))
+        cam, why, check = intrinsics_check(fa, start, sets, focal_known)
+        if not why:
+            return fa, sets, steps
+        held = ""
+        if check == "focal" and cam is not None:
+            # the block does not determine the interior orientation: the rest of this camera's ladder holds focal
+            # length and principal point at their start (FIXED_INTERIOR_LADDER)
+            ladder[cam] = ladder[cam][: level[cam] + 1] + fixed_interior_rungs(ladder[cam][0], ladder[cam][: level[cam] + 1])
+            held = " (focal length and principal point held at their start from now on: the block does not determine them)"
+        down = [c for c in ([cam] if cam is not None else cams_in) if level[c] + 1 < len(ladder[c])]
+        if not down:
+            steps.append(f"with the camera held fixed: {why}" if all(not v for v in sets.values()) else
+                         f"with {', '.join(f'{start[c].name or c}: {names(sets[c])}' for c in cams_in)}: {why}")
+            return fa, sets, steps
+        for c in down:
+            level[c] += 1
+        steps.append(f"self-calibration of {', '.join(f'{start[c].name or c}: {names(sets[c])}' for c in down)} refused: {why}; "
+                     f"adjusted again with {', '.join(f'{start[c].name or c}: ' + (', '.join(ladder[c][level[c]]) or 'held fixed') for c in down)}"
+                     + held)
