@@ -15,8 +15,6 @@ at the end, so OUT is either as it was or complete.
 from __future__ import annotations
 
 import math
-import os
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -79,7 +77,7 @@ def survey(
                                                     "top-left pixel); ids in no control file are manual tie points (see docs/formats/csv.md)."),
     checkpoints: Optional[Path] = typer.Option(None, "--checkpoints", help="cp.csv: id,X,Y,Z — never used in the adjustment."),
     check_measurements: Optional[Path] = typer.Option(None, "--check-measurements", help="image,id,x,y of the check points."),
-    workers: int = typer.Option(2, "--workers", help="Local dask worker processes for features and matching (0 = in this process)."),
+    workers: int = typer.Option(2, "--workers", help="Local dask worker processes for features and matching (0 or 1 = in this process)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
     lever_arm: Optional[str] = typer.Option(None, "--lever-arm", help="GNSS antenna offset X,Y,Z in metres in the camera "
                                             "frame (x right, y down, z forward); default 0,0,0."),
@@ -104,9 +102,7 @@ def survey(
 
     from ..camera import Camera
     from ..errors import ThermogrammetryError
-    from .._atomic import OutputSet, sync_folder
-    from ..pipeline.project import FolderProject
-    from ..pipeline.survey import SurveyInput, SurveyOptions, run_survey
+    from ..pipeline.survey import SurveyInput, SurveyOptions, survey_to_folder
 
     console = Console(stderr=True)
 
@@ -185,31 +181,19 @@ def survey(
                           str(check_measurements) if check_measurements else None, rig=rig_file)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         fail(str(exc))
-    try:
-        outputs = OutputSet(out, "survey")  # staged beside OUT; a user's own files in OUT are kept
-    except (ThermogrammetryError, OSError) as exc:
-        fail(str(exc))
     t0 = time.perf_counter()
-    with outputs:
-        try:
-            # files are flushed once before the staging folder is published, not one by one (several hundred)
-            project = FolderProject(outputs.stage, durable=False)
-            with _Progress(console) as prog:
-                reports = run_survey(project, inp, opt, progress=prog)
-            failed = [r for r in reports if not r.ok]
-            if failed:
-                r = failed[0]
-                first = r.error.strip().splitlines()[-1] if r.error else "failed"
-                if r.name == "inputs":  # unusable input: exit 2
-                    fail(first.split(": ", 1)[-1] if first.startswith(("DataFileError", "UnsupportedFormatError")) else first)
-                fail(f"step {r.name} failed: {first}", code=1)
-            s = project.read_json("survey.json")
-            sync_folder(outputs.stage)
-            outputs.commit({"images_oriented": s["images_oriented"], "images_total": s["images_total"]})
-        except typer.Exit:
-            raise
-        except (ThermogrammetryError, OSError, ValueError) as exc:
-            fail(str(exc))
+    try:
+        with _Progress(console) as prog:
+            run = survey_to_folder(out, inp, opt, progress=prog)
+    except (ThermogrammetryError, OSError, ValueError) as exc:
+        fail(str(exc))
+    if run.failed is not None:
+        r = run.failed
+        first = r.error.strip().splitlines()[-1] if r.error else "failed"
+        if r.name == "inputs":  # unusable input: exit 2
+            fail(first.split(": ", 1)[-1] if first.startswith(("DataFileError", "UnsupportedFormatError")) else first)
+        fail(f"step {r.name} failed: {first}", code=1)
+    s = run.survey
     dt = time.perf_counter() - t0
     console.print(f"{s['images_oriented']}/{s['images_total']} images oriented in {len(s['components'])} block(s) "
                   f"{s['components']}, reprojection RMS {s['reprojection_rms_px'] or float('nan'):.3f} px, "

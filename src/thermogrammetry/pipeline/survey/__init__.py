@@ -105,9 +105,10 @@ from .outputs import _point_values, _write_clouds, _write_colmap, _write_outputs
 from .store import (_NPZ_CACHE, _NPZ_CACHE_SIZE, _load_npz, _load_npz_cached, _load_reconstruction, _read_frame, _save_npz,
                     _tie_xy, _write_lines)
 from .tasks import _TASK_STEPS, _TASKS_IN_FLIGHT, _local_cluster, _release_task_state, _run_tasks
-from .workflow import _retry_low_texture, _survey_camera, run_survey, survey_steps
+from .workflow import SurveyRun, _retry_low_texture, _survey_camera, run_survey, survey_steps, survey_to_folder
 
-__all__ = ["SurveyOptions", "SurveyInput", "survey_steps", "run_survey", "VIDEO_SUFFIXES", "IMAGE_SUFFIXES"]
+__all__ = ["SurveyOptions", "SurveyInput", "survey_steps", "run_survey", "survey_to_folder", "SurveyRun", "VIDEO_SUFFIXES",
+           "IMAGE_SUFFIXES"]
 
 
 # the former private helpers whose signature changed when they moved (kept for old callers)

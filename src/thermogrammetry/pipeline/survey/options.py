@@ -129,7 +129,7 @@ class SurveyOptions:
         orientation (:func:`~thermogrammetry.sfm.lsm.refine_tracks`); None (default) keeps the keypoint positions.
         Off by default because the measurements are mixed: see the survey page of the docs (docs/verbs/survey.md).
     workers : int
-        0 = in-process; N = local dask cluster of N worker processes.
+        0 or 1 = in this process; N >= 2 = a local dask cluster of N worker processes (:mod:`thermogrammetry.tasks`).
     scheduler : str or None
         Address of an existing dask scheduler (overrides ``workers``).
     """

@@ -1,8 +1,10 @@
-"""The survey as a list of steps over the store (:func:`survey_steps`) and the run (:func:`run_survey`)."""
+"""The survey as a list of steps over the store (:func:`survey_steps`), the run (:func:`run_survey`) and the
+verb's driver (:func:`survey_to_folder`: the run in a staging folder, published as one output set)."""
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, field
 from typing import Callable
 
 from ...store import ProjectStore
@@ -95,3 +97,35 @@ def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | Non
         SurveyStore(project).save_survey(s)
         write_survey_report(project)
     return reports
+
+
+@dataclass
+class SurveyRun:
+    """What :func:`survey_to_folder` did: the step reports, the first failed step (None when every step ran; OUT is
+    then unchanged) and ``survey.json`` of a published run."""
+
+    reports: list
+    failed: object | None = None
+    survey: dict = field(default_factory=dict)
+
+
+def survey_to_folder(out, inp: SurveyInput, opt: SurveyOptions | None = None, *, progress: Callable | None = None,
+                     on_step: Callable | None = None) -> SurveyRun:
+    """The ``survey`` verb: run every step in a staging folder beside ``out`` and publish it as one output set
+    (:class:`~thermogrammetry._atomic.OutputSet`: OUT appears complete or not at all; files of the user's own in OUT
+    are kept). A run whose steps all ran is published even when it oriented nothing (``survey.json`` says why); a
+    failed step leaves OUT as it was."""
+    from ..._atomic import OutputSet, sync_folder
+    from ...store import FolderProject
+
+    with OutputSet(out, "survey") as outputs:
+        # files are flushed once before the staging folder is published, not one by one (several hundred)
+        project = FolderProject(outputs.stage, durable=False)
+        reports = run_survey(project, inp, opt, progress=progress, on_step=on_step)
+        failed = [r for r in reports if not r.ok]
+        if failed:
+            return SurveyRun(reports, failed[0])
+        s = SurveyStore(project).load_survey()
+        sync_folder(outputs.stage)
+        outputs.commit({"images_oriented": s["images_oriented"], "images_total": s["images_total"]})
+    return SurveyRun(reports, survey=s)
