@@ -16,8 +16,8 @@ from thermogrammetry.geometry import Pose
 from thermogrammetry.geometry.rotations import matrix_from_axis_angle
 from thermogrammetry.products.photofit import PhotoFitOptions, photometric_pose_fit
 from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
-from thermogrammetry.synthetic.building import (BuildingConfig, clean_wall_texel_errors, make_building,
-                                                render_building_thermal)
+from cached_scenes import building_images
+from thermogrammetry.synthetic.building import BuildingConfig, clean_wall_texel_errors, make_building
 
 
 @pytest.fixture(scope="module")
@@ -26,9 +26,9 @@ def scene():
 
 
 @pytest.fixture(scope="module")
-def views(scene):
-    return [TextureView(n, scene.thermal, p, render_building_thermal(scene, k, sensor=False)["image_k"])
-            for k, (n, p) in enumerate(scene.stations)]
+def views(scene, scene_cache):
+    images = building_images(scene_cache, scene)  # render_building_thermal(sensor=False), once per test run
+    return [TextureView(n, scene.thermal, p, images[k]) for k, (n, p) in enumerate(scene.stations)]
 
 
 @pytest.fixture(scope="module")

@@ -14,11 +14,11 @@ import json
 import numpy as np
 import pytest
 
+from cached_scenes import building_images
 from thermogrammetry.products.correction import CorrectionConfig
 from thermogrammetry.products.texture import (TextureConfig, TextureView, estimate_offsets,
                                               face_view_scores, texture_mesh, thermal_poses_from_rig)
-from thermogrammetry.synthetic.building import (GROUPS, BuildingConfig, apparent_temperature, make_building,
-                                                render_building_thermal)
+from thermogrammetry.synthetic.building import GROUPS, BuildingConfig, apparent_temperature, make_building
 
 TEXEL_M = 0.04
 
@@ -29,9 +29,9 @@ def scene():
 
 
 @pytest.fixture(scope="module")
-def views(scene):
-    return [TextureView(n, scene.thermal, p, render_building_thermal(scene, k, sensor=False)["image_k"])
-            for k, (n, p) in enumerate(scene.stations)]
+def views(scene, scene_cache):
+    images = building_images(scene_cache, scene)  # render_building_thermal(sensor=False), once per test run
+    return [TextureView(n, scene.thermal, p, images[k]) for k, (n, p) in enumerate(scene.stations)]
 
 
 @pytest.fixture(scope="module")
