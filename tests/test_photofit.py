@@ -8,6 +8,8 @@ noise-free apparent temperature (``synthetic.building.clean_wall_texel_errors``)
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -43,10 +45,11 @@ def disturbed(views):
 
 
 @pytest.fixture(scope="module")
-def fit(scene, disturbed):
+def fit(scene, disturbed, scene_cache):
     n = len(disturbed)
-    return photometric_pose_fit(scene.vertices, scene.faces, disturbed, rotation_std_deg=np.full(n, 0.5),
-                                center_std_m=np.full(n, 0.03))
+    # computed once per test run, shared by the xdist workers (tests/_cache.py)
+    return scene_cache.value("test_photofit-fit", dataclasses.asdict(scene.config), lambda: photometric_pose_fit(
+        scene.vertices, scene.faces, disturbed, rotation_std_deg=np.full(n, 0.5), center_std_m=np.full(n, 0.03)))
 
 
 def _rot_err(vs, truth):

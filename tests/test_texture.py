@@ -9,6 +9,7 @@ interpolation of 2x2-supersampled pixels of a field whose shortest wavelength is
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -35,8 +36,10 @@ def views(scene, scene_cache):
 
 
 @pytest.fixture(scope="module")
-def result(scene, views):
-    return texture_mesh(scene.vertices, scene.faces, views, TextureConfig(texel_size_m=TEXEL_M))
+def result(scene, views, scene_cache):
+    # computed once per test run, shared by the xdist workers (tests/_cache.py)
+    return scene_cache.value("test_texture-result", {"config": dataclasses.asdict(scene.config), "texel": TEXEL_M},
+                             lambda: texture_mesh(scene.vertices, scene.faces, views, TextureConfig(texel_size_m=TEXEL_M)))
 
 
 def _segment_hits_box(A, B, lo, hi):
@@ -265,14 +268,20 @@ def _write_survey(tmp, scene, views):
 
 
 @pytest.fixture(scope="module")
-def cli_out(tmp_path_factory, scene, views):
+def cli_out(scene_cache, scene, views):
+    # built once per test run, shared by the xdist workers (tests/_cache.py); the tests read it (or copy it)
+    folder, rc = scene_cache.folder("test_texture-cli_out", dataclasses.asdict(scene.config),
+                                    lambda folder: _cli_run(folder, scene, views))
+    assert rc == 0
+    return folder / "survey", folder / "tex" / "out"
+
+
+def _cli_run(folder, scene, views):
     from thermogrammetry.cli.main import main
 
-    survey = _write_survey(tmp_path_factory.mktemp("survey"), scene, views)
-    out = tmp_path_factory.mktemp("tex") / "out"
-    rc = main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(out), "--unit", "C", "--texel-size", "0.05"])
-    assert rc == 0
-    return survey, out
+    survey = _write_survey(folder / "survey", scene, views)
+    out = folder / "tex" / "out"
+    return main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(out), "--unit", "C", "--texel-size", "0.05"])
 
 
 def test_cli_texture_outputs(cli_out, scene, views):
