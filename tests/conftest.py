@@ -3,6 +3,9 @@
 Real data lives in ``../shared/data`` beside the repository (see its INDEX.md);
 tests that need it use the ``shared_data`` fixture and skip, with a clear reason,
 when it is absent. Set ``THERMOGRAMMETRY_DATA`` to point elsewhere.
+
+Synthetic scenes that several tests render and survey are built once per test run through the ``scene_cache``
+fixture (``_cache.py``, ``cached_scenes.py``), shared by the pytest-xdist workers.
 """
 
 from __future__ import annotations
@@ -37,3 +40,11 @@ def data_path(*parts: str) -> Path:
 def rng() -> np.random.Generator:
     """A seeded generator; tests are deterministic."""
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def scene_cache(tmp_path_factory):
+    """The session-wide cache of rendered / surveyed synthetic scenes (``_cache.SceneCache``)."""
+    from _cache import SceneCache
+
+    return SceneCache.for_session(tmp_path_factory)

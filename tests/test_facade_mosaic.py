@@ -11,22 +11,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cached_scenes import building_images
 from thermogrammetry.errors import DegenerateInputError, TooFewPointsError
 from thermogrammetry.products.facade import (FacadeGrid, FacadePlane, fit_facade_homography, homography_mosaic,
                                              plane_mosaic)
 from thermogrammetry.products.texture import TextureView
-from thermogrammetry.synthetic.building import GROUPS, BuildingConfig, make_building, render_building_thermal, surface_temperature
+from thermogrammetry.synthetic.building import GROUPS, BuildingConfig, make_building, surface_temperature
 
 PLANE = FacadePlane((0, 0, 0), (1, 0, 0), (0, 0, 1))  # south wall y = 0, a = x, b = z; normal -y (towards the street)
 GRID = FacadeGrid(0.0, 12.0, 0.0, 7.0, 0.05)
 
 
 @pytest.fixture(scope="module")
-def wall():
+def wall(scene_cache):
     s = make_building(BuildingConfig(ground_margin_m=1.0))
     ks = [0, 1, 13]  # two stations in front of the south wall and one at its south-west corner
-    views = [TextureView(s.stations[k][0], s.thermal, s.stations[k][1], render_building_thermal(s, k, sensor=False)["image_k"])
-             for k in ks]
+    images = building_images(scene_cache, s, ks)  # render_building_thermal(sensor=False), once per test run
+    views = [TextureView(s.stations[k][0], s.thermal, s.stations[k][1], img) for k, img in zip(ks, images)]
     A, B = GRID.centres()
     truth = surface_temperature(s, PLANE.points(A, B).reshape(-1, 3), GROUPS.index("wall")).reshape(A.shape)
     occ = s.face_group == GROUPS.index("occluder")

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _cache import copy_entry
+from cached_scenes import lowtexture_walk_folder
 from thermogrammetry.synthetic.lowtexture_facade import (LowTextureFacadeConfig, make_lowtexture_facade, pose_errors,
                                                          render_lowtexture_frame)
 
@@ -148,7 +150,7 @@ def test_pose_errors_under_a_similarity(walk):
     assert e["center_rms_rel"] < 0.005
 
 
-def test_survey_orients_the_walk_in_one_block(tmp_path):
+def test_survey_orients_the_walk_in_one_block(tmp_path, scene_cache):
     """``survey`` with DEFAULT options (``low_texture="auto"``) on the 30-frame walk (seed 0, 0.15 K): pycolmap builds no
     model and ``off`` orients nothing (benchmarks/survey_lowtexture.py --synthetic); ``auto`` tracks the sequence and
     its guard keeps the block (plane parallax 0.42 x the RMS, bound 0.85; planar share 0.85, bound 0.55).
@@ -160,10 +162,9 @@ def test_survey_orients_the_walk_in_one_block(tmp_path):
     """
     from thermogrammetry.pipeline import FolderProject
     from thermogrammetry.pipeline.survey import SurveyInput, SurveyOptions, run_survey
-    from thermogrammetry.synthetic.lowtexture_facade import write_lowtexture_facade
 
     sc = make_lowtexture_facade(LowTextureFacadeConfig())
-    write_lowtexture_facade(FolderProject(tmp_path / "scene"), sc)
+    copy_entry(lowtexture_walk_folder(scene_cache, sc), tmp_path / "scene")  # write_lowtexture_facade, once per run
     project = FolderProject(tmp_path / "out")
     run_survey(project, SurveyInput(images=[str(tmp_path / "scene" / "frames")]),
                SurveyOptions(gnss="none"))
@@ -233,7 +234,7 @@ def test_sequence_order_ratio():
     assert _sequence_order_ratio(C[:2]) is None and _sequence_order_ratio(np.zeros((5, 3))) is None
 
 
-def test_walk_with_gnss_is_tracked_as_a_sequence(tmp_path):
+def test_walk_with_gnss_is_tracked_as_a_sequence(tmp_path, scene_cache):
     """The 30-frame walk (seed 0) with RTK GNSS (σ 3 cm, in EPSG:2056 coordinates): the positions say the frames are
     a sequence (order ratio ~1), so the fallback tracks them as without positions. Before: positions sent the fallback
     to SIFT with homography-guided matching, whose blocks were rejected: 0/30, exit 1.
@@ -242,10 +243,9 @@ def test_walk_with_gnss_is_tracked_as_a_sequence(tmp_path):
     so the block stays in a local frame, which survey.json says). Bounds as in the walk test above."""
     from thermogrammetry.cli.main import main
     from thermogrammetry.pipeline import FolderProject
-    from thermogrammetry.synthetic.lowtexture_facade import write_lowtexture_facade
 
     sc = make_lowtexture_facade(LowTextureFacadeConfig())
-    write_lowtexture_facade(FolderProject(tmp_path / "scene"), sc)
+    copy_entry(lowtexture_walk_folder(scene_cache, sc), tmp_path / "scene")  # write_lowtexture_facade, once per run
     rng = np.random.default_rng(1)
     rows = ["image,X,Y,Z,sX,sY,sZ"]
     for n, p in zip(sc.names, sc.poses):

@@ -8,6 +8,8 @@ noise-free apparent temperature (``synthetic.building.clean_wall_texel_errors``)
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -16,8 +18,8 @@ from thermogrammetry.geometry import Pose
 from thermogrammetry.geometry.rotations import matrix_from_axis_angle
 from thermogrammetry.products.photofit import PhotoFitOptions, photometric_pose_fit
 from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
-from thermogrammetry.synthetic.building import (BuildingConfig, clean_wall_texel_errors, make_building,
-                                                render_building_thermal)
+from cached_scenes import building_images
+from thermogrammetry.synthetic.building import BuildingConfig, clean_wall_texel_errors, make_building
 
 
 @pytest.fixture(scope="module")
@@ -26,9 +28,9 @@ def scene():
 
 
 @pytest.fixture(scope="module")
-def views(scene):
-    return [TextureView(n, scene.thermal, p, render_building_thermal(scene, k, sensor=False)["image_k"])
-            for k, (n, p) in enumerate(scene.stations)]
+def views(scene, scene_cache):
+    images = building_images(scene_cache, scene)  # render_building_thermal(sensor=False), once per test run
+    return [TextureView(n, scene.thermal, p, images[k]) for k, (n, p) in enumerate(scene.stations)]
 
 
 @pytest.fixture(scope="module")
@@ -43,10 +45,11 @@ def disturbed(views):
 
 
 @pytest.fixture(scope="module")
-def fit(scene, disturbed):
+def fit(scene, disturbed, scene_cache):
     n = len(disturbed)
-    return photometric_pose_fit(scene.vertices, scene.faces, disturbed, rotation_std_deg=np.full(n, 0.5),
-                                center_std_m=np.full(n, 0.03))
+    # computed once per test run, shared by the xdist workers (tests/_cache.py)
+    return scene_cache.value("test_photofit-fit", dataclasses.asdict(scene.config), lambda: photometric_pose_fit(
+        scene.vertices, scene.faces, disturbed, rotation_std_deg=np.full(n, 0.5), center_std_m=np.full(n, 0.03)))
 
 
 def _rot_err(vs, truth):

@@ -14,20 +14,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from thermogrammetry.cli.main import main
-from thermogrammetry.pipeline.project import FolderProject
-from thermogrammetry.synthetic.building import (BuildingConfig, make_building, write_building_survey,
-                                                write_building_user_files)
+from cached_scenes import building_ring_survey
+from thermogrammetry.synthetic.building import BuildingConfig, make_building
 
 
-def _survey(tmp_path, extra=(), **kw):
-    sc = make_building(BuildingConfig(**{"facade_detail": True, "n_stations": 40, **kw}))
-    p = FolderProject(tmp_path / "in")
-    write_building_survey(p, sc)
-    write_building_user_files(p, sc)
-    out = tmp_path / "out"
-    code = main(["survey", str(tmp_path / "in" / "frames"), "-o", str(out), "--input-unit", "K", "--camera",
-                 str(tmp_path / "in" / "camera.json"), "--gnss", str(tmp_path / "in" / "gnss.csv"), "--workers", "0", *extra])
+def _survey(scene_cache, extra=(), **kw):
+    # the ring's frames, user files and survey are built once per test run (tests/cached_scenes.py): the ring of
+    # seed 3 with default options is also the one tests/test_texture_meshfit_ring.py surveys
+    config = BuildingConfig(**{"facade_detail": True, "n_stations": 40, **kw})
+    sc = make_building(config)
+    _, out, code = building_ring_survey(scene_cache, config, extra)
     truth = dict(sc.stations)
     errs = {}
     if (out / "cameras.json").exists():
@@ -38,8 +34,8 @@ def _survey(tmp_path, extra=(), **kw):
 
 
 @pytest.mark.slow
-def test_ring_is_not_broken_by_one_weak_resection(tmp_path):
-    code, s, errs = _survey(tmp_path, seed=1)
+def test_ring_is_not_broken_by_one_weak_resection(scene_cache):
+    code, s, errs = _survey(scene_cache, seed=1)
     assert code == 0
     # measured 33/40 in one block, 0.80 deg RMS / 1.58 max (OpenCV 5.0, NumPy 2.4; 38/40 at 0.57 deg with the
     # packages of 2026-11-26); 34/40, 0.70 / 1.41 deg since T35 is added at its GNSS position. The same code before
@@ -53,8 +49,8 @@ def test_ring_is_not_broken_by_one_weak_resection(tmp_path):
 
 
 @pytest.mark.slow
-def test_wrongly_resected_images_are_left_out_of_a_block_that_contradicts_its_gnss(tmp_path):
-    code, s, errs = _survey(tmp_path, seed=0)
+def test_wrongly_resected_images_are_left_out_of_a_block_that_contradicts_its_gnss(scene_cache):
+    code, s, errs = _survey(scene_cache, seed=0)
     # the orientation's largest block (T02-T21) holds three wrongly resected stations (T02-T04, 1.2-7 m from their
     # GNSS): its final adjustment stopped at the iteration limit and the whole block used to be rejected (0/40).
     # Without the images that no similarity puts near their GNSS it is adjusted again: 17 images, 0.89 deg RMS
@@ -82,11 +78,11 @@ def test_wrongly_resected_images_are_left_out_of_a_block_that_contradicts_its_gn
 
 
 @pytest.mark.slow
-def test_second_block_is_adjusted_in_its_own_frame(tmp_path):
+def test_second_block_is_adjusted_in_its_own_frame(scene_cache):
     # seed 2: the orientation gives two blocks (23 and 13 stations). Each block's similarity to the GNSS used to move
     # every point of the survey, so the second block's points reached its final adjustment in another frame than its
     # cameras: it diverged and was rejected (23/40). Now both are oriented
-    code, s, errs = _survey(tmp_path, seed=2)
+    code, s, errs = _survey(scene_cache, seed=2)
     assert code == 0
     assert s["images_oriented"] >= 34 and len(s["components"]) == 2  # measured 36: [23, 13]
     e = np.array(list(errs.values()))
@@ -94,12 +90,12 @@ def test_second_block_is_adjusted_in_its_own_frame(tmp_path):
 
 
 @pytest.mark.slow
-def test_one_far_point_does_not_make_a_block_singular(tmp_path):
+def test_one_far_point_does_not_make_a_block_singular(scene_cache):
     # a held-out ring (48 stations, seed 3, occluder 7 m along the south wall, 1 m of ground) with --refine-ties lsm:
     # its 29-image block's final adjustment stopped "datum or parameters undetermined (condition 4.77e+300)" and the
     # block was rejected (15/48 oriented). The cause was one tie point whose rays had become parallel: left out, the
     # block solves (44/48 in [29, 15], 0.78 deg RMS, max 1.27)
-    code, s, errs = _survey(tmp_path, seed=3, n_stations=48, occluder_x_m=7.0, ground_margin_m=1.0,
+    code, s, errs = _survey(scene_cache, seed=3, n_stations=48, occluder_x_m=7.0, ground_margin_m=1.0,
                             extra=["--refine-ties", "lsm"])
     assert code == 0
     assert s["images_oriented"] >= 40 and s["components"][0] >= 25
@@ -114,13 +110,13 @@ def test_one_far_point_does_not_make_a_block_singular(tmp_path):
 
 
 @pytest.mark.slow
-def test_stations_with_few_ties_are_added_at_their_gnss_position(tmp_path):
+def test_stations_with_few_ties_are_added_at_their_gnss_position(scene_cache):
     # the held-out ring with default options: T47-T02 share 20-30 verified matches with their neighbours but too few
     # oriented points for a resection (PnP needs 10): 44/48 in [26, 18]. With their RTK centres known, three
     # unknowns are left: each is turned to the block's points at its GNSS position (sfm.reconstruction.
     # register_with_known_centres), the next one uses the points the previous one triangulated, and the block is
     # adjusted again: 48/48 in [26, 22], 0.78 deg RMS (max 1.49; the added four 0.89-1.17 deg, as their neighbours)
-    code, s, errs = _survey(tmp_path, seed=3, n_stations=48, occluder_x_m=7.0, ground_margin_m=1.0)
+    code, s, errs = _survey(scene_cache, seed=3, n_stations=48, occluder_x_m=7.0, ground_margin_m=1.0)
     assert code == 0 and s["images_oriented"] == 48
     assert any("added at their GNSS positions" in n and "T47, T00, T01, T02" in n for n in s["notes"])
     e = np.array(list(errs.values()))

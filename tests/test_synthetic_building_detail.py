@@ -11,10 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cached_scenes import building_images
 from thermogrammetry.errors import ConfigError
 from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
 from thermogrammetry.synthetic.building import (FRAME_M, GROUPS, BuildingConfig, apparent_temperature,
-                                                discontinuity_distance, make_building, render_building_thermal,
+                                                discontinuity_distance, make_building,
                                                 surface_temperature)
 
 WALL = GROUPS.index("wall")
@@ -74,9 +75,9 @@ def test_config_rejects_windows_that_do_not_fit():
         BuildingConfig(n_spots_per_m2=-1)
 
 
-def test_texture_of_a_facade_with_windows_true_poses(scene):
-    views = [TextureView(n, scene.thermal, p, render_building_thermal(scene, k, sensor=False)["image_k"])
-             for k, (n, p) in enumerate(scene.stations)]
+def test_texture_of_a_facade_with_windows_true_poses(scene, scene_cache):
+    images = building_images(scene_cache, scene)  # render_building_thermal(sensor=False), once per test run
+    views = [TextureView(n, scene.thermal, p, images[k]) for k, (n, p) in enumerate(scene.stations)]
     res = texture_mesh(scene.vertices, scene.faces, views, TextureConfig(texel_size_m=0.04))
     sel, tx = res.texel_selection, res.texels
     ok = sel.source >= 0

@@ -9,16 +9,17 @@ interpolation of 2x2-supersampled pixels of a field whose shortest wavelength is
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
+from cached_scenes import building_images
 from thermogrammetry.products.correction import CorrectionConfig
 from thermogrammetry.products.texture import (TextureConfig, TextureView, estimate_offsets,
                                               face_view_scores, texture_mesh, thermal_poses_from_rig)
-from thermogrammetry.synthetic.building import (GROUPS, BuildingConfig, apparent_temperature, make_building,
-                                                render_building_thermal)
+from thermogrammetry.synthetic.building import GROUPS, BuildingConfig, apparent_temperature, make_building
 
 TEXEL_M = 0.04
 
@@ -29,14 +30,16 @@ def scene():
 
 
 @pytest.fixture(scope="module")
-def views(scene):
-    return [TextureView(n, scene.thermal, p, render_building_thermal(scene, k, sensor=False)["image_k"])
-            for k, (n, p) in enumerate(scene.stations)]
+def views(scene, scene_cache):
+    images = building_images(scene_cache, scene)  # render_building_thermal(sensor=False), once per test run
+    return [TextureView(n, scene.thermal, p, images[k]) for k, (n, p) in enumerate(scene.stations)]
 
 
 @pytest.fixture(scope="module")
-def result(scene, views):
-    return texture_mesh(scene.vertices, scene.faces, views, TextureConfig(texel_size_m=TEXEL_M))
+def result(scene, views, scene_cache):
+    # computed once per test run, shared by the xdist workers (tests/_cache.py)
+    return scene_cache.value("test_texture-result", {"config": dataclasses.asdict(scene.config), "texel": TEXEL_M},
+                             lambda: texture_mesh(scene.vertices, scene.faces, views, TextureConfig(texel_size_m=TEXEL_M)))
 
 
 def _segment_hits_box(A, B, lo, hi):
@@ -265,14 +268,20 @@ def _write_survey(tmp, scene, views):
 
 
 @pytest.fixture(scope="module")
-def cli_out(tmp_path_factory, scene, views):
+def cli_out(scene_cache, scene, views):
+    # built once per test run, shared by the xdist workers (tests/_cache.py); the tests read it (or copy it)
+    folder, rc = scene_cache.folder("test_texture-cli_out", dataclasses.asdict(scene.config),
+                                    lambda folder: _cli_run(folder, scene, views))
+    assert rc == 0
+    return folder / "survey", folder / "tex" / "out"
+
+
+def _cli_run(folder, scene, views):
     from thermogrammetry.cli.main import main
 
-    survey = _write_survey(tmp_path_factory.mktemp("survey"), scene, views)
-    out = tmp_path_factory.mktemp("tex") / "out"
-    rc = main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(out), "--unit", "C", "--texel-size", "0.05"])
-    assert rc == 0
-    return survey, out
+    survey = _write_survey(folder / "survey", scene, views)
+    out = folder / "tex" / "out"
+    return main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(out), "--unit", "C", "--texel-size", "0.05"])
 
 
 def test_cli_texture_outputs(cli_out, scene, views):

@@ -20,8 +20,8 @@ from thermogrammetry.geometry import Pose
 from thermogrammetry.io.oriented import OrientedCameras
 from thermogrammetry.pipeline.texture import fit_views_to_mesh
 from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
-from thermogrammetry.synthetic.building import (BuildingConfig, clean_wall_texel_errors, make_building,
-                                                render_building_thermal, write_building_survey, write_building_user_files)
+from cached_scenes import building_ring_survey
+from thermogrammetry.synthetic.building import BuildingConfig, clean_wall_texel_errors, make_building, render_building_thermal
 
 
 def _texels(sc, views, true_c):
@@ -30,17 +30,15 @@ def _texels(sc, views, true_c):
 
 
 @pytest.mark.slow
-def test_poses_fitted_to_the_mesh_texture_the_ring_within_the_targets(tmp_path):
+def test_poses_fitted_to_the_mesh_texture_the_ring_within_the_targets(tmp_path, scene_cache):
     from thermogrammetry.cli.main import main
-    from thermogrammetry.pipeline.project import FolderProject
 
-    sc = make_building(BuildingConfig(facade_detail=True, n_stations=48, seed=3, occluder_x_m=7.0, ground_margin_m=1.0))
-    project = FolderProject(tmp_path)
-    write_building_survey(project, sc)
-    write_building_user_files(project, sc)
-    out = tmp_path / "out"
-    assert main(["survey", str(tmp_path / "frames"), "-o", str(out), "--input-unit", "K", "--camera",
-                 str(tmp_path / "camera.json"), "--gnss", str(tmp_path / "gnss.csv"), "--workers", "0"]) == 0
+    config = BuildingConfig(facade_detail=True, n_stations=48, seed=3, occluder_x_m=7.0, ground_margin_m=1.0)
+    sc = make_building(config)
+    # frames, camera file, GNSS and `survey` with its defaults: built once per test run (tests/cached_scenes.py; the
+    # same survey as tests/test_survey_building_rings.py's ring of seed 3), copied to tmp_path / "out"
+    _, out, code = building_ring_survey(scene_cache, config, copy_to=tmp_path / "out")
+    assert code == 0
     cameras = OrientedCameras.load(out)
     est = {im.name: im for im in cameras}
     views, true_views, true_c = [], [], []

@@ -1,0 +1,82 @@
+"""Test helper: the synthetic scenes that several tests render and survey, built once per test run
+(:mod:`_cache`, the ``scene_cache`` fixture of ``conftest.py``).
+
+Each entry is keyed by the scene's whole configuration (``dataclasses.asdict``, defaults included) and, for a
+survey, by its command-line arguments: a test that asks for the ring of seed 3 gets exactly the frames, user files
+and survey output it would have made itself -- the builders are the calls the tests made before.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from _cache import SceneCache, copy_entry
+
+
+def _params(config) -> dict:
+    return dataclasses.asdict(config)
+
+
+# ------------------------------------------------------------------------------------ building rings
+def building_ring_input(cache: SceneCache, config) -> Path:
+    """A folder with what ``survey`` is given for the ring of ``config`` (a ``BuildingConfig``): ``frames/``
+    (``write_building_survey``, with its true ``cameras.json``, ``mesh.obj`` and ``truth/``), ``gnss.csv`` and
+    ``camera.json`` (``write_building_user_files`` with its defaults). Read-only."""
+
+    def build(folder):
+        from thermogrammetry.pipeline.project import FolderProject
+        from thermogrammetry.synthetic.building import make_building, write_building_survey, write_building_user_files
+
+        sc = make_building(config)
+        project = FolderProject(folder)
+        write_building_survey(project, sc)
+        write_building_user_files(project, sc)
+
+    return cache.folder("building-ring-input", _params(config), build)[0]
+
+
+def building_ring_survey(cache: SceneCache, config, extra=(), *, copy_to: Path | None = None) -> tuple[Path, Path, int]:
+    """``survey`` on the ring of ``config`` as the tests run it (``--input-unit K``, the ring's camera file and GNSS,
+    ``--workers 0``, then ``extra``): ``(input folder, output folder, exit code)``.
+
+    The output folder is the cache's (read-only) unless ``copy_to`` names where the test wants its own copy."""
+
+    def build(folder):
+        from thermogrammetry.cli.main import main
+
+        inp = building_ring_input(cache, config)
+        return main(["survey", str(inp / "frames"), "-o", str(folder / "out"), "--input-unit", "K", "--camera",
+                     str(inp / "camera.json"), "--gnss", str(inp / "gnss.csv"), "--workers", "0", *extra])
+
+    folder, code = cache.folder("building-ring-survey", {"config": _params(config), "extra": list(extra)}, build)
+    out = folder / "out"
+    if copy_to is not None:
+        out = copy_entry(out, copy_to)
+    return building_ring_input(cache, config), out, code
+
+
+# ------------------------------------------------------------------------------------ low-texture walk
+def lowtexture_walk_folder(cache: SceneCache, scene) -> Path:
+    """``write_lowtexture_facade(FolderProject(folder), scene)`` once per configuration (``frames/``, ``truth/``).
+    Read-only."""
+
+    def build(folder):
+        from thermogrammetry.pipeline import FolderProject
+        from thermogrammetry.synthetic.lowtexture_facade import write_lowtexture_facade
+
+        write_lowtexture_facade(FolderProject(folder), scene)
+
+    return cache.folder("lowtexture-walk", _params(scene.config), build)[0]
+
+
+def building_images(cache: SceneCache, scene, stations=None, *, sensor: bool = False) -> list:
+    """``render_building_thermal(scene, k, sensor=sensor)["image_k"]`` for the stations ``stations`` (default:
+    all), each rendered once per test run for the scene's configuration (bit-identical: the renderer's noise is
+    seeded by the configuration and the station)."""
+    from thermogrammetry.synthetic.building import render_building_thermal
+
+    params = _params(scene.config)
+    ks = range(len(scene.stations)) if stations is None else stations
+    return [cache.value("building-image", {"config": params, "station": int(k), "sensor": bool(sensor)},
+                        lambda k=k: render_building_thermal(scene, k, sensor=sensor)["image_k"]) for k in ks]
