@@ -136,3 +136,15 @@ def test_compatibility_getattr_only_reexports():
             if isinstance(node, ast.FunctionDef) and node.name == "__getattr__":
                 calls = {getattr(n.func, "attr", getattr(n.func, "id", "")) for n in ast.walk(node) if isinstance(n, ast.Call)}
                 assert calls <= {"getattr", "import_module", "get", "AttributeError"}, (p, calls)
+
+
+def test_modules_stay_small():
+    """No module past 800 lines, the survey's steps (``pipeline/survey/``) at most 450: a module that grows past that
+    is split along its seams (docs/architecture.md)."""
+    too_long = []
+    for p in _all_modules():
+        n = len(p.read_text(encoding="utf-8").splitlines())
+        limit = 450 if p.parent.name == "survey" and p.parent.parent.name == "pipeline" else 800
+        if n > limit:
+            too_long.append(f"{p.relative_to(SRC.parent)}: {n} lines > {limit}")
+    assert not too_long, "\n".join(too_long)
