@@ -60,8 +60,11 @@ def test_wrongly_resected_images_are_left_out_of_a_block_that_contradicts_its_gn
     assert s["images_oriented"] >= 15 and s["components"][0] == s["images_oriented"]
     assert np.sqrt(np.mean(np.square(list(errs.values())))) < 1.2  # measured 0.89 deg (17 images), 0.84 deg (28)
     # T02-T04 left out of the block as wrong resections (17 images), then placed at their RTK GNSS positions and turned
-    # to the block's points: with them alone the block's adjustment did not converge (not kept, said in a note) ...
-    assert any("T04, T02, T03 placed at their GNSS positions" in n and "not kept" in n for n in s["notes"])
+    # to the block's points. Whether the block adjusted with them alone converges depends on the CPU's floating-point
+    # paths: it did not on the machines of 2026-11-29 (not kept then, said in a note; added with the arcs below), it did
+    # on an AVX2-only AMD EPYC (2026-12-02: added in that first round). Either way a note names them ...
+    assert any("T04, T02, T03" in n and (("placed at their GNSS positions" in n and "not kept" in n)
+                                         or "added at their GNSS positions" in n) for n in s["notes"])
     # two short arcs (7 and 4 stations) whose GNSS positions do not fix their rotation (σ 1.5 and 5.3 deg; they were
     # 5-7 deg off) are rejected, not reported as oriented as blocks of their own
     weak = [b["rejected"] for b in s["blocks"] if "does not fix its rotation" in (b.get("rejected") or "")]
