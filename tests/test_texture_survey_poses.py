@@ -27,25 +27,20 @@ import pytest
 
 from thermogrammetry.geometry import Pose
 from thermogrammetry.products.texture import TextureConfig, TextureView, texture_mesh
-from thermogrammetry.synthetic.building import (BuildingConfig, clean_wall_texel_errors, make_building,
-                                                render_building_thermal, write_building_survey, write_building_user_files)
+from thermogrammetry.synthetic.building import BuildingConfig, clean_wall_texel_errors, make_building, render_building_thermal
 
 N_STATIONS = 64
 
 
 @pytest.fixture(scope="module")
-def ring(tmp_path_factory):
-    from thermogrammetry.cli.main import main
-    from thermogrammetry.pipeline.project import FolderProject
+def ring(scene_cache):
+    # frames, GNSS (3 cm noise), the camera file and `survey --refine-ties lsm`: built once per test run and shared
+    # by the two xdist workers (tests/cached_scenes.py: the same calls as before; the output folder is read-only)
+    from cached_scenes import building_ring_survey
 
-    root = tmp_path_factory.mktemp("ring")
-    sc = make_building(BuildingConfig(n_stations=N_STATIONS, facade_detail=True, ground_margin_m=1.0))
-    project = FolderProject(root)
-    write_building_survey(project, sc)  # frames/ (and the truth, which the survey is not given)
-    write_building_user_files(project, sc)  # gnss.csv (3 cm noise), camera.json
-    out = root / "out"
-    code = main(["survey", str(root / "frames"), "-o", str(out), "--input-unit", "K", "--camera", str(root / "camera.json"),
-                 "--gnss", str(root / "gnss.csv"), "--workers", "0", "--refine-ties", "lsm"])
+    config = BuildingConfig(n_stations=N_STATIONS, facade_detail=True, ground_margin_m=1.0)
+    sc = make_building(config)
+    _, out, code = building_ring_survey(scene_cache, config, ["--refine-ties", "lsm"])
     return sc, out, code
 
 
