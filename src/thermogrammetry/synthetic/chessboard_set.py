@@ -1,4 +1,4 @@
-"""Low-contrast 16-bit thermal chessboards under a heater hot spot and vignetting (issue 13, item 3).
+"""Low-contrast 16-bit thermal chessboards under a heater hot spot and vignetting.
 
 A heated 9 x 6 (inner corners) chessboard whose squares differ by a few tenths of a kelvin, with a warm
 patch from the heater several kelvin strong on one side of the board and vignetting of the optics, seen

@@ -1,4 +1,4 @@
-"""A synthetic mask circle-grid calibration set with strong barrel distortion (issue 13).
+"""A synthetic mask circle-grid calibration set with strong barrel distortion.
 
 Large circles close together (60 mm at 90 mm spacing, 4 x 3) seen by a 640 x 512 thermal camera with
 a correction-form model whose distortion exceeds 30 px at the frame corners, from views that put the

@@ -1,6 +1,6 @@
 """A low-texture thermal facade walk with exact ground truth: a plain plastered wall, a hand-held camera.
 
-The hard case of issue 10 ("thermal images could not reconstruct any model"): a wall with only weak, smooth
+The hard case users report ("thermal images could not reconstruct any model"): a wall with only weak, smooth
 thermal contrast, filmed by a hand-held (or pole-mounted) thermal camera walking along it at a few metres with
 high forward overlap, no GNSS. Most of the fine texture in such frames is the sensor's own: the fixed pattern
 (column stripes, per-pixel offsets) and the temporal noise, of the same order as the scene's contrast.

@@ -1,4 +1,4 @@
-"""A replica of a real thermal mask circle-grid calibration set (issue 13).
+"""A replica of a real thermal mask circle-grid calibration set.
 
 What a user shoots with a 640 x 512 thermal camera (fx ≈ 440.7 px, strong barrel distortion) and a
 4 x 3 grid of 60 mm circles at 90 mm spacing cut into a mask in front of a heated plate: the circles
