@@ -19,26 +19,11 @@ import contextlib
 import itertools
 from typing import Any, Callable, Iterator, Sequence
 
-from .errors import ConfigError
-
-__all__ = ["check_workers", "in_process", "local_cluster", "open_client", "ordered_results", "run_tasks",
+__all__ = ["in_process", "local_cluster", "open_client", "ordered_results", "run_tasks",
            "TASKS_IN_FLIGHT"]
 
 #: tasks submitted to a cluster and not yet collected, at most (:func:`run_tasks`)
 TASKS_IN_FLIGHT = 64
-
-
-def check_workers(workers: int, scheduler: str | None = None) -> int:
-    """``workers`` as an int >= 0, or a :class:`~thermogrammetry.errors.ConfigError` naming the value."""
-    try:
-        w = int(workers)
-    except (TypeError, ValueError):
-        raise ConfigError(f"--workers {workers!r}: expected a whole number >= 0 (0 or 1: in this process)") from None
-    if w < 0 or w != workers:
-        raise ConfigError(f"--workers {workers!r}: expected a whole number >= 0 (0 or 1: in this process)")
-    if scheduler is not None and (not isinstance(scheduler, str) or not scheduler.strip()):
-        raise ConfigError(f"--scheduler {scheduler!r}: expected the address of a dask scheduler, e.g. tcp://host:8786")
-    return w
 
 
 def in_process(workers: int, scheduler: str | None = None) -> bool:

@@ -12,11 +12,15 @@ from ..tasks import open_client, ordered_results
 __all__ = ["SurveyFrames", "run_dense", "open_client", "ordered_results"]
 
 _MOVED = {"run_dense": "thermogrammetry.pipeline.dense", "SurveyFrames": "thermogrammetry.pipeline.frames",
-          "_survey": "thermogrammetry.pipeline.dense", "_reference_task": "thermogrammetry.pipeline.dense"}
+          "_reference_task": "thermogrammetry.pipeline.dense"}
 
 
 def __getattr__(name):
     """Compatibility re-export of the names that moved up to the driver layer (see the module docstring)."""
+    if name == "_survey":  # the per-process survey cache is pipeline.frames.open_survey now
+        import importlib
+
+        return getattr(importlib.import_module("thermogrammetry.pipeline.frames"), "open_survey")
     if name in _MOVED:
         import importlib
 

@@ -33,12 +33,9 @@ from .frames import SurveyFrames, open_survey
 __all__ = ["run_dense"]
 
 
-def _survey(path: str) -> SurveyFrames:
-    return open_survey(path)
-
 
 def _reference_task(survey_path: str, i: int, config: DenseConfig):
-    sv = _survey(survey_path)
+    sv = open_survey(survey_path)
     cands = rank_pairs(i, sv.cameras, sv.poses, sv, config)
     pts, info = reference_points(i, sv.cameras, sv.poses, sv, config, pairs=cands)
     depth = info.get("depth_m", float("nan"))

@@ -30,13 +30,10 @@ from .frames import SurveyFrames, open_survey
 __all__ = ["run_ortho", "check_dsm_matches_survey"]
 
 
-def _survey(path):
-    return open_survey(path)
-
 
 def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoConfig, margin_m: float,
                 correction=None, unit_out: str = "K"):
-    sv = _survey(survey_path)
+    sv = open_survey(survey_path)
     r0, c0, rows, cols = window
     # ortho cells (with a one-cell pad for the normals) and their DSM heights
     X, Y = grid.cell_centres(r0 - 1, c0 - 1, rows + 2, cols + 2)
