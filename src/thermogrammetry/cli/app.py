@@ -5,7 +5,6 @@ from __future__ import annotations
 import typer
 
 from .. import __version__
-from .._validate import parse_size  # noqa: F401 (the verbs import it from here)
 
 app = typer.Typer(
     name="thermogrammetry",

@@ -16,7 +16,8 @@ from typing import Optional
 
 import typer
 
-from .app import app, parse_size
+from .._validate import parse_size
+from .app import app
 
 
 @app.command("plan")
