@@ -80,3 +80,63 @@ def building_images(cache: SceneCache, scene, stations=None, *, sensor: bool = F
     ks = range(len(scene.stations)) if stations is None else stations
     return [cache.value("building-image", {"config": params, "station": int(k), "sensor": bool(sensor)},
                         lambda k=k: render_building_thermal(scene, k, sensor=sensor)["image_k"]) for k in ks]
+
+
+# ------------------------------------------------------------------------------------ the UAV block of test_survey
+def uav_block(cache: SceneCache) -> dict:
+    """``tests/test_survey.py``'s UAV block (``uav_thermal_config(seed=0)``, the user's files with 0.3 px marker
+    noise, bad inputs mixed in) and ``survey`` on it with GNSS, GCPs and check points, once per test run:
+    ``{"scene", "root", "out", "code", "far", "dropped"}`` (``root`` holds ``survey/images`` and ``survey/user``;
+    read-only)."""
+
+    def build(folder):
+        import shutil
+
+        import numpy as np
+
+        from thermogrammetry.cli.main import main
+        from thermogrammetry.io.tiff import encode_temperature_tiff
+        from thermogrammetry.pipeline.project import FolderProject
+        from thermogrammetry.synthetic.survey import make_survey, render_frame, write_survey
+        from thermogrammetry.synthetic.survey_files import uav_thermal_config, write_user_files
+
+        scene = make_survey(uav_thermal_config(seed=0))
+        proj = FolderProject(folder)
+        write_survey(proj, scene, prefix="survey", threads=2)
+        write_user_files(proj, scene, prefix="survey", marker_sigma_px=0.3, seed=0)
+        images = folder / "survey" / "images"
+        user = folder / "survey" / "user"
+        # --- bad inputs mixed into the block ---------------------------------------------------------------------
+        # a frame of another flight (another terrain), a truncated file
+        other = make_survey(uav_thermal_config(seed=7))
+        data, _ = encode_temperature_tiff(render_frame(other, 3)["image_k"])
+        (images / "ZZ_other_flight.tif").write_bytes(data)
+        good = (images / "T0005.tif").read_bytes()
+        (images / "T0005_truncated.tif").write_bytes(good[: len(good) // 3])
+        # a side file kept next to the frames (not a temperature matrix: skipped with a note, not a failed frame)
+        shutil.copy(user / "gcps.csv", images / "gcps.csv")
+        # two frames without GNSS
+        lines = (user / "gnss.csv").read_text().splitlines()
+        dropped = {"T0010", "T0030"}
+        (user / "gnss.csv").write_text("\n".join(ln for ln in lines if ln.split(",")[0] not in dropped) + "\n")
+        # a GCP "measured" in a frame where it is not visible (wrong identification)
+        gcp1 = scene.gcps["GCP01"]
+        far = max(scene.frames, key=lambda f: np.linalg.norm(f.pose.center[:2] - gcp1[:2]))
+        with open(user / "gcp_measurements.csv", "a") as fh:
+            fh.write(f"{far.name},GCP01,160.0,128.0\n")
+        code = main(["survey", str(images), "-o", str(folder / "out"), "--workers", "0", "--gnss", str(user / "gnss.csv"),
+                     "--crs", f"EPSG:{scene.terrain.epsg}", "--gcps", str(user / "gcps.csv"),
+                     "--gcp-measurements", str(user / "gcp_measurements.csv"),
+                     "--checkpoints", str(user / "checkpoints.csv"),
+                     "--check-measurements", str(user / "check_measurements.csv")])
+        return {"scene": scene, "code": code, "far": far.name, "dropped": dropped}
+
+    folder, value = cache.folder("uav-block-seed0", {"version": 1}, build)
+    return {**value, "root": folder, "out": folder / "out"}
+
+
+def survey_variant(cache: SceneCache, name: str, params, build) -> tuple[int, Path]:
+    """``(exit code, OUT)`` of a survey run once per test run by ``build(folder) -> exit code`` (its OUT is
+    ``folder / "out"``; read-only)."""
+    folder, code = cache.folder(name, params, build)
+    return code, folder / "out"

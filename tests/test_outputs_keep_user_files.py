@@ -80,7 +80,10 @@ def test_texture_and_facade_keep_a_users_file_in_out(tmp_path):
 def test_survey_keeps_a_users_file_in_out(true_survey, tmp_path):
     _, sv = true_survey
     out = _out_with_user_file(tmp_path)
-    rc = main(["survey", str(sv / "frames"), "-o", str(out), "--workers", "0", "--gnss", "none", "--low-texture", "off",
+    # three of the frames: what is asserted (the user's files kept, the survey's files published) does not depend on
+    # how many frames are oriented, and three take seconds where ten took a minute and a half
+    frames = sorted(p for p in (sv / "frames").iterdir() if p.is_file())[:3]
+    rc = main(["survey", *map(str, frames), "-o", str(out), "--workers", "0", "--gnss", "none", "--low-texture", "off",
               "--input-unit", "K"])
     assert rc in (0, 1)  # 1: nothing oriented -- OUT still holds survey.json and the reasons
     _check(out, "survey", ["survey.json", "cameras.json", "report.html"])

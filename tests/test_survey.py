@@ -25,43 +25,13 @@ GNSS_BLUNDER = "T0020"  # its GNSS position is moved 0.60 m in X in the user's g
 
 
 @pytest.fixture(scope="module")
-def block(tmp_path_factory):
-    from thermogrammetry.synthetic.survey import make_survey, render_frame, write_survey
-    from thermogrammetry.synthetic.survey_files import uav_thermal_config, write_user_files
+def block(scene_cache):
+    """The rendered block with bad inputs mixed in and its survey (GNSS, GCPs, check points): built once per test
+    run and shared by the xdist workers (``cached_scenes.uav_block``: a frame of another flight, a truncated file,
+    ``gcps.csv`` among the frames, two frames without GNSS, a GCP "measured" in a frame where it is not visible)."""
+    from cached_scenes import uav_block
 
-    root = tmp_path_factory.mktemp("uav")
-    scene = make_survey(uav_thermal_config(seed=0))
-    proj = FolderProject(root)
-    write_survey(proj, scene, prefix="survey", threads=2)
-    write_user_files(proj, scene, prefix="survey", marker_sigma_px=0.3, seed=0)
-    images = root / "survey" / "images"
-    user = root / "survey" / "user"
-    # --- bad inputs mixed into the block -------------------------------------------------------
-    # a frame of another flight (another terrain), a truncated file
-    other = make_survey(uav_thermal_config(seed=7))
-    from thermogrammetry.io.tiff import encode_temperature_tiff
-
-    data, _ = encode_temperature_tiff(render_frame(other, 3)["image_k"])
-    (images / "ZZ_other_flight.tif").write_bytes(data)
-    good = (images / "T0005.tif").read_bytes()
-    (images / "T0005_truncated.tif").write_bytes(good[: len(good) // 3])
-    # a side file kept next to the frames (not a temperature matrix: skipped with a note, not a failed frame)
-    shutil.copy(user / "gcps.csv", images / "gcps.csv")
-    # two frames without GNSS
-    lines = (user / "gnss.csv").read_text().splitlines()
-    dropped = {"T0010", "T0030"}
-    (user / "gnss.csv").write_text("\n".join(ln for ln in lines if ln.split(",")[0] not in dropped) + "\n")
-    # a GCP "measured" in a frame where it is not visible (wrong identification)
-    gcp1 = scene.gcps["GCP01"]
-    far = max(scene.frames, key=lambda f: np.linalg.norm(f.pose.center[:2] - gcp1[:2]))
-    with open(user / "gcp_measurements.csv", "a") as fh:
-        fh.write(f"{far.name},GCP01,160.0,128.0\n")
-    out = root / "out"
-    code = main(["survey", str(images), "-o", str(out), "--workers", "0", "--gnss", str(user / "gnss.csv"),
-                 "--crs", f"EPSG:{scene.terrain.epsg}", "--gcps", str(user / "gcps.csv"),
-                 "--gcp-measurements", str(user / "gcp_measurements.csv"), "--checkpoints", str(user / "checkpoints.csv"),
-                 "--check-measurements", str(user / "check_measurements.csv")])
-    return {"scene": scene, "root": root, "out": out, "code": code, "far": far.name, "dropped": dropped}
+    return uav_block(scene_cache)
 
 
 def test_contract_files_and_counts(block):
@@ -101,21 +71,23 @@ def test_contract_files_and_counts(block):
 
 
 @pytest.fixture(scope="module")
-def block_gnss_blunder(block):
+def block_gnss_blunder(block, scene_cache):
     """The same frames with one wrong GNSS tag: T0020 0.60 m off in X (20 σ of the RTK σ 3 cm); no GCPs."""
-    root = block["root"]
-    lines = (root / "survey" / "user" / "gnss.csv").read_text().splitlines()
-    hdr = lines[0].split(",")
-    for k, ln in enumerate(lines):
-        v = ln.split(",")
-        if v[0] == GNSS_BLUNDER:
-            v[hdr.index("X")] = repr(float(v[hdr.index("X")]) + 0.60)
-            lines[k] = ",".join(v)
-    (root / "gnss_blunder.csv").write_text("\n".join(lines) + "\n")
-    out = root / "out_blunder"
-    code = main(["survey", str(root / "survey" / "images"), "-o", str(out), "--workers", "0", "--gnss",
-                 str(root / "gnss_blunder.csv"), "--crs", f"EPSG:{block['scene'].terrain.epsg}"])
-    return code, out
+    from cached_scenes import survey_variant
+
+    def build(folder):
+        lines = (block["root"] / "survey" / "user" / "gnss.csv").read_text().splitlines()
+        hdr = lines[0].split(",")
+        for k, ln in enumerate(lines):
+            v = ln.split(",")
+            if v[0] == GNSS_BLUNDER:
+                v[hdr.index("X")] = repr(float(v[hdr.index("X")]) + 0.60)
+                lines[k] = ",".join(v)
+        (folder / "gnss_blunder.csv").write_text("\n".join(lines) + "\n")
+        return main(["survey", str(block["root"] / "survey" / "images"), "-o", str(folder / "out"), "--workers", "0",
+                     "--gnss", str(folder / "gnss_blunder.csv"), "--crs", f"EPSG:{block['scene'].terrain.epsg}"])
+
+    return survey_variant(scene_cache, "uav-block-seed0-gnss-blunder", {"image": GNSS_BLUNDER, "dx": 0.60}, build)
 
 
 def test_gnss_blunder_is_named_and_left_out(block, block_gnss_blunder):
@@ -190,26 +162,30 @@ def test_checkpoint_accuracy(block):
 
 
 @pytest.fixture(scope="module")
-def block_geoid(block):
+def block_geoid(block, scene_cache):
     """The same block with every GNSS height 48.30 m higher (ellipsoidal GNSS heights against GCPs in national
     heights: the geoid is ~48-50 m above the ellipsoid in Switzerland, EPSG:2056) and X 1.50 m off."""
-    root, scene = block["root"], block["scene"]
-    user = root / "survey" / "user"
-    lines = (user / "gnss.csv").read_text().splitlines()
-    hdr = lines[0].split(",")
-    ix, iz = hdr.index("X"), hdr.index("Z")
-    out_lines = [lines[0]]
-    for ln in lines[1:]:
-        v = ln.split(",")
-        v[ix], v[iz] = repr(float(v[ix]) + 1.50), repr(float(v[iz]) + 48.30)
-        out_lines.append(",".join(v))
-    (root / "gnss_geoid.csv").write_text("\n".join(out_lines) + "\n")
-    out = root / "out_geoid"
-    code = main(["survey", str(root / "survey" / "images"), "-o", str(out), "--workers", "0", "--gnss",
-                 str(root / "gnss_geoid.csv"), "--crs", f"EPSG:{scene.terrain.epsg}", "--gcps", str(user / "gcps.csv"),
-                 "--gcp-measurements", str(user / "gcp_measurements.csv"), "--checkpoints", str(user / "checkpoints.csv"),
-                 "--check-measurements", str(user / "check_measurements.csv")])
-    return code, out
+    from cached_scenes import survey_variant
+
+    def build(folder):
+        scene = block["scene"]
+        user = block["root"] / "survey" / "user"
+        lines = (user / "gnss.csv").read_text().splitlines()
+        hdr = lines[0].split(",")
+        ix, iz = hdr.index("X"), hdr.index("Z")
+        out_lines = [lines[0]]
+        for ln in lines[1:]:
+            v = ln.split(",")
+            v[ix], v[iz] = repr(float(v[ix]) + 1.50), repr(float(v[iz]) + 48.30)
+            out_lines.append(",".join(v))
+        (folder / "gnss_geoid.csv").write_text("\n".join(out_lines) + "\n")
+        return main(["survey", str(block["root"] / "survey" / "images"), "-o", str(folder / "out"), "--workers", "0",
+                     "--gnss", str(folder / "gnss_geoid.csv"), "--crs", f"EPSG:{scene.terrain.epsg}",
+                     "--gcps", str(user / "gcps.csv"), "--gcp-measurements", str(user / "gcp_measurements.csv"),
+                     "--checkpoints", str(user / "checkpoints.csv"),
+                     "--check-measurements", str(user / "check_measurements.csv")])
+
+    return survey_variant(scene_cache, "uav-block-seed0-gnss-geoid", {"dx": 1.50, "dz": 48.30}, build)
 
 
 def test_gnss_datum_offset_against_the_gcps_is_found_and_removed(block, block_geoid):
@@ -280,12 +256,16 @@ def test_workers_give_identical_results(tmp_path, block):
 
 
 @pytest.fixture(scope="module")
-def m3t(tmp_path_factory, shared_data):
+def m3t(scene_cache, shared_data):
+    """``survey`` on the shared M3T flight with its defaults, once per test run (shared by the xdist workers)."""
+    from cached_scenes import survey_variant
+
     src = shared_data / "uav_m3t_flight" / "Test_image"
     if not src.is_dir():
         pytest.skip(f"{src} is absent")
-    out = tmp_path_factory.mktemp("m3t") / "m3t"
-    return src, out, main(["survey", str(src), "-o", str(out), "--workers", "0"])
+    code, out = survey_variant(scene_cache, "m3t-survey", {"src": str(src)},
+                               lambda folder: main(["survey", str(src), "-o", str(folder / "out"), "--workers", "0"]))
+    return src, out, code
 
 
 @pytest.mark.realdata

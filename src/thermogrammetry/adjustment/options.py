@@ -86,7 +86,7 @@ class SolverOptions:
     significance_alpha: float = 0.05
     rank_tolerance: float = 1e-12
     max_dense_inner: int = 4000
-    chunked_min_observations: int = 100_000
+    chunked_min_observations: int = 400_000
     num_threads: int = 2
 
     def __post_init__(self):
