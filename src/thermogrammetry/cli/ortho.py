@@ -48,5 +48,5 @@ def ortho(
                   f"from {rep['images_used']} images ({rep['sampling']}), {rep['seconds']:.1f} s", highlight=False)
     for n in rep["notes"]:
         console.print(f"note: {n}", highlight=False)
-    console.print(f"outputs in {out}: ortho.tif ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
+    console.print(f"outputs in {out}: ortho.tif ortho.qml ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
                   "ortho_distance.tif ortho_gradient.tif", highlight=False)
