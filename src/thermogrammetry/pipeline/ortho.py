@@ -32,8 +32,8 @@ __all__ = ["run_ortho", "check_dsm_matches_survey"]
 
 
 def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoConfig, margin_m: float,
-                correction=None, unit_out: str = "K"):
-    sv = open_survey(survey_path)
+                correction=None, unit_out: str = "K", dji_sdk: str | None = None):
+    sv = open_survey(survey_path, dji_sdk)
     r0, c0, rows, cols = window
     # ortho cells (with a one-cell pad for the normals) and their DSM heights
     X, Y = grid.cell_centres(r0 - 1, c0 - 1, rows + 2, cols + 2)
@@ -158,15 +158,18 @@ def check_dsm_matches_survey(meta: dict, sv, dsm_path, survey_dir) -> None:
 
 def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: str | None = None,
               sampling: str = "nearest", correct: bool = False, correction=None, workers: int = 1,
-              scheduler: str | None = None, tile: int = 512, config: OrthoConfig | None = None, on_tile=None) -> dict:
+              scheduler: str | None = None, tile: int = 512, config: OrthoConfig | None = None, on_tile=None,
+              dji_sdk: str | None = None) -> dict:
     """``thermogrammetry ortho``: the mosaic and its companion rasters in ``out_dir``; returns ``ortho.json``.
 
-    ``on_tile(done, total)`` is called after each mosaic tile (progress)."""
+    ``on_tile(done, total)`` is called after each mosaic tile (progress). ``dji_sdk``: DJI's Thermal SDK library,
+    for a survey of DJI R-JPEGs decoded as raw counts: the mosaic then holds temperatures read again from the
+    R-JPEGs through the SDK (:class:`~thermogrammetry.pipeline.frames.SurveyFrames`)."""
     from ..errors import ConfigError
     from ..products.correction import as_correction_config
 
     t0 = time.perf_counter()
-    sv = SurveyFrames(survey_dir)
+    sv = SurveyFrames(survey_dir, dji_sdk=dji_sdk)
     if not Path(dsm_path).exists():
         from ..errors import DataFileError
 
@@ -245,9 +248,9 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
             nt = len(windows)
             tiles = (collect(r) for r in ordered_results(client, _ortho_task, [spath] * nt, [dpath] * nt, [grid] * nt,
                                                          windows, [cfg] * nt, [margin_m] * nt, [corr] * nt,
-                                                         [unit_out] * nt))
+                                                         [unit_out] * nt, [sv.dji_sdk] * nt))
         else:
-            tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out)) for w in windows)
+            tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out, sv.dji_sdk)) for w in windows)
         crs = sv.crs
         specs = {
             "value": RasterSpec(out / "ortho.tif", np.float32, nodata=float("nan"), unit=label,
@@ -329,6 +332,7 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         "correction": None if corr is None else {k: str(getattr(corr, k)) for k in corr.__dataclass_fields__},
         "seconds": round(time.perf_counter() - t0, 2),
         "style": style,
+        "dji_sdk": sv.dji_sdk,
         "notes": notes,
     }
     write_atomic_text(out / "ortho.json", json.dumps(report, indent=1) + "\n")
