@@ -244,6 +244,9 @@ def test_refused_arguments_exit_2_and_write_nothing(project, tmp_path, capsys):
         assert main(["run", *args, "-o", str(new), *extra]) == 2
         assert msg in " ".join(capsys.readouterr().err.split())
         assert not new.exists()
+    (tmp_path / "empty").mkdir()  # no image: the survey's inputs step refuses it, the new project is not left behind
+    assert main(["run", str(tmp_path / "empty"), "-o", str(new), "--workers", "0"]) == 2
+    assert "no input images" in capsys.readouterr().err and not new.exists()
     before = _snapshot(project["proj"])
     assert main(["run", *args, "-o", str(project["proj"]), "--rerun-from", "mosaic"]) == 2
     assert _snapshot(project["proj"]) == before

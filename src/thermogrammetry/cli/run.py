@@ -16,6 +16,7 @@ arguments (nothing written when the arguments are refused).
 from __future__ import annotations
 
 import inspect
+import shutil
 import typing
 from typing import Optional
 
@@ -53,6 +54,7 @@ def run(**kw) -> None:
         inp, opt = _survey_cli.survey_inputs(**{k: kw[k] for k in _survey_cli.SURVEY_ARGS})
     except (ThermogrammetryError, ValueError, OSError) as exc:
         refuse(str(exc))
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -82,7 +84,12 @@ def run(**kw) -> None:
                     console.print(ln, highlight=False, markup=False, soft_wrap=True)
             log.line(f"error: {res.failed.message}", echo=False)
             console.print(f"[red]error:[/red] {res.failed.message}", highlight=False, soft_wrap=True)
-            console.print(f"see {out / 'run.log'}", highlight=False)
+            if res.bad_input and created and [p.name for p in out.iterdir()] == ["run.log"]:
+                console.print(f"nothing was written to {out}", highlight=False)
+                log.close()  # unusable input in a new project: it is not left behind with only a log in it
+                shutil.rmtree(out, ignore_errors=True)
+            else:
+                console.print(f"see {out / 'run.log'}", highlight=False)
             raise typer.Exit(2 if res.bad_input else 1)
         ran = [r.name for r in res.steps if r.status == "ran"]
         console.print(f"{'ran ' + ', '.join(ran) if ran else 'nothing to do: every step is up to date'}; outputs in {out}: "

@@ -305,7 +305,7 @@ def _run(project: Path, inp, opt, products, rerun_from, log: RunLog, progress) -
             out.failed = res
             results.append(res)
             break
-    if any(r.status != "skipped" for r in results) or not (project / "report.html").is_file():
+    if not out.bad_input and (any(r.status != "skipped" for r in results) or not (project / "report.html").is_file()):
         from .run_report import write_run_report
 
         _write_if_changed(record_path, _record_text(recs, products))
