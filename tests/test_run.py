@@ -250,3 +250,19 @@ def test_refused_arguments_exit_2_and_write_nothing(project, tmp_path, capsys):
     before = _snapshot(project["proj"])
     assert main(["run", *args, "-o", str(project["proj"]), "--rerun-from", "mosaic"]) == 2
     assert _snapshot(project["proj"]) == before
+
+
+def test_a_step_without_progress_reports_that_it_is_still_running(tmp_path):
+    from thermogrammetry.pipeline.run import _Meter
+    from thermogrammetry.pipeline.runlog import RunLog
+
+    seen = []
+    with RunLog(tmp_path / "run.log", echo=seen.append) as log:
+        m = _Meter(log, "survey", None)
+        m("orient", 32, 32)
+        stop = m.heartbeat(every_s=0.2)
+        time.sleep(0.7)
+        stop.set()
+    assert 2 <= sum("survey: still running (" in s for s in seen) <= 4  # every 0.2 s without a report
+    assert "last: orient 32/32" in seen[0]
+    assert "still running" in (tmp_path / "run.log").read_text()

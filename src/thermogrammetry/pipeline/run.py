@@ -48,6 +48,8 @@ NOT_BUILT = {
                "of --products, or texture a mesh of your own with 'thermogrammetry texture PROJECT/survey --mesh MESH'",
 }
 RUN_FORMAT = "thermogrammetry-run"
+#: a step that reports no progress for this long gets a "still running" line (s)
+HEARTBEAT_S = 30.0
 
 
 def parse_products(text: str | Sequence[str]) -> tuple[str, ...]:
@@ -117,8 +119,32 @@ class _Meter:
         self.log, self.step, self.progress = log, step, progress
         self.t0 = time.perf_counter()
         self.last: dict = {}
+        self.last_stage = ""
+        self.last_report = self.t0
+
+    def heartbeat(self, every_s: float = HEARTBEAT_S):
+        """A thread that writes "still running" to run.log and the terminal every ``every_s`` seconds without a
+        progress report (a stage that reports none, e.g. the survey's final adjustment); ``stop()`` ends it."""
+        import threading
+
+        stop = threading.Event()
+        self.last_report = time.perf_counter()
+
+        def beat():
+            while not stop.wait(every_s / 4):
+                now = time.perf_counter()
+                if now - self.last_report >= every_s:
+                    self.last_report = now
+                    after = f"; last: {self.last_stage}" if self.last_stage else ""
+                    self.log.line(f"{self.step}: still running ({now - self.t0:.0f} s{after})")
+
+        t = threading.Thread(target=beat, name=f"run-{self.step}-heartbeat", daemon=True)
+        t.start()
+        return stop
 
     def __call__(self, stage: str, done: int, total: int) -> None:
+        self.last_report = time.perf_counter()
+        self.last_stage = f"{stage} {done}/{total}"
         if self.progress is not None:
             self.progress(self.step, stage, done, total)
         dec = int(10 * done / max(total, 1))
@@ -266,6 +292,7 @@ def _run(project: Path, inp, opt, products, rerun_from, log: RunLog, progress) -
         meter = _Meter(log, name, progress)
         log.line(f"{name}: running")
         t0 = time.perf_counter()
+        beating = meter.heartbeat()
         try:
             if name == "survey":
                 sr = survey_to_folder(folder, inp, opt, progress=lambda step, k, n: meter(step, k, n))
@@ -291,6 +318,8 @@ def _run(project: Path, inp, opt, products, rerun_from, log: RunLog, progress) -
             out.failed = res
             results.append(res)
             break
+        finally:
+            beating.set()
         dt = time.perf_counter() - t0
         recs[name] = {"hash": h, "manifest": f"{name}/{name}-manifest.json",
                       "manifest_sha256": file_digest(_manifest(folder, name)), "seconds": round(dt, 2),
