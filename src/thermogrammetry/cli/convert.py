@@ -114,6 +114,10 @@ def convert(
             "reflected_temperature_k": _temperature_k(reflected, u, "--reflected"),
             "atmospheric_temperature_k": _temperature_k(air_temperature, u, "--air-temperature"),
         }
+        if dji_sdk is not None:  # a library that cannot be DJI's for this machine: refused before anything is read
+            from ..io.dji_sdk import check_dji_sdk
+
+            check_dji_sdk(dji_sdk)
         rng = None
         if range_ is not None:
             rng = tuple(v + 273.15 if u == "C" else v for v in range_)

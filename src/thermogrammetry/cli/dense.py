@@ -23,6 +23,8 @@ def dense(
     fill: bool = typer.Option(False, "--fill", help="Fill DSM holes from the nearest cell (flagged in band 2)."),
     workers: int = typer.Option(2, "--workers", help="Local dask worker processes (0 or 1 = in this process)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
+    dji_sdk: Optional[Path] = typer.Option(None, "--dji-sdk", help="DJI Thermal SDK library (libdirp.so): a survey of DJI R-JPEGs "
+                                           "decoded as raw counts is read again in kelvin (also $THERMOGRAMMETRY_DJI_TSDK; docs/dji.md)."),
 ) -> None:
     """Dense matching of an oriented survey: point cloud with each point's frame value, and a DSM GeoTIFF."""
     from rich.console import Console
@@ -37,6 +39,7 @@ def dense(
         with progress(console, "dense") as prog:
             task = prog.add_task("reference images", total=None)
             rep = run_dense(survey_dir, out, gsd=gsd, workers=workers, scheduler=scheduler, fill=fill,
+                            dji_sdk=None if dji_sdk is None else str(dji_sdk),
                             on_image=lambda k, n: prog.update(task, completed=k, total=n))
     except (ThermogrammetryError, OSError, ValueError) as exc:
         _fail(console, str(exc))

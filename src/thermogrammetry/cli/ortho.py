@@ -26,6 +26,8 @@ def ortho(
     humidity: float = typer.Option(50.0, "--humidity", help="Relative humidity in percent, for --transmission."),
     workers: int = typer.Option(2, "--workers", help="Local dask worker processes (0 or 1 = in this process)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
+    dji_sdk: Optional[Path] = typer.Option(None, "--dji-sdk", help="DJI Thermal SDK library (libdirp.so): a survey of DJI R-JPEGs "
+                                           "decoded as raw counts is read again in kelvin (also $THERMOGRAMMETRY_DJI_TSDK; docs/dji.md)."),
 ) -> None:
     """Orthophoto mosaic with z-buffer visibility, a documented image choice and no blending; 16-bit, source, angle,
     distance and gradient rasters beside it."""
@@ -40,7 +42,8 @@ def ortho(
         corr = CorrectionConfig(ambient_c=ambient_c, emissivity=emissivity, refractive_index=refractive_index,
                                 transmission=transmission, relative_humidity=humidity / 100.0) if correct else None
         rep = run_ortho(survey_dir, dsm, out, gsd=gsd, unit=unit, sampling=sampling, correct=correct, correction=corr,
-                        workers=workers, scheduler=scheduler)
+                        workers=workers, scheduler=scheduler,
+                        dji_sdk=None if dji_sdk is None else str(dji_sdk))
     except (ThermogrammetryError, OSError, ValueError) as exc:
         console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2)
@@ -48,5 +51,5 @@ def ortho(
                   f"from {rep['images_used']} images ({rep['sampling']}), {rep['seconds']:.1f} s", highlight=False)
     for n in rep["notes"]:
         console.print(f"note: {n}", highlight=False)
-    console.print(f"outputs in {out}: ortho.tif ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
+    console.print(f"outputs in {out}: ortho.tif ortho.qml ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
                   "ortho_distance.tif ortho_gradient.tif", highlight=False)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import time
 
 
 class LogProgress:
@@ -12,8 +13,10 @@ class LogProgress:
     changes (a new stage) and when it completes, so a run from a log or a pipe is never silent.
     """
 
-    def __init__(self, prefix: str):
+    def __init__(self, prefix: str, *, file=None, elapsed: bool = False):
         self.prefix = prefix
+        self.file = file
+        self.elapsed = elapsed
         self.tasks: dict[int, dict] = {}
 
     def __enter__(self):
@@ -28,11 +31,13 @@ class LogProgress:
         decile = int(10 * done / total)
         if force or decile != t["decile"] or t["desc"] != t["printed_desc"]:
             t["decile"], t["printed_desc"] = decile, t["desc"]
-            print(f"{self.prefix}: {t['desc']} {done}/{total}", file=sys.stderr, flush=True)
+            dt = f" ({time.perf_counter() - t['t0']:.1f} s)" if self.elapsed else ""
+            print(f"{self.prefix}: {t['desc']} {done}/{total}{dt}", file=self.file or sys.stderr, flush=True)
 
     def add_task(self, description: str, total: float | None = None, **_) -> int:
         k = len(self.tasks)
-        self.tasks[k] = {"desc": description, "total": total, "completed": 0, "decile": -1, "printed_desc": None}
+        self.tasks[k] = {"desc": description, "total": total, "completed": 0, "decile": -1, "printed_desc": None,
+                         "t0": time.perf_counter()}
         self._emit(self.tasks[k], force=True)
         return k
 
@@ -53,10 +58,11 @@ class LogProgress:
         self._emit(t)
 
 
-def progress(console, prefix: str, *, transient: bool = True):
-    """A rich progress bar when ``console`` is a terminal, else a :class:`LogProgress` with ``prefix``."""
+def progress(console, prefix: str, *, transient: bool = True, elapsed: bool = False):
+    """A rich progress bar when ``console`` is a terminal, else a :class:`LogProgress` with ``prefix`` printing to the
+    console's stream (``elapsed``: each line with the task's elapsed time)."""
     if not console.is_terminal:
-        return LogProgress(prefix)
+        return LogProgress(prefix, file=getattr(console, "file", None), elapsed=elapsed)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),

@@ -93,16 +93,18 @@ def survey(
                                         "video or SEQ/CSQ, measured from the images (see docs/verbs/survey.md)."),
     mapper: str = typer.Option("auto", "--mapper", help="incremental, global, or auto (default: global too when the "
                                "incremental's largest block holds < 80 % of the images; see docs/verbs/survey.md)."),
+    dji_sdk: Optional[Path] = typer.Option(None, "--dji-sdk", help="DJI Thermal SDK library (libdirp.so) for DJI R-JPEGs: "
+                                           "frames in kelvin instead of raw counts (also $THERMOGRAMMETRY_DJI_TSDK; docs/dji.md)."),
 ) -> None:
     """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report.
 
     Exit status: 0 when a block was oriented (some frames may be left out, each with its reason in survey.json and the report), 1 when nothing could be oriented (OUT still holds the report and the reasons), 2 on unusable input or arguments (nothing written).
     """  # noqa: E501 (one line: typer keeps the docstring's line breaks in --help)
+    args = {k: v for k, v in locals().items() if k in SURVEY_ARGS}
     from rich.console import Console
 
-    from ..camera import Camera
     from ..errors import ThermogrammetryError
-    from ..pipeline.survey import SurveyInput, SurveyOptions, survey_to_folder
+    from ..pipeline.survey import survey_to_folder
 
     console = Console(stderr=True)
 
@@ -112,73 +114,7 @@ def survey(
         raise typer.Exit(code)
 
     try:
-        rig_file = None
-        if rig is not None:
-            from ..sfm.rig import read_rig
-
-            if not rgb:
-                raise ThermogrammetryError(f"--rig {rig}: rig mode needs the RGB images (--rgb DIR) whose poses the thermal "
-                                           "images follow")
-            rig_file = read_rig(rig)
-        if gcps is not None and gcp_measurements is None:
-            raise ThermogrammetryError("--gcps needs --gcp-measurements (the image measurements of the GCPs)")
-        if (checkpoints is None) != (check_measurements is None):
-            raise ThermogrammetryError("--checkpoints and --check-measurements go together")
-        for p, flag in ((gcps, "--gcps"), (gcp_measurements, "--gcp-measurements"), (checkpoints, "--checkpoints"),
-                        (check_measurements, "--check-measurements"), (camera, "--camera")):
-            if p is not None and not p.is_file():
-                raise ThermogrammetryError(f"{flag} {p}: no such file")
-        if gnss.lower() not in ("auto", "none") and not Path(gnss).is_file():
-            raise ThermogrammetryError(f"--gnss {gnss!r}: expected auto, none or the path of a gnss.csv; no such file")
-        if out.exists() and not out.is_dir():
-            raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
-        # the user's CSV files are read once here, so that a malformed row stops the run before any frame is decoded
-        from ..io.testfield_csv import read_control_csv, read_gnss_csv, read_measurements_csv
-
-        if gnss.lower() not in ("auto", "none"):
-            read_gnss_csv(gnss)
-        for p in (gcps, checkpoints):
-            if p is not None:
-                read_control_csv(p)
-        for p in (gcp_measurements, check_measurements):
-            if p is not None:
-                read_measurements_csv(p)
-        cam = Camera.load(camera) if camera is not None else None
-        extra = {}
-        for flag, val, sizes in (("--lever-arm", lever_arm, (3,)), ("--gnss-sigma", gnss_sigma, (2, 3))):
-            if val is None:
-                continue
-            try:
-                v = [float(x) for x in val.split(",")]
-            except ValueError:
-                raise ThermogrammetryError(f"{flag} {val!r}: expected comma-separated numbers in metres") from None
-            if len(v) not in sizes or not all(math.isfinite(x) and abs(x) < 1e3 for x in v):
-                raise ThermogrammetryError(f"{flag} {val!r}: expected {' or '.join(str(k) for k in sizes)} finite numbers in metres")
-            if flag == "--lever-arm":
-                extra["lever_arm_m"] = tuple(v)
-            else:
-                if min(v) <= 0:
-                    raise ThermogrammetryError(f"{flag} {val!r}: standard deviations must be > 0")
-                extra["gnss_sigma_m"] = tuple(v if len(v) == 3 else (v[0], v[0], v[1]))
-        from ..sfm.features import ASIFT_MAX_FEATURES, Detector, FeatureOptions
-
-        det = Detector(detector)
-        extra["features"] = (FeatureOptions(detector=det, max_features=ASIFT_MAX_FEATURES) if det is Detector.ASIFT
-                             else FeatureOptions(detector=det))
-        if refine_ties.lower() not in ("off", "lsm"):
-            raise ThermogrammetryError(f"--refine-ties {refine_ties!r}: expected off or lsm")
-        if refine_ties.lower() == "lsm":
-            from ..sfm.lsm import LsmOptions
-
-            extra["tie_refinement"] = LsmOptions()
-        if not (math.isfinite(video_overlap) and 0 <= video_overlap < 1):
-            raise ThermogrammetryError(f"--video-overlap {video_overlap!r}: expected a fraction in [0, 1), e.g. 0.8")
-        opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, mapper=mapper,
-                            video_overlap=video_overlap, **extra, workers=workers if scheduler is None else 0,
-                            scheduler=scheduler)
-        inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,
-                          str(gcp_measurements) if gcp_measurements else None, str(checkpoints) if checkpoints else None,
-                          str(check_measurements) if check_measurements else None, rig=rig_file)
+        inp, opt = survey_inputs(**args)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         fail(str(exc))
     t0 = time.perf_counter()
@@ -209,3 +145,98 @@ def survey(
     if s["images_oriented"] == 0:
         raise typer.Exit(1)
 
+
+
+#: the parameters of :func:`survey` that :func:`survey_inputs` reads (``run`` shares them)
+SURVEY_ARGS = ("images", "out", "input_unit", "camera", "rgb", "rig", "gnss", "crs", "gcps", "gcp_measurements", "checkpoints",
+               "check_measurements", "workers", "scheduler", "lever_arm", "gnss_sigma", "low_texture", "refine_ties", "detector",
+               "video_overlap", "mapper", "dji_sdk")
+
+
+def survey_inputs(*, images, out, input_unit, camera, rgb, rig, gnss, crs, gcps, gcp_measurements, checkpoints,
+                  check_measurements, workers, scheduler, lever_arm, gnss_sigma, low_texture, refine_ties, detector,
+                  video_overlap, mapper, dji_sdk):
+    """The survey's :class:`SurveyInput` and :class:`SurveyOptions` from its command-line arguments (also ``run``'s),
+    every user file checked (and its CSV rows read) before any frame is decoded.
+
+    Raises
+    ------
+    ThermogrammetryError, ValueError, OSError
+        An unusable argument or file (the message names it); the caller exits with status 2.
+    """
+    from ..camera import Camera
+    from ..errors import ThermogrammetryError
+    from ..pipeline.survey import SurveyInput, SurveyOptions
+
+    if dji_sdk is not None:
+        from ..io.dji_sdk import check_dji_sdk
+
+        check_dji_sdk(dji_sdk)
+    rig_file = None
+    if rig is not None:
+        from ..sfm.rig import read_rig
+
+        if not rgb:
+            raise ThermogrammetryError(f"--rig {rig}: rig mode needs the RGB images (--rgb DIR) whose poses the thermal "
+                                       "images follow")
+        rig_file = read_rig(rig)
+    if gcps is not None and gcp_measurements is None:
+        raise ThermogrammetryError("--gcps needs --gcp-measurements (the image measurements of the GCPs)")
+    if (checkpoints is None) != (check_measurements is None):
+        raise ThermogrammetryError("--checkpoints and --check-measurements go together")
+    for p, flag in ((gcps, "--gcps"), (gcp_measurements, "--gcp-measurements"), (checkpoints, "--checkpoints"),
+                    (check_measurements, "--check-measurements"), (camera, "--camera")):
+        if p is not None and not p.is_file():
+            raise ThermogrammetryError(f"{flag} {p}: no such file")
+    if gnss.lower() not in ("auto", "none") and not Path(gnss).is_file():
+        raise ThermogrammetryError(f"--gnss {gnss!r}: expected auto, none or the path of a gnss.csv; no such file")
+    if out.exists() and not out.is_dir():
+        raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
+    # the user's CSV files are read once here, so that a malformed row stops the run before any frame is decoded
+    from ..io.testfield_csv import read_control_csv, read_gnss_csv, read_measurements_csv
+
+    if gnss.lower() not in ("auto", "none"):
+        read_gnss_csv(gnss)
+    for p in (gcps, checkpoints):
+        if p is not None:
+            read_control_csv(p)
+    for p in (gcp_measurements, check_measurements):
+        if p is not None:
+            read_measurements_csv(p)
+    cam = Camera.load(camera) if camera is not None else None
+    extra = {}
+    for flag, val, sizes in (("--lever-arm", lever_arm, (3,)), ("--gnss-sigma", gnss_sigma, (2, 3))):
+        if val is None:
+            continue
+        try:
+            v = [float(x) for x in val.split(",")]
+        except ValueError:
+            raise ThermogrammetryError(f"{flag} {val!r}: expected comma-separated numbers in metres") from None
+        if len(v) not in sizes or not all(math.isfinite(x) and abs(x) < 1e3 for x in v):
+            raise ThermogrammetryError(f"{flag} {val!r}: expected {' or '.join(str(k) for k in sizes)} finite numbers in metres")
+        if flag == "--lever-arm":
+            extra["lever_arm_m"] = tuple(v)
+        else:
+            if min(v) <= 0:
+                raise ThermogrammetryError(f"{flag} {val!r}: standard deviations must be > 0")
+            extra["gnss_sigma_m"] = tuple(v if len(v) == 3 else (v[0], v[0], v[1]))
+    from ..sfm.features import ASIFT_MAX_FEATURES, Detector, FeatureOptions
+
+    det = Detector(detector)
+    extra["features"] = (FeatureOptions(detector=det, max_features=ASIFT_MAX_FEATURES) if det is Detector.ASIFT
+                         else FeatureOptions(detector=det))
+    if refine_ties.lower() not in ("off", "lsm"):
+        raise ThermogrammetryError(f"--refine-ties {refine_ties!r}: expected off or lsm")
+    if refine_ties.lower() == "lsm":
+        from ..sfm.lsm import LsmOptions
+
+        extra["tie_refinement"] = LsmOptions()
+    if not (math.isfinite(video_overlap) and 0 <= video_overlap < 1):
+        raise ThermogrammetryError(f"--video-overlap {video_overlap!r}: expected a fraction in [0, 1), e.g. 0.8")
+    opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, mapper=mapper,
+                        video_overlap=video_overlap, **extra, workers=workers if scheduler is None else 0,
+                        scheduler=scheduler, dji_sdk=None if dji_sdk is None else str(dji_sdk))
+    inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,
+                      str(gcp_measurements) if gcp_measurements else None, str(checkpoints) if checkpoints else None,
+                      str(check_measurements) if check_measurements else None, rig=rig_file)
+    return inp, opt

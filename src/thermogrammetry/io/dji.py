@@ -31,7 +31,6 @@ References
 from __future__ import annotations
 
 import ctypes
-import os
 import struct
 from pathlib import Path
 from typing import Iterator
@@ -40,15 +39,15 @@ import numpy as np
 
 from ..errors import ConfigError, CorruptFileError, InvalidInputError, UnsupportedFormatError
 from ..radiometry.measurement import MeasurementParams
+from .dji_sdk import INSTALL_HINT, SDK_ENV, sdk_path
 from .exif import jpeg_segments, parse_xmp, read_exif
 from .thermal import Geotag, ReadOptions, ThermalImage, ThermalMetadata, register_reader
 
 __all__ = ["parse_dji_params", "SDK_ENV"]
 
-SDK_ENV = "THERMOGRAMMETRY_DJI_TSDK"
 NO_CONVERSION_NOTE = (
-    "DJI R-JPEG: raw counts only -- DJI documents no conversion of these counts to temperature; "
-    f"point dji_sdk= (or ${SDK_ENV}) to DJI's Thermal SDK library to get temperatures"
+    "DJI R-JPEG: raw counts only -- DJI documents no conversion of these counts to temperature; for "
+    f"temperatures {INSTALL_HINT}; or keep the raw counts (--raw, products labelled as counts)"
 )
 
 
@@ -82,14 +81,18 @@ def parse_dji_params(app4: bytes) -> dict | None:
     return {k: float(v) for k, v in out.items()} if ok else None
 
 
+_CHECKED: set[str] = set()
+
+
 def _sdk_measure(lib_path: str, data: bytes, params: dict | None, overrides: dict, shape: tuple[int, int]) -> np.ndarray:
-    """Temperatures (K) from DJI's Thermal SDK (libdirp) via ctypes."""
-    if not os.path.isfile(lib_path):
-        raise ConfigError(f"DJI Thermal SDK library {lib_path!r} does not exist; expected the path of libdirp.so / libdirp.dll")
-    try:
-        lib = ctypes.CDLL(lib_path)
-    except OSError as exc:
-        raise ConfigError(f"DJI Thermal SDK library {lib_path!r} cannot be loaded: {exc}") from None
+    """Temperatures (K) from DJI's Thermal SDK (libdirp) via ctypes (loaded by :func:`.dji_sdk.load_dji_sdk`:
+    its plugins first, no ``LD_LIBRARY_PATH`` needed; checked once per path by :func:`.dji_sdk.check_dji_sdk`)."""
+    from .dji_sdk import check_dji_sdk, load_dji_sdk
+
+    if lib_path not in _CHECKED:
+        check_dji_sdk(lib_path)
+        _CHECKED.add(lib_path)
+    lib = load_dji_sdk(lib_path)
 
     class Params(ctypes.Structure):  # dirp_measurement_params_t (packed floats)
         # v1 ABI: distance (m), humidity (%), emissivity, reflection (°C); later SDKs append ambient_temp (°C).
@@ -185,7 +188,7 @@ def _read_dji(path: Path, data: bytes, opts: ReadOptions) -> Iterator[ThermalIma
         source_path=str(path), reader="dji_rjpeg", frame_index=None, notes=notes,
         extra={"dji_params": dji, "xmp": xmp, "utc_at_exposure": xmp.get("UTCAtExposure")}, exif=exif,
     )
-    sdk = opts.dji_sdk or os.environ.get(SDK_ENV)
+    sdk = sdk_path(opts.dji_sdk)
     temperature = None
     if sdk:
         temperature = _sdk_measure(sdk, data, dji, opts.overrides, (h, w))

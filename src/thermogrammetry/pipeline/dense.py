@@ -34,8 +34,8 @@ __all__ = ["run_dense"]
 
 
 
-def _reference_task(survey_path: str, i: int, config: DenseConfig):
-    sv = open_survey(survey_path)
+def _reference_task(survey_path: str, i: int, config: DenseConfig, dji_sdk: str | None = None):
+    sv = open_survey(survey_path, dji_sdk)
     cands = rank_pairs(i, sv.cameras, sv.poses, sv, config)
     pts, info = reference_points(i, sv.cameras, sv.poses, sv, config, pairs=cands)
     depth = info.get("depth_m", float("nan"))
@@ -62,14 +62,16 @@ def _in_quad(px, py, quad) -> np.ndarray:
 
 def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseConfig | None = None,
               workers: int = 1, scheduler: str | None = None, fill: bool = False, tile: int = 512,
-              on_image=None) -> dict:
+              on_image=None, dji_sdk: str | None = None) -> dict:
     """Dense cloud and DSM of a survey folder (see the module docstring). Returns the ``dense.json`` dict.
 
-    ``on_image(done, total)`` is called after each reference image (progress).
+    ``on_image(done, total)`` is called after each reference image (progress). ``dji_sdk``: DJI's Thermal SDK
+    library, for a survey of DJI R-JPEGs decoded as raw counts: the cloud's values are then temperatures read again
+    from the R-JPEGs through the SDK (:class:`~thermogrammetry.pipeline.frames.SurveyFrames`).
     """
     t0 = time.perf_counter()
     cfg = config or DenseConfig()
-    sv = SurveyFrames(survey_dir)
+    sv = SurveyFrames(survey_dir, dji_sdk=dji_sdk)
     if gsd is not None and not (np.isfinite(gsd) and gsd > 0):
         raise ConfigError(f"--gsd {gsd!r}: expected a positive ground sampling distance in metres")
     with OutputSet(out_dir, "dense") as stage:
@@ -95,9 +97,9 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
     try:
         path = str(Path(survey_dir).resolve())
         if client is not None:
-            it = ordered_results(client, _reference_task, [path] * n, list(range(n)), [cfg] * n)
+            it = ordered_results(client, _reference_task, [path] * n, list(range(n)), [cfg] * n, [sv.dji_sdk] * n)
         else:
-            it = (_reference_task(path, i, cfg) for i in range(n))
+            it = (_reference_task(path, i, cfg, sv.dji_sdk) for i in range(n))
         # the DSM gsd needs the image GSD: collect the first results before spilling
         pending = []
         for i, (pts, info) in enumerate(it):
@@ -195,6 +197,7 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
         "workers": int(workers) if not scheduler else None,
         "scheduler": scheduler,
         "notes": notes,
+        "dji_sdk": sv.dji_sdk,
     }
     write_atomic_text(out / "dense.json", json.dumps(report, indent=1, default=float) + "\n")
     return report

@@ -32,8 +32,8 @@ __all__ = ["run_ortho", "check_dsm_matches_survey"]
 
 
 def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoConfig, margin_m: float,
-                correction=None, unit_out: str = "K"):
-    sv = open_survey(survey_path)
+                correction=None, unit_out: str = "K", dji_sdk: str | None = None):
+    sv = open_survey(survey_path, dji_sdk)
     r0, c0, rows, cols = window
     # ortho cells (with a one-cell pad for the normals) and their DSM heights
     X, Y = grid.cell_centres(r0 - 1, c0 - 1, rows + 2, cols + 2)
@@ -95,6 +95,21 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
 
 
 
+def _write_style(out: Path, label: str) -> dict:
+    """``ortho.qml`` beside ``ortho.tif``: QGIS's default style of the mosaic (thermal palette between the 2nd and
+    98th percentiles of the values, read from a decimated copy, legend in ``label``). Returns its ``ortho.json`` entry."""
+    import rasterio
+
+    from ..products.qml import robust_limits, thermal_qml
+
+    with rasterio.open(out / "ortho.tif") as src:
+        k = max(1, int(np.ceil(max(src.width, src.height) / 2048)))
+        v = src.read(1, out_shape=(max(1, src.height // k), max(1, src.width // k)), masked=True)
+    lo, hi = robust_limits(np.asarray(v.astype(np.float64).filled(np.nan)))
+    write_atomic_text(out / "ortho.qml", thermal_qml(lo, hi, label))
+    return {"file": "ortho.qml", "min": lo, "max": hi, "unit": label, "limits": "2nd and 98th percentiles of the values"}
+
+
 _DSM_META: dict = {}
 
 
@@ -143,13 +158,18 @@ def check_dsm_matches_survey(meta: dict, sv, dsm_path, survey_dir) -> None:
 
 def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: str | None = None,
               sampling: str = "nearest", correct: bool = False, correction=None, workers: int = 1,
-              scheduler: str | None = None, tile: int = 512, config: OrthoConfig | None = None) -> dict:
-    """``thermogrammetry ortho``: the mosaic and its companion rasters in ``out_dir``; returns ``ortho.json``."""
+              scheduler: str | None = None, tile: int = 512, config: OrthoConfig | None = None, on_tile=None,
+              dji_sdk: str | None = None) -> dict:
+    """``thermogrammetry ortho``: the mosaic and its companion rasters in ``out_dir``; returns ``ortho.json``.
+
+    ``on_tile(done, total)`` is called after each mosaic tile (progress). ``dji_sdk``: DJI's Thermal SDK library,
+    for a survey of DJI R-JPEGs decoded as raw counts: the mosaic then holds temperatures read again from the
+    R-JPEGs through the SDK (:class:`~thermogrammetry.pipeline.frames.SurveyFrames`)."""
     from ..errors import ConfigError
     from ..products.correction import as_correction_config
 
     t0 = time.perf_counter()
-    sv = SurveyFrames(survey_dir)
+    sv = SurveyFrames(survey_dir, dji_sdk=dji_sdk)
     if not Path(dsm_path).exists():
         from ..errors import DataFileError
 
@@ -191,13 +211,13 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
     margin_m = min(50.0, (meta["zmax"] - meta["zmin"]) * np.tan(np.radians(cfg.max_angle_deg)))
     with OutputSet(out_dir, "ortho") as stage:
         report = _write_ortho(Path(stage.stage), sv, grid, meta, cfg, margin_m, corr, unit_out, label, notes, correct,
-                              survey_dir, dsm_path, workers, scheduler, t0)
+                              survey_dir, dsm_path, workers, scheduler, t0, on_tile)
         stage.commit({"seconds": report["seconds"]})
     return report
 
 
 def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label, notes, correct, survey_dir, dsm_path,
-                 workers, scheduler, t0) -> dict:
+                 workers, scheduler, t0, on_tile=None) -> dict:
     """The rasters and ``ortho.json`` of :func:`run_ortho`, written into the staging folder ``out``."""
     from ..radiometry.encoding import choose_uint16_mapping, encode_uint16
     from ..products.raster import RasterSpec, read_window, write_cogs
@@ -217,6 +237,9 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         stats["cells"] += int(np.isfinite(v).sum())
         stats["uncorrected"] += res["uncorrected"]
         sources.update(int(s) for s in np.unique(res["source"]) if s >= 0)
+        stats["tiles"] = stats.get("tiles", 0) + 1
+        if on_tile:
+            on_tile(stats["tiles"], len(windows))
         return {"value": v, "source": np.stack([res["source"], res["row"], res["col"]]), "angle": res["angle_deg"].astype(np.float32),
                 "distance": res["distance_m"].astype(np.float32)}
 
@@ -225,9 +248,9 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
             nt = len(windows)
             tiles = (collect(r) for r in ordered_results(client, _ortho_task, [spath] * nt, [dpath] * nt, [grid] * nt,
                                                          windows, [cfg] * nt, [margin_m] * nt, [corr] * nt,
-                                                         [unit_out] * nt))
+                                                         [unit_out] * nt, [sv.dji_sdk] * nt))
         else:
-            tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out)) for w in windows)
+            tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out, sv.dji_sdk)) for w in windows)
         crs = sv.crs
         specs = {
             "value": RasterSpec(out / "ortho.tif", np.float32, nodata=float("nan"), unit=label,
@@ -248,6 +271,7 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
     finally:
         if client is not None:
             client.close()
+    style = _write_style(out, label)
     # 16-bit encoding with one mapping for the whole mosaic (seed 002)
     if np.isfinite(stats["lo"]):
         if sv.unit == "K":
@@ -307,6 +331,8 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         "corrected": bool(correct),
         "correction": None if corr is None else {k: str(getattr(corr, k)) for k in corr.__dataclass_fields__},
         "seconds": round(time.perf_counter() - t0, 2),
+        "style": style,
+        "dji_sdk": sv.dji_sdk,
         "notes": notes,
     }
     write_atomic_text(out / "ortho.json", json.dumps(report, indent=1) + "\n")

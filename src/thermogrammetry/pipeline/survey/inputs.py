@@ -137,13 +137,13 @@ VIDEO_FALLBACK_INTERVAL_S = 0.5
 SEQUENCE_SUFFIXES = {".seq", ".csq"}
 
 
-def _decode(path: Path, input_unit: str | None, overlap: float | None = None):
+def _decode(path: Path, input_unit: str | None, overlap: float | None = None, dji_sdk: str | None = None):
     """One input file -> list of (name suffix, array, unit, geotag dict, camera guess dict, note).
 
     A FLIR SEQ/CSQ recording with several frames keeps only those that :class:`~thermogrammetry.io.video.OverlapSelector`
     picks for ``overlap`` (a recording at 30 Hz holds frames that overlap by > 99 %; all of them would be near-duplicate
     images and an unbounded memory), after a first pass that estimates the sensor's static pattern; ``overlap=None``
-    keeps every frame."""
+    keeps every frame. ``dji_sdk``: DJI's Thermal SDK library for DJI R-JPEGs (temperatures; else raw counts)."""
     from ...io import iter_thermal
 
     suffix = path.suffix.lower()
@@ -157,7 +157,7 @@ def _decode(path: Path, input_unit: str | None, overlap: float | None = None):
             count = [0]
 
             def values():
-                for im in iter_thermal(path, unit=input_unit):
+                for im in iter_thermal(path, unit=input_unit, dji_sdk=dji_sdk):
                     count[0] += 1
                     yield frame_values(im, path)[1]
 
@@ -168,7 +168,7 @@ def _decode(path: Path, input_unit: str | None, overlap: float | None = None):
 
         def decoded(select):
             out = []
-            for im in iter_thermal(path, unit=input_unit):
+            for im in iter_thermal(path, unit=input_unit, dji_sdk=dji_sdk):
                 sfx, arr, unit = frame_values(im, path)
                 if select is not None and not select(arr):
                     continue
@@ -347,7 +347,7 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
                 h, w = img.shape[:2]
                 decoded = [("", img[..., ::-1].copy(), "dn", geo, _camera_guess(w, h, _Md), "RGB image")]
             else:
-                decoded = _decode(path, opt.input_unit, opt.video_overlap)
+                decoded = _decode(path, opt.input_unit, opt.video_overlap, opt.dji_sdk)
         except (ThermogrammetryError, OSError, ValueError, MemoryError) as exc:
             fail(path, exc)
             if progress:
@@ -377,7 +377,7 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
         if k in others:
             continue
         try:
-            emit(k, "thermal", path, _decode(path, opt.input_unit, opt.video_overlap))
+            emit(k, "thermal", path, _decode(path, opt.input_unit, opt.video_overlap, opt.dji_sdk))
         except (ThermogrammetryError, OSError, ValueError, MemoryError) as exc:
             fail(path, exc)
     images = [im for ims in slots for im in ims]

@@ -82,6 +82,9 @@ class SurveyOptions:
 
     Attributes
     ----------
+    dji_sdk : str or None
+        Path of DJI's Thermal SDK library (``libdirp.so``) for DJI R-JPEGs: their frames become temperatures (K);
+        None: ``$THERMOGRAMMETRY_DJI_TSDK`` if set, else raw counts (:mod:`thermogrammetry.io.dji`).
     input_unit : "K" | "C" | None
         Unit of float TIFFs that carry none.
     gnss : "auto" | "none" | path of a gnss.csv
@@ -135,6 +138,7 @@ class SurveyOptions:
     """
 
     input_unit: str | None = None
+    dji_sdk: str | None = None
     gnss: str = "auto"
     crs: str | None = None
     self_calibrate: tuple = SELF_CALIBRATION
