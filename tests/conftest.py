@@ -6,6 +6,9 @@ when it is absent. Set ``THERMOGRAMMETRY_DATA`` to point elsewhere.
 
 Synthetic scenes that several tests render and survey are built once per test run through the ``scene_cache``
 fixture (``_cache.py``, ``cached_scenes.py``), shared by the pytest-xdist workers.
+
+Under pytest-xdist each worker's BLAS and OpenCV thread pools are limited to its share of the cores (2 workers on
+2 cores: one thread each): two workers whose libraries each start a thread per core only contend for the cores.
 """
 
 from __future__ import annotations
@@ -18,6 +21,24 @@ import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("THERMOGRAMMETRY_DATA", REPO_ROOT.parent / "shared" / "data"))
+
+
+_THREAD_LIMITS = None  # the threadpoolctl limiter of this worker (kept for the whole session)
+
+
+def pytest_configure(config):
+    """Under pytest-xdist: BLAS and OpenCV threads of this worker limited to its share of the cores."""
+    global _THREAD_LIMITS
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0") or 0)
+    if workers < 2:
+        return
+    share = max(1, (os.cpu_count() or 1) // workers)
+    from threadpoolctl import threadpool_limits
+
+    _THREAD_LIMITS = threadpool_limits(limits=share)
+    import cv2
+
+    cv2.setNumThreads(share)
 
 
 @pytest.fixture(scope="session")
