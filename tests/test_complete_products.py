@@ -170,6 +170,10 @@ def test_cloud_las_version_rgb_intensity_crs_and_laz(tmp_path, version, laz):
     assert w.files[0] == path.name and path.exists() and not (tmp_path / ("c.las" if laz else "c.laz")).exists()
     las = laspy.read(path)
     assert str(las.header.version) == version
+    raw = path.read_bytes()
+    if version == "1.2":  # what a LAS 1.2-only reader checks: header size 227, point format 3 (+ extra bytes)
+        assert raw[24:26] == b"\x01\x02" and struct.unpack_from("<H", raw, 94)[0] == 227 and raw[104] == 3
+        assert struct.unpack_from("<H", raw, 105)[0] >= 34
     assert las.header.point_format.id == (3 if version == "1.2" else 7)
     assert np.allclose(las.x, p["x"], atol=6e-4) and np.array_equal(np.asarray(las["temperature_k"]), p["value"])
     assert las.header.parse_crs().to_epsg() == 32633
