@@ -238,3 +238,41 @@ def test_glb_is_y_up_at_a_local_origin_with_offset_and_crs(tmp_path):
     assert np.max(np.abs(back - V)) < 1e-4
     # upright: the wall's 4 m height is along +Y; the ground (z = 380) at the lowest Y
     assert abs(np.ptp(P[:, 1]) - 4.0) < 1e-5 and np.argmin(P[:, 1]) in (0, 1, 4, 5)
+
+
+def test_cameras_geopackage_points_and_footprints(holed_ortho):
+    """cameras.gpkg read back with sqlite3 as a GeoPackage reader does: the required tables, the SRS, the binary
+    geometry header and ISO WKB; camera points at the centres, footprints the corners' rays on the plane."""
+    import sqlite3
+
+    from thermogrammetry.io.oriented import OrientedCameras
+    from thermogrammetry.products.gpkg import cameras_gpkg_bytes
+
+    root, _ = holed_ortho
+    oc = OrientedCameras.load(root / "survey")
+    path = root / "cameras.gpkg"
+    path.write_bytes(cameras_gpkg_bytes(oc, 0.0))
+    db = sqlite3.connect(path)
+    assert db.execute("PRAGMA application_id").fetchone()[0] == 0x47504B47
+    assert {r[0] for r in db.execute("SELECT srs_id FROM gpkg_spatial_ref_sys")} == {-1, 0, 4326, 32633}
+    assert sorted(db.execute("SELECT table_name, geometry_type_name, srs_id, z FROM gpkg_geometry_columns")) == [
+        ("cameras", "POINT", 32633, 1), ("footprints", "POLYGON", 32633, 0)]
+    pts = db.execute("SELECT name, geom FROM cameras ORDER BY fid").fetchall()
+    assert len(pts) == len(oc.images) == len(FRAMES)
+    for (name, g), im in zip(pts, oc.images):
+        assert g[:2] == b"GP" and struct.unpack_from("<i", g, 4)[0] == 32633
+        bo, kind, x, y, z = struct.unpack_from("<BIddd", g, 8 + 32)
+        assert name == im.name and kind == 1001 and np.allclose([x, y, z], im.center, atol=1e-9)
+    feet = db.execute("SELECT name, geom, area_m2 FROM footprints ORDER BY fid").fetchall()
+    assert len(feet) == len(FRAMES)
+    for (name, g, area), im in zip(feet, oc.images):
+        bo, kind, nring, npt = struct.unpack_from("<BIII", g, 40)
+        ring = np.frombuffer(g, "<f8", count=2 * npt, offset=53).reshape(npt, 2)
+        assert kind == 3 and nring == 1 and npt == 5 and np.array_equal(ring[0], ring[-1])
+        # nadir-ish frame: the footprint contains the camera's ground point, its size = height x the sensor's angle
+        cam = oc.camera_of(im)
+        w, h = cam.image_size
+        H = im.center[2]
+        want = (H * (w - 1) / cam.K[0, 0]) * (H * (h - 1) / cam.K[1, 1])
+        assert 0.8 * want < area < 1.25 * want
+        assert ring[:, 0].min() < im.center[0] < ring[:, 0].max() and ring[:, 1].min() < im.center[1] < ring[:, 1].max()
