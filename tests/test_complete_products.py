@@ -276,3 +276,12 @@ def test_cameras_geopackage_points_and_footprints(holed_ortho):
         want = (H * (w - 1) / cam.K[0, 0]) * (H * (h - 1) / cam.K[1, 1])
         assert 0.8 * want < area < 1.25 * want
         assert ring[:, 0].min() < im.center[0] < ring[:, 0].max() and ring[:, 1].min() < im.center[1] < ring[:, 1].max()
+
+
+def test_ortho_refuses_a_max_angle_outside_0_90_and_a_negative_hole_size(holed_ortho):
+    root, _ = holed_ortho
+    for extra in (["--max-angle", "95"], ["--fill-max-hole", "-1"]):
+        out = root / f"bad{len(extra[1])}"
+        assert main(["ortho", str(root / "survey"), "--dsm", str(root / "dsm.tif"), "-o", str(out), "--workers", "0"]
+                    + extra) == 2
+        assert not out.exists()

@@ -18,6 +18,7 @@ def ortho(
     gsd: Optional[float] = typer.Option(None, "--gsd", help="Cell size in metres (default: the DSM's)."),
     unit: Optional[str] = typer.Option(None, "--unit", help="K or C for temperature frames (default K); not allowed for raw counts."),
     sampling: str = typer.Option("nearest", "--sampling", help="nearest (bit-exact copy of the source pixel) or bilinear."),
+    max_angle: float = typer.Option(60.0, "--max-angle", help="Largest viewing angle to the DSM normal (deg) of a source pixel."),
     correct: bool = typer.Option(False, "--correct", help="Correct for viewing angle, directional emissivity and transmission (DSM normals and distances)."),
     ambient_c: float = typer.Option(22.0, "--ambient-c", help="Reflected ambient temperature (°C), for --correct."),
     emissivity: str = typer.Option("cosine", "--emissivity", help="cosine (Sawicki et al.) or fresnel, for --correct."),
@@ -45,7 +46,10 @@ def ortho(
     try:
         corr = CorrectionConfig(ambient_c=ambient_c, emissivity=emissivity, refractive_index=refractive_index,
                                 transmission=transmission, relative_humidity=humidity / 100.0) if correct else None
+        from ..products.ortho import OrthoConfig
+
         rep = run_ortho(survey_dir, dsm, out, gsd=gsd, unit=unit, sampling=sampling, correct=correct, correction=corr,
+                        config=OrthoConfig(sampling=sampling, max_angle_deg=max_angle),
                         workers=workers, scheduler=scheduler, fill=fill, max_hole_m=max_hole,
                         dji_sdk=None if dji_sdk is None else str(dji_sdk))
     except (ThermogrammetryError, OSError, ValueError) as exc:

@@ -221,6 +221,8 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
     grid = Grid(dg.x0, dg.y0, float(g), int(np.ceil(dg.width * dg.gsd / g)), int(np.ceil(dg.height * dg.gsd / g)), tile)
     if max_hole_m is not None and not (np.isfinite(max_hole_m) and max_hole_m >= 0):
         raise ConfigError(f"--fill-max-hole {max_hole_m!r}: expected a hole size in metres >= 0")
+    if not 0.0 < float(cfg.max_angle_deg) < 90.0:
+        raise ConfigError(f"--max-angle {cfg.max_angle_deg!r}: expected a viewing angle in degrees between 0 and 90")
     margin_m = min(50.0, (meta["zmax"] - meta["zmin"]) * np.tan(np.radians(cfg.max_angle_deg)))
     with OutputSet(out_dir, "ortho") as stage:
         report = _write_ortho(Path(stage.stage), sv, grid, meta, cfg, margin_m, corr, unit_out, label, notes, correct,
@@ -352,6 +354,7 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         "offset": offset,
         "u16_nodata": 0,
         "sampling": str(cfg.sampling),
+        "max_angle_deg": float(cfg.max_angle_deg),
         "score": SCORE_DOC,
         "gsd_m": grid.gsd,
         "width": grid.width,
