@@ -285,3 +285,10 @@ def test_ortho_refuses_a_max_angle_outside_0_90_and_a_negative_hole_size(holed_o
         assert main(["ortho", str(root / "survey"), "--dsm", str(root / "dsm.tif"), "-o", str(out), "--workers", "0"]
                     + extra) == 2
         assert not out.exists()
+
+
+def test_dense_refuses_an_unknown_las_version_before_writing(holed_ortho):
+    root, _ = holed_ortho
+    out = root / "dense_bad"
+    assert main(["dense", str(root / "survey"), "-o", str(out), "--las-version", "1.3", "--workers", "0"]) == 2
+    assert not out.exists()
