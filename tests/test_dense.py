@@ -291,6 +291,12 @@ def test_dense_outputs_and_dsm_accuracy_against_truth(dense_run):
     z, g, crs, tags = read_raster(out / "dsm.tif")
     assert crs == "EPSG:32633" and tags.get("unit") == "m"
     assert g.gsd == pytest.approx(rep["gsd_m"])
+    assert tags["vertical_datum"].startswith("as in the input files")  # no vertical datum in the survey's CRS
+    # dsm_filled.tif beside the DSM as measured: same heights where measured, holes interpolated and flagged
+    zf, g2, _, _ = read_raster(out / "dsm_filled.tif")
+    mask, _, _, _ = read_raster(out / "dsm_filled.tif", band=2)
+    assert g2 == g and np.array_equal(zf[np.isfinite(z)], z[np.isfinite(z)])
+    assert np.nansum(mask) == rep["dsm_filled"]["filled_cells"] > 0 and np.array_equal(mask == 1, np.isnan(z) & np.isfinite(zf))
     X, Y = g.cell_centres(0, 0, g.height, g.width)
     zt = true_height(sc, X.ravel(), Y.ravel()).reshape(z.shape)
     err = z - zt
@@ -323,15 +329,21 @@ def test_dense_cloud_las_ply_carry_exact_frame_values(dense_run):
     assert "temperature_k" in las.point_format.extra_dimension_names
     assert las.header.parse_crs().to_epsg() == 32633
     ply = plyfile.PlyData.read(str(out / "cloud.ply"))
-    v = ply["vertex"]
-    assert len(v) == len(las.points) == json.loads((out / "dense.json").read_text())["points"]
+    # PLY coordinates are relative to the offset stated in its header and in dense.json
+    off = np.array(json.loads((out / "dense.json").read_text())["cloud_offset"])
+    assert [float(o) for o in [c for c in ply.comments if c.startswith("offset ")][0].split()[1:]] == list(off)
+    vv = ply["vertex"]
+    v = {n: np.asarray(vv[n]) for n in ("x", "y", "z", "temperature_k", "views", "source_image", "nx", "ny", "nz")}
+    v["x"], v["y"], v["z"] = v["x"] + off[0], v["y"] + off[1], v["z"] + off[2]
+    assert len(vv) == len(las.points) == json.loads((out / "dense.json").read_text())["points"]
+    assert np.array_equal(vv["scalar_temperature_k"], vv["temperature_k"])
     assert np.allclose(v["x"], las.x, atol=0.0006) and np.array_equal(v["temperature_k"], np.asarray(las["temperature_k"]))
     assert np.min(v["views"]) >= 3  # geometric consistency across >= 3 views
     # each point's value is its source frame's value at the pixel the point projects to, bit for bit
     oc = OrientedCameras.load(sv)
     names = json.loads((out / "dense.json").read_text())["images"]
     rng = np.random.default_rng(0)
-    pick = rng.choice(len(v), 300, replace=False)
+    pick = rng.choice(len(vv), 300, replace=False)
     for p in pick:
         im = oc.image(names[int(v["source_image"][p])])
         Xc = im.R @ np.array([v["x"][p], v["y"][p], v["z"][p]]) + im.t

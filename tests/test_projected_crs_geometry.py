@@ -82,11 +82,16 @@ def test_glb_positions_keep_millimetres_at_projected_coordinates(textured):
 
     res = textured["lv95"]
     glb = glb_bytes(res, preview_rgb(res.temperature_k))
-    mesh = trimesh.load(io.BytesIO(glb), file_type="glb", force="scene").to_geometry()  # node translation applied
+    mesh = trimesh.load(io.BytesIO(glb), file_type="glb", force="scene").to_geometry()
     want = res.vertices[res.atlas.vmapping]
     assert mesh.vertices.shape == want.shape
-    # float32 positions relative to the node's translation: ~1e-6 m for a 30 m building (0.25 m in world float32)
-    assert np.max(np.abs(mesh.vertices - want)) < 1e-3
+    # Y-up float32 positions about the offset in the asset's extras: ~1e-6 m for a 30 m building (0.25 m in
+    # world float32)
+    n = int.from_bytes(glb[12:16], "little")
+    ox, oy, oz = __import__("json").loads(glb[20:20 + n])["asset"]["extras"]["thermogrammetry"]["offset"]
+    P = np.asarray(mesh.vertices, float)
+    back = np.column_stack([P[:, 0] + ox, -P[:, 2] + oy, P[:, 1] + oz])
+    assert np.max(np.abs(back - want)) < 1e-3
 
 
 def test_mesh_rasters_at_projected_coordinates(scene):

@@ -107,7 +107,7 @@ def test_killed_run_resumes_from_the_last_finished_step(project, capfd):
 def test_layout_hashes_report_and_log(project):
     proj = project["proj"]
     assert (proj / "notes.txt").read_text() == "the user's own notes\n"  # a user's file in PROJECT is kept
-    for sub, files in (("survey", ["cameras.json", "survey.json", "report.html", "survey-manifest.json"]),
+    for sub, files in (("survey", ["cameras.json", "survey.json", "report.html", "survey-manifest.json", "cameras.gpkg"]),
                        ("dense", ["dsm.tif", "cloud.las", "cloud.ply", "dense.json", "dense-manifest.json"]),
                        ("ortho", ["ortho.tif", "ortho.qml", "ortho.json", "ortho-manifest.json"])):
         for f in files:

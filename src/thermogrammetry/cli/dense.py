@@ -21,6 +21,13 @@ def dense(
     out: Path = typer.Option(..., "-o", "--out", help="Output folder: cloud.las cloud.ply dsm.tif dense.json."),
     gsd: Optional[float] = typer.Option(None, "--gsd", help="DSM cell size in metres (default: 2 × the images' GSD)."),
     fill: bool = typer.Option(False, "--fill", help="Fill DSM holes from the nearest cell (flagged in band 2)."),
+    surface_fill: bool = typer.Option(True, "--fill-surface/--no-fill", help="Also write dsm_filled.tif: the DSM's holes "
+                                      "filled by Laplace interpolation from the rim (band 2 flags them); dsm.tif stays as measured."),
+    max_hole: Optional[float] = typer.Option(None, "--fill-max-hole", help="Largest hole filled entirely in dsm_filled.tif, "
+                                             "in metres across (default 100 DSM cells)."),
+    laz: bool = typer.Option(False, "--laz", help="Write the cloud as LAZ (cloud.laz, compressed with lazrs) instead of cloud.las."),
+    las_version: str = typer.Option("1.4", "--las-version", help="1.4 (point format 7: RGB, extra bytes, WKT CRS) or 1.2 "
+                                    "(point format 3: RGB, GeoTIFF keys; for readers that refuse LAS 1.4)."),
     workers: int = typer.Option(2, "--workers", help="Local dask worker processes (0 or 1 = in this process)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
     dji_sdk: Optional[Path] = typer.Option(None, "--dji-sdk", help="DJI Thermal SDK library (libdirp.so): a survey of DJI R-JPEGs "
@@ -30,6 +37,7 @@ def dense(
     from rich.console import Console
 
     from ..pipeline.dense import run_dense
+    from ..products.cloud import CloudOptions
     from ..errors import ThermogrammetryError
 
     from .progress import progress
@@ -38,7 +46,9 @@ def dense(
     try:
         with progress(console, "dense") as prog:
             task = prog.add_task("reference images", total=None)
+            opts = CloudOptions(laz=laz, las_version=las_version)
             rep = run_dense(survey_dir, out, gsd=gsd, workers=workers, scheduler=scheduler, fill=fill,
+                            surface_fill=surface_fill, max_hole_m=max_hole, cloud_options=opts,
                             dji_sdk=None if dji_sdk is None else str(dji_sdk),
                             on_image=lambda k, n: prog.update(task, completed=k, total=n))
     except (ThermogrammetryError, OSError, ValueError) as exc:
@@ -47,4 +57,5 @@ def dense(
                   f"completeness {100 * rep['completeness']:.1f} %, {rep['seconds']:.1f} s", highlight=False)
     for n in rep["notes"]:
         console.print(f"note: {n}", highlight=False)
-    console.print(f"outputs in {out}: cloud.las cloud.ply dsm.tif dense.json", highlight=False)
+    files = " ".join(rep["cloud_files"] + ["dsm.tif"] + (["dsm_filled.tif"] if rep.get("dsm_filled") else []) + ["dense.json"])
+    console.print(f"outputs in {out}: {files}", highlight=False)

@@ -18,12 +18,17 @@ def ortho(
     gsd: Optional[float] = typer.Option(None, "--gsd", help="Cell size in metres (default: the DSM's)."),
     unit: Optional[str] = typer.Option(None, "--unit", help="K or C for temperature frames (default K); not allowed for raw counts."),
     sampling: str = typer.Option("nearest", "--sampling", help="nearest (bit-exact copy of the source pixel) or bilinear."),
+    max_angle: float = typer.Option(60.0, "--max-angle", help="Largest viewing angle to the DSM normal (deg) of a source pixel."),
     correct: bool = typer.Option(False, "--correct", help="Correct for viewing angle, directional emissivity and transmission (DSM normals and distances)."),
     ambient_c: float = typer.Option(22.0, "--ambient-c", help="Reflected ambient temperature (°C), for --correct."),
     emissivity: str = typer.Option("cosine", "--emissivity", help="cosine (Sawicki et al.) or fresnel, for --correct."),
     refractive_index: float = typer.Option(1.5, "--refractive-index", help="For --emissivity fresnel."),
     transmission: bool = typer.Option(False, "--transmission/--no-transmission", help="Atmospheric transmission over the distance, for --correct."),
     humidity: float = typer.Option(50.0, "--humidity", help="Relative humidity in percent, for --transmission."),
+    fill: bool = typer.Option(True, "--fill/--no-fill", help="Fill the DSM's holes for the mosaic's surface (Laplace "
+                              "interpolation from the rim; flagged in ortho_filled_mask.tif). --no-fill: the DSM as given."),
+    max_hole: Optional[float] = typer.Option(None, "--fill-max-hole", help="Largest hole filled entirely, in metres "
+                                             "across (default 100 DSM cells); farther than half of it from data stays empty."),
     workers: int = typer.Option(2, "--workers", help="Local dask worker processes (0 or 1 = in this process)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
     dji_sdk: Optional[Path] = typer.Option(None, "--dji-sdk", help="DJI Thermal SDK library (libdirp.so): a survey of DJI R-JPEGs "
@@ -41,15 +46,22 @@ def ortho(
     try:
         corr = CorrectionConfig(ambient_c=ambient_c, emissivity=emissivity, refractive_index=refractive_index,
                                 transmission=transmission, relative_humidity=humidity / 100.0) if correct else None
+        from ..products.ortho import OrthoConfig
+
         rep = run_ortho(survey_dir, dsm, out, gsd=gsd, unit=unit, sampling=sampling, correct=correct, correction=corr,
-                        workers=workers, scheduler=scheduler,
+                        config=OrthoConfig(sampling=sampling, max_angle_deg=max_angle),
+                        workers=workers, scheduler=scheduler, fill=fill, max_hole_m=max_hole,
                         dji_sdk=None if dji_sdk is None else str(dji_sdk))
     except (ThermogrammetryError, OSError, ValueError) as exc:
         console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
         raise typer.Exit(2)
     console.print(f"ortho {rep['width']}×{rep['height']} cells at {rep['gsd_m']} m in {rep['unit']}, {rep['cells']} cells "
                   f"from {rep['images_used']} images ({rep['sampling']}), {rep['seconds']:.1f} s", highlight=False)
+    if rep.get("fill"):
+        f = rep["fill"]
+        console.print(f"surface: {f['filled_cells']} DSM cells interpolated (holes up to {f['max_hole_m']:g} m), "
+                      f"{f['ortho_cells_on_filled']} mosaic cells on them (ortho_filled_mask.tif)", highlight=False)
     for n in rep["notes"]:
         console.print(f"note: {n}", highlight=False)
     console.print(f"outputs in {out}: ortho.tif ortho.qml ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
-                  "ortho_distance.tif ortho_gradient.tif", highlight=False)
+                  "ortho_distance.tif ortho_gradient.tif" + (" ortho_filled_mask.tif" if rep.get("fill") else ""), highlight=False)

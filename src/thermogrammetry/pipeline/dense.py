@@ -9,7 +9,9 @@ files read in chunks (memory bounded by the tile size); worker results are relea
 
 Outputs in ``out`` (one output set, :class:`~thermogrammetry._atomic.OutputSet`: OUT appears complete or not at
 all, a user's own files in OUT are kept): ``cloud.las``, ``cloud.ply``, ``dsm.tif`` (COG; band 1 height in m,
-nodata NaN; with ``fill=True`` a band 2 flags filled cells), ``dense.json``.
+nodata NaN, as measured; with ``fill=True`` a band 2 flags cells filled from their nearest neighbour),
+``dsm_filled.tif`` (unless ``surface_fill=False``: the DSM's holes filled by
+:func:`~thermogrammetry.products.dsm.fill_surface`, band 2 = 1 where interpolated), ``dense.json``.
 
 References
 ----------
@@ -62,8 +64,13 @@ def _in_quad(px, py, quad) -> np.ndarray:
 
 def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseConfig | None = None,
               workers: int = 1, scheduler: str | None = None, fill: bool = False, tile: int = 512,
-              on_image=None, dji_sdk: str | None = None) -> dict:
+              on_image=None, dji_sdk: str | None = None, surface_fill: bool = True,
+              max_hole_m: float | None = None, cloud_options=None) -> dict:
     """Dense cloud and DSM of a survey folder (see the module docstring). Returns the ``dense.json`` dict.
+
+    ``surface_fill``: also write ``dsm_filled.tif`` (holes up to ``max_hole_m`` across filled; default
+    :data:`~thermogrammetry.products.dsm.DEFAULT_MAX_HOLE_CELLS` cells). ``cloud_options``: a
+    :class:`~thermogrammetry.products.cloud.CloudOptions` (LAZ, LAS version; default LAS 1.4 + PLY).
 
     ``on_image(done, total)`` is called after each reference image (progress). ``dji_sdk``: DJI's Thermal SDK
     library, for a survey of DJI R-JPEGs decoded as raw counts: the cloud's values are then temperatures read again
@@ -74,18 +81,23 @@ def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseCon
     sv = SurveyFrames(survey_dir, dji_sdk=dji_sdk)
     if gsd is not None and not (np.isfinite(gsd) and gsd > 0):
         raise ConfigError(f"--gsd {gsd!r}: expected a positive ground sampling distance in metres")
+    if max_hole_m is not None and not (np.isfinite(max_hole_m) and max_hole_m >= 0):
+        raise ConfigError(f"--fill-max-hole {max_hole_m!r}: expected a hole size in metres >= 0")
+    fill_opts = (surface_fill, max_hole_m, cloud_options)
     with OutputSet(out_dir, "dense") as stage:
-        report = _write_dense(Path(stage.stage), sv, survey_dir, gsd, cfg, workers, scheduler, fill, tile, on_image, t0)
+        report = _write_dense(Path(stage.stage), sv, survey_dir, gsd, cfg, workers, scheduler, fill, tile, on_image, t0,
+                             fill_opts)
         stage.commit({"seconds": report["seconds"]})
     return report
 
 
 def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig, workers, scheduler, fill: bool,
-                 tile: int, on_image, t0: float) -> dict:
+                 tile: int, on_image, t0: float, fill_opts=(True, None, None)) -> dict:
     """The cloud, the DSM and ``dense.json`` of :func:`run_dense`, written into the staging folder ``out``."""
     from .._atomic import write_atomic_text
     from ..products.cloud import CloudWriter, value_dimension
-    from ..products.dsm import TileSpill, fill_holes, grid_median
+    from ..products.dsm import TileSpill, fill_holes, grid_median, height_tags, write_filled_dsm
+    from ..products.qml import robust_limits
     from ..products.raster import Grid
     from ..products.raster import write_cog
 
@@ -134,7 +146,12 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
         xmax, ymax = min(xmax, fx[:, 0].max()), min(ymax, fx[:, 1].max())
     grid = Grid.covering(xmin, ymin, xmax, ymax, spill.gsd, tile)
     offset = (0.5 * (xmin + xmax), 0.5 * (ymin + ymax), 0.0)
-    cw = CloudWriter(out / "cloud.las", out / "cloud.ply", unit=sv.unit, crs=sv.crs, offset_xyz=offset)
+    surface_fill, max_hole_m, cloud_options = fill_opts
+    # the colour/intensity limits: 2nd and 98th percentiles of every 16th point's value (one read of the spill)
+    sample = [c["value"][::16] for key in sorted(spill.keys) for c in spill.iter_chunks(key)]
+    limits = robust_limits(np.concatenate(sample).astype(np.float64)) if sample else (0.0, 1.0)
+    cw = CloudWriter(out / "cloud.las", out / "cloud.ply", unit=sv.unit, crs=sv.crs, offset_xyz=offset,
+                     options=cloud_options, value_limits=limits)
     stats = {"valid": 0, "covered": 0, "valid_covered": 0, "filled": 0}
 
     def dsm_tile(r0, c0, rows, cols):
@@ -166,13 +183,14 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
                   bands=2 if fill else 1,
                   description=["height (m), median of the dense points per cell", "1 = filled (not measured)"]
                   if fill else "height (m), median of the dense points per cell",
-                  tags={"product": "thermogrammetry dense DSM", "gsd_m": grid.gsd})
+                  tags={"product": "thermogrammetry dense DSM", "gsd_m": grid.gsd, **height_tags(sv.crs)})
         cw.close()
     except BaseException:
         cw.abort()
         raise
     finally:
         spill.cleanup()
+    filled = write_filled_dsm(out / "dsm.tif", out / "dsm_filled.tif", max_hole_m, sv.crs) if surface_fill else None
     completeness = stats["valid_covered"] / max(1, stats["covered"])
     notes = []
     if sv.unit == "dn":
@@ -188,7 +206,13 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
         "value_dimension": value_dimension(sv.unit),
         "crs": sv.crs,
         "dsm": {"width": grid.width, "height": grid.height, "x0": grid.x0, "y0": grid.y0, "valid_cells": stats["valid"],
-                "filled_cells": stats["filled"] if fill else None},
+                "filled_cells": stats["filled"] if fill else None, "vertical": height_tags(sv.crs)},
+        "dsm_filled": filled,
+        "cloud_files": cw.files,
+        "cloud_offset": list(cw.ply_offset),
+        "cloud_colour": {"palette": "thermal (as ortho.qml)", "value_limits": list(limits),
+                         "intensity": "round(65535 * (value - lo) / (hi - lo)), clipped to 0..65535",
+                         "las_version": cw.options.las_version, "point_format": cw.header.point_format.id},
         "completeness_definition": "share of DSM cells inside >= min_consistent + 1 (default 3) image footprints (at each image's matched depth) "
                                    "that hold a measured height",
         "images": sv.names,

@@ -32,7 +32,7 @@ __all__ = ["run_ortho", "check_dsm_matches_survey"]
 
 
 def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoConfig, margin_m: float,
-                correction=None, unit_out: str = "K", dji_sdk: str | None = None):
+                correction=None, unit_out: str = "K", dji_sdk: str | None = None, filled_band: int | None = None):
     sv = open_survey(survey_path, dji_sdk)
     r0, c0, rows, cols = window
     # ortho cells (with a one-cell pad for the normals) and their DSM heights
@@ -48,6 +48,10 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
     dr1 = int(np.ceil((dg.y0 - ya) / dg.gsd)) + pad
     D = read_window(dsm_path, dr0, dc0, dr1 - dr0, dc1 - dc0)
     Z = bilinear(D, (dg.y0 - Y) / dg.gsd - 0.5 - dr0, (X - dg.x0) / dg.gsd - 0.5 - dc0)
+    filled = None
+    if filled_band:  # a cell whose height leans on an interpolated DSM cell (any bilinear weight on one)
+        F = np.nan_to_num(read_window(dsm_path, dr0, dc0, dr1 - dr0, dc1 - dc0, band=filled_band), nan=0.0)
+        filled = bilinear(F, (dg.y0 - Y) / dg.gsd - 0.5 - dr0, (X - dg.x0) / dg.gsd - 0.5 - dc0)[1:-1, 1:-1] > 0
     gx = np.full_like(Z, np.nan)
     gy = np.full_like(Z, np.nan)
     gx[:, 1:-1] = (Z[:, 2:] - Z[:, :-2]) / (2 * grid.gsd)
@@ -90,6 +94,8 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
         v = v - 273.15
     res["value"] = v.astype(np.float32)
     res["uncorrected"] = notes
+    if filled is not None:
+        res["filled"] = np.where(np.isfinite(res["value"]), filled.astype(np.uint8), 255).astype(np.uint8)
     return res
 
 
@@ -159,8 +165,13 @@ def check_dsm_matches_survey(meta: dict, sv, dsm_path, survey_dir) -> None:
 def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: str | None = None,
               sampling: str = "nearest", correct: bool = False, correction=None, workers: int = 1,
               scheduler: str | None = None, tile: int = 512, config: OrthoConfig | None = None, on_tile=None,
-              dji_sdk: str | None = None) -> dict:
+              dji_sdk: str | None = None, fill: bool = True, max_hole_m: float | None = None) -> dict:
     """``thermogrammetry ortho``: the mosaic and its companion rasters in ``out_dir``; returns ``ortho.json``.
+
+    ``fill`` (default): the mosaic's surface is the DSM with its holes filled
+    (:func:`~thermogrammetry.products.dsm.fill_surface`, holes up to ``max_hole_m`` across, default
+    :data:`~thermogrammetry.products.dsm.DEFAULT_MAX_HOLE_CELLS` DSM cells); the cells on filled heights are
+    flagged in ``ortho_filled_mask.tif`` and counted in ``ortho.json``. ``fill=False``: the DSM as given.
 
     ``on_tile(done, total)`` is called after each mosaic tile (progress). ``dji_sdk``: DJI's Thermal SDK library,
     for a survey of DJI R-JPEGs decoded as raw counts: the mosaic then holds temperatures read again from the
@@ -208,25 +219,36 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
         raise ConfigError(f"--gsd {gsd!r}: expected a positive cell size in metres")
     dg = meta["grid"]
     grid = Grid(dg.x0, dg.y0, float(g), int(np.ceil(dg.width * dg.gsd / g)), int(np.ceil(dg.height * dg.gsd / g)), tile)
+    if max_hole_m is not None and not (np.isfinite(max_hole_m) and max_hole_m >= 0):
+        raise ConfigError(f"--fill-max-hole {max_hole_m!r}: expected a hole size in metres >= 0")
+    if not 0.0 < float(cfg.max_angle_deg) < 90.0:
+        raise ConfigError(f"--max-angle {cfg.max_angle_deg!r}: expected a viewing angle in degrees between 0 and 90")
     margin_m = min(50.0, (meta["zmax"] - meta["zmin"]) * np.tan(np.radians(cfg.max_angle_deg)))
     with OutputSet(out_dir, "ortho") as stage:
         report = _write_ortho(Path(stage.stage), sv, grid, meta, cfg, margin_m, corr, unit_out, label, notes, correct,
-                              survey_dir, dsm_path, workers, scheduler, t0, on_tile)
+                              survey_dir, dsm_path, workers, scheduler, t0, on_tile, (bool(fill), max_hole_m))
         stage.commit({"seconds": report["seconds"]})
     return report
 
 
 def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label, notes, correct, survey_dir, dsm_path,
-                 workers, scheduler, t0, on_tile=None) -> dict:
+                 workers, scheduler, t0, on_tile=None, fill_opts=(True, None)) -> dict:
     """The rasters and ``ortho.json`` of :func:`run_ortho`, written into the staging folder ``out``."""
+    from ..products.dsm import write_filled_dsm
     from ..radiometry.encoding import choose_uint16_mapping, encode_uint16
     from ..products.raster import RasterSpec, read_window, write_cogs
 
-    client = open_client(workers, scheduler)
     spath = str(Path(survey_dir).resolve())
     dpath = str(Path(dsm_path).resolve())
+    surface = out / ".ortho_surface.tif"  # the filled DSM the tiles read (removed once the mosaic is written)
+    fill_rec, band = None, None
+    if fill_opts[0]:
+        fill_rec = write_filled_dsm(dpath, surface, fill_opts[1], sv.crs)
+        fill_rec.pop("file")
+        dpath, band = str(surface.resolve()), 2
+    client = open_client(workers, scheduler)
     windows = list(grid.tiles())
-    stats = {"lo": np.inf, "hi": -np.inf, "cells": 0, "uncorrected": 0}
+    stats = {"lo": np.inf, "hi": -np.inf, "cells": 0, "uncorrected": 0, "filled": 0}
     sources: set = set()
 
     def collect(res):
@@ -240,17 +262,22 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         stats["tiles"] = stats.get("tiles", 0) + 1
         if on_tile:
             on_tile(stats["tiles"], len(windows))
-        return {"value": v, "source": np.stack([res["source"], res["row"], res["col"]]), "angle": res["angle_deg"].astype(np.float32),
-                "distance": res["distance_m"].astype(np.float32)}
+        got = {"value": v, "source": np.stack([res["source"], res["row"], res["col"]]), "angle": res["angle_deg"].astype(np.float32),
+               "distance": res["distance_m"].astype(np.float32)}
+        if band:
+            got["filled"] = res["filled"]
+            stats["filled"] += int((res["filled"] == 1).sum())
+        return got
 
     try:
         if client is not None:
             nt = len(windows)
             tiles = (collect(r) for r in ordered_results(client, _ortho_task, [spath] * nt, [dpath] * nt, [grid] * nt,
                                                          windows, [cfg] * nt, [margin_m] * nt, [corr] * nt,
-                                                         [unit_out] * nt, [sv.dji_sdk] * nt))
+                                                         [unit_out] * nt, [sv.dji_sdk] * nt, [band] * nt))
         else:
-            tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out, sv.dji_sdk)) for w in windows)
+            tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out, sv.dji_sdk, band))
+                     for w in windows)
         crs = sv.crs
         specs = {
             "value": RasterSpec(out / "ortho.tif", np.float32, nodata=float("nan"), unit=label,
@@ -267,10 +294,16 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
             "distance": RasterSpec(out / "ortho_distance.tif", np.float32, nodata=float("nan"), unit="m",
                                    description="camera-to-surface distance (m)"),
         }
+        if band:
+            specs["filled"] = RasterSpec(out / "ortho_filled_mask.tif", np.uint8, nodata=255, resampling="nearest",
+                                         description="1 = the cell lies on interpolated DSM heights (a filled hole), "
+                                                     "0 = on measured heights; 255 = no value")
         write_cogs(grid, specs, None, crs=crs, tiles=tiles)
     finally:
         if client is not None:
             client.close()
+        _DSM_META.clear()
+        surface.unlink(missing_ok=True)
     style = _write_style(out, label)
     # 16-bit encoding with one mapping for the whole mosaic (seed 002)
     if np.isfinite(stats["lo"]):
@@ -304,7 +337,7 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
 
     write_cogs(grid, {"u16": RasterSpec(out / "ortho_u16.tif", np.uint16, nodata=0, unit=label, scale=scale, offset=offset,
                                         description=f"{label} = code * {scale:g} + {offset:g}; 0 = no data",
-                                        resampling="nearest")}, u16_tile, crs=sv.crs)
+                                        resampling="average")}, u16_tile, crs=sv.crs)
     write_cogs(grid, {"grad": RasterSpec(out / "ortho_gradient.tif", np.float32, bands=2, nodata=float("nan"),
                                          description=[f"gradient magnitude ({label}/m)",
                                                       "gradient direction (deg clockwise from grid north, uphill)"])},
@@ -321,6 +354,7 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         "offset": offset,
         "u16_nodata": 0,
         "sampling": str(cfg.sampling),
+        "max_angle_deg": float(cfg.max_angle_deg),
         "score": SCORE_DOC,
         "gsd_m": grid.gsd,
         "width": grid.width,
@@ -332,6 +366,9 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         "correction": None if corr is None else {k: str(getattr(corr, k)) for k in corr.__dataclass_fields__},
         "seconds": round(time.perf_counter() - t0, 2),
         "style": style,
+        "overview_resampling": "average (temperature, 16-bit codes, angle, distance, gradient); nearest (source, filled mask)",
+        "fill": None if fill_rec is None else {**fill_rec, "ortho_cells_on_filled": stats["filled"],
+                                               "mask": "ortho_filled_mask.tif"},
         "dji_sdk": sv.dji_sdk,
         "notes": notes,
     }

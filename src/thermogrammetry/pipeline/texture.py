@@ -612,7 +612,7 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
             palette = {"colormap": "inferno", "quantity": "raw_counts", "unit": "counts", "label": "raw counts",
                        "min": lo, "max": hi, "note": "colours span the 1st-99th percentile of the raw counts (not temperatures)"}
         store.write_bytes("textured.png", tx.png_bytes(preview, text=None if palette is None else tx.palette_png_text(palette)))
-        glb = tx.glb_bytes(result, preview, extras=palette)
+        glb = tx.glb_bytes(result, preview, extras=palette, crs=cameras.crs)
         store.write_bytes("textured.glb", glb)
         store.write_text("viewer.html", tx.viewer_html(glb))
         store.write_text("textured.obj", tx.obj_text(result, quantity="raw counts" if counts else "temperatures"))

@@ -6,6 +6,15 @@ memory is bounded by the tile size, not by the survey size. Empty cells are noda
 (:func:`fill_holes`) they are filled from the nearest valid cell within ``max_distance_px`` and flagged in
 a mask band.
 
+:func:`fill_surface` fills the holes of a DSM for the orthophoto's surface (``dsm_filled.tif``, the ortho's
+default): every empty cell within half the largest hole size of a measured cell is interpolated by Laplace
+(membrane) interpolation: the discrete Laplace equation on the 4-neighbour grid, the measured cells of the
+hole's rim held fixed (Dirichlet), no flux across the grid border or into the cells left empty (Neumann).
+The result is the smoothest surface through the rim: a plane is reproduced exactly, a hole's heights stay
+within its rim's range (maximum principle), and a gap at the data's outer edge is continued flat from the
+rim. Holes up to ``max_hole_px`` across are filled entirely; wider ones only within ``max_hole_px / 2`` of
+their rim. The computation holds the whole DSM in memory (about 30 bytes per cell while solving).
+
 References
 ----------
 Khodaei et al. (seed 003): DSM generation from the dense thermal point cloud.
@@ -21,7 +30,12 @@ import numpy as np
 
 from .raster import Grid
 
-__all__ = ["grid_median", "fill_holes", "TileSpill", "aligned_grid"]
+__all__ = ["grid_median", "fill_holes", "fill_surface", "FILL_METHOD", "DEFAULT_MAX_HOLE_CELLS", "height_tags", "write_filled_dsm", "TileSpill", "aligned_grid"]
+
+#: the method of :func:`fill_surface`, as recorded in dense.json / ortho.json
+FILL_METHOD = ("Laplace interpolation from the hole's rim (measured cells fixed; no flux across the grid border or into cells left empty); cells farther than max_hole_m / 2 from a measured cell stay empty")
+#: default largest hole (in DSM cells) that :func:`fill_surface` fills entirely
+DEFAULT_MAX_HOLE_CELLS = 100
 
 #: records read at a time from a spill tile (12 MB of dense-point records)
 CHUNK_RECORDS = 1 << 18
@@ -68,6 +82,110 @@ def fill_holes(z, max_distance_px: float = np.inf) -> tuple[np.ndarray, np.ndarr
     out = z.copy()
     out[fill] = z[ri[fill], ci[fill]]
     return out, fill.astype(np.uint8)
+
+
+def fill_surface(z, max_hole_px: float = DEFAULT_MAX_HOLE_CELLS) -> tuple[np.ndarray, np.ndarray]:
+    """Fill the holes of a DSM by Laplace interpolation from their rim (see the module docstring).
+
+    Parameters
+    ----------
+    z : (H, W) heights (m), NaN = no data
+    max_hole_px : largest hole filled entirely, in cells (its width across); empty cells farther than
+        ``max_hole_px / 2`` from every measured cell stay empty. 0 fills nothing.
+
+    Returns
+    -------
+    filled : (H, W) float64 heights; mask : (H, W) uint8, 1 where the height was interpolated (not measured)
+    """
+    import scipy.sparse as sp
+    from scipy.ndimage import distance_transform_edt, label
+    from scipy.sparse.linalg import spsolve
+
+    z = np.asarray(z, float)
+    ok = np.isfinite(z)
+    out = z.copy()
+    none = np.zeros(z.shape, np.uint8)
+    if ok.all() or not ok.any() or not max_hole_px > 0:
+        return out, none
+    dist = distance_transform_edt(~ok)
+    todo = ~ok & (dist <= 0.5 * float(max_hole_px))
+    # 4-neighbour pieces that touch no measured cell have no rim: left empty (only reachable diagonally)
+    lab, n = label(todo)
+    H, W = z.shape
+    rim = np.zeros(z.shape, bool)
+    rim[1:] |= ok[:-1]
+    rim[:-1] |= ok[1:]
+    rim[:, 1:] |= ok[:, :-1]
+    rim[:, :-1] |= ok[:, 1:]
+    keep = np.zeros(n + 1, bool)
+    keep[np.unique(lab[todo & rim])] = True
+    keep[0] = False
+    todo = keep[lab]
+    if not todo.any():
+        return out, none
+    idx = np.full(z.shape, -1, np.int64)
+    rr, cc = np.nonzero(todo)
+    m = len(rr)
+    idx[rr, cc] = np.arange(m)
+    diag = np.zeros(m)
+    b = np.zeros(m)
+    rows, cols = [], []
+    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        r2, c2 = rr + dr, cc + dc
+        inside = (r2 >= 0) & (r2 < H) & (c2 >= 0) & (c2 < W)
+        r2, c2 = np.where(inside, r2, 0), np.where(inside, c2, 0)
+        meas = inside & ok[r2, c2]
+        other = inside & todo[r2, c2]
+        diag += meas | other
+        b += np.where(meas, z[r2, c2], 0.0)
+        rows.append(np.flatnonzero(other))
+        cols.append(idx[r2, c2][other])
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    A = sp.csr_matrix((np.r_[diag, -np.ones(len(rows))], (np.r_[np.arange(m), rows], np.r_[np.arange(m), cols])),
+                      shape=(m, m))
+    out[rr, cc] = spsolve(A.tocsc(), b)
+    return out, todo.astype(np.uint8)
+
+
+#: the GeoTIFF tag of a DSM whose CRS declares no vertical datum
+HEIGHTS_AS_INPUT = ("as in the input files: the survey's CRS declares no vertical datum (GNSS heights are usually "
+                    "ellipsoidal; the datum is unknown to the software)")
+
+
+def height_tags(crs) -> dict:
+    """GeoTIFF metadata on the DSM's heights: ``vertical_datum`` (the vertical CRS's name when ``crs`` is compound,
+    i.e. the heights' datum is known and written as a compound CRS; else :data:`HEIGHTS_AS_INPUT`)."""
+    if crs:
+        try:
+            from pyproj import CRS
+
+            c = CRS.from_user_input(crs)
+            if c.is_compound and len(c.sub_crs_list) > 1:
+                return {"vertical_datum": c.sub_crs_list[1].name}
+        except Exception:  # noqa: BLE001 - an unreadable CRS is written as given, its heights not judged
+            pass
+    return {"vertical_datum": HEIGHTS_AS_INPUT}
+
+
+def write_filled_dsm(src, dst, max_hole_m: float | None, crs) -> dict:
+    """Write ``dst``: the DSM ``src`` with its holes filled (:func:`fill_surface`); band 1 height (m), band 2 =
+    1 where interpolated. Returns the record of ``dense.json``/``ortho.json`` (file, method, cells filled)."""
+    from .raster import read_raster, write_cog
+
+    z, g, _, _ = read_raster(src)
+    max_px = DEFAULT_MAX_HOLE_CELLS if max_hole_m is None else float(max_hole_m) / g.gsd
+    zf, mask = fill_surface(z, max_px)
+    g = Grid(g.x0, g.y0, g.gsd, g.width, g.height, 512)
+    both = np.stack([zf, mask.astype(float)]).astype(np.float32)
+    both[1][~np.isfinite(zf)] = np.nan
+    write_cog(dst, g, np.float32, lambda r0, c0, rows, cols: both[:, r0:r0 + rows, c0:c0 + cols], crs=crs,
+              nodata=float("nan"), unit="m", bands=2,
+              description=["height (m): measured, holes interpolated (band 2)", "1 = interpolated (not measured), 0 = measured"],
+              tags={"product": "thermogrammetry filled DSM", "gsd_m": g.gsd, "fill_method": FILL_METHOD,
+                    "max_hole_m": max_px * g.gsd, **height_tags(crs)})
+    return {"file": Path(dst).name, "method": FILL_METHOD, "max_hole_m": round(max_px * g.gsd, 4),
+            "filled_cells": int(mask.sum()), "measured_cells": int(np.isfinite(z).sum()),
+            "empty_cells": int((~np.isfinite(zf)).sum())}
 
 
 def aligned_grid(xmin, ymin, xmax, ymax, gsd: float, tile: int) -> Grid:

@@ -93,9 +93,18 @@ def png_bytes(rgb, text: dict | None = None) -> bytes:
     return buf.tobytes()
 
 
-def glb_bytes(result, preview, extras: dict | None = None) -> bytes:
+#: how the GLB's positions map back to the survey's CRS (stored in the asset's extras)
+GLB_AXES = ("glTF +X = east, +Y = up, +Z = south (Y-up, right-handed) about a local origin: "
+            "CRS (x, y, z) = (X + offset_x, -Z + offset_y, Y + offset_z)")
+
+
+def glb_bytes(result, preview, extras: dict | None = None, crs: str | None = None) -> bytes:
     """Binary glTF of the atlas mesh with the preview as its base-colour texture (unlit look).
 
+    Positions are Y-up (glTF's convention: a viewer shows the model upright) about a local origin with no node
+    transform (float32 keeps sub-millimetre steps; the model sits at the viewer's origin, not kilometres away):
+    glTF ``(X, Y, Z) = (x − ox, z − oz, −(y − oy))``. The offset ``(ox, oy, oz)`` (m), ``crs`` and the axes
+    (:data:`GLB_AXES`) are in the asset's ``extras["thermogrammetry"]``.
     ``extras``: stored as the mesh's glTF ``extras`` under ``thermogrammetry_palette`` (what the colours mean)."""
     import trimesh
     from PIL import Image
@@ -106,7 +115,8 @@ def glb_bytes(result, preview, extras: dict | None = None) -> bytes:
     # glTF positions are float32: 0.25-0.5 m steps at projected-CRS coordinates (EPSG:2056, UTM). They are
     # stored relative to the mesh's local origin and the node's translation (a JSON double) adds it back.
     origin = local_origin(result.vertices)
-    V = result.vertices[at.vmapping] - origin
+    L = result.vertices[at.vmapping] - origin
+    V = np.column_stack([L[:, 0], L[:, 2], -L[:, 1]])  # z-up survey frame -> glTF Y-up
     uv = at.uv.copy()
     uv[:, 1] = 1.0 - uv[:, 1]  # trimesh takes OpenGL uv (origin bottom-left) and flips for glTF
     mat = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(preview), metallicFactor=0.0,
@@ -114,11 +124,26 @@ def glb_bytes(result, preview, extras: dict | None = None) -> bytes:
     mesh = trimesh.Trimesh(V, at.faces, visual=trimesh.visual.TextureVisuals(uv=uv, material=mat), process=False)
     if extras:
         mesh.metadata["thermogrammetry_palette"] = dict(extras)
-    T = np.eye(4)
-    T[:3, 3] = origin
     scene = trimesh.Scene()
-    scene.add_geometry(mesh, node_name="textured", geom_name="textured", transform=T)
-    return scene.export(file_type="glb")
+    scene.add_geometry(mesh, node_name="textured", geom_name="textured")
+    info = {"offset": [float(o) for o in origin], "crs": crs, "axes": GLB_AXES, "unit": "m"}
+    return _with_asset_extras(scene.export(file_type="glb"), {"thermogrammetry": info})
+
+
+def _with_asset_extras(glb: bytes, extras: dict) -> bytes:
+    """The GLB with ``asset.extras`` set (its JSON chunk rewritten, padded to 4 bytes with spaces)."""
+    import json
+    import struct
+
+    n_json, kind = struct.unpack_from("<II", glb, 12)
+    assert kind == 0x4E4F534A, "first GLB chunk must be JSON"
+    doc = json.loads(glb[20:20 + n_json].decode("utf-8"))
+    doc.setdefault("asset", {"version": "2.0"}).setdefault("extras", {}).update(extras)
+    js = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+    js += b" " * (-len(js) % 4)
+    rest = glb[20 + n_json:]
+    total = 12 + 8 + len(js) + len(rest)
+    return struct.pack("<4sII", b"glTF", 2, total) + struct.pack("<II", len(js), 0x4E4F534A) + js + rest
 
 
 def obj_text(result, mtl_name: str = "textured.mtl", *, quantity: str = "temperatures") -> str:
@@ -291,7 +316,7 @@ _VIEWER = r"""<!doctype html><html><head><meta charset="utf-8"><title>thermogram
 <body><canvas id="c"></canvas><img id="tex" src="data:image/png;base64,__PNG__" style="display:none">
 <script>
 // Minimal WebGL viewer of a GLB (one mesh, POSITION + TEXCOORD_0 + indices, base-colour texture), no libraries.
-// z is up (the survey frame); the camera looks at the bounding-box centre from the south-east, above.
+// y is up (glTF); the camera looks at the bounding-box centre from the south-east, above.
 const GLB = "__GLB__";
 function b64(s){const b=atob(s);const u=new Uint8Array(b.length);for(let i=0;i<b.length;i++)u[i]=b.charCodeAt(i);return u.buffer;}
 function parseGLB(buf){
@@ -337,7 +362,7 @@ window.onload=function(){
   for(let i=0;i<m.pos.length;i+=3)for(let k=0;k<3;k++){lo[k]=Math.min(lo[k],m.pos[i+k]);hi[k]=Math.max(hi[k],m.pos[i+k]);}
   const c=[(lo[0]+hi[0])/2,(lo[1]+hi[1])/2,(lo[2]+hi[2])/2], r=Math.hypot(hi[0]-lo[0],hi[1]-lo[1],hi[2]-lo[2])/2;
   const dir=norm(__DIR__), e=[c[0]+dir[0]*r*1.9,c[1]+dir[1]*r*1.9,c[2]+dir[2]*r*1.9];
-  const M=mul(persp(0.9,cv.width/cv.height,r*0.05,r*10),lookAt(e,c,[0,0,1]));
+  const M=mul(persp(0.9,cv.width/cv.height,r*0.05,r*10),lookAt(e,c,[0,1,0]));
   gl.uniformMatrix4fv(gl.getUniformLocation(pr,"M"),false,new Float32Array(M));
   gl.viewport(0,0,cv.width,cv.height);gl.clearColor(0,1,0,1);gl.enable(gl.DEPTH_TEST);
   gl.clear(gl.COLOR_BUFFER_BIT|gl.DEPTH_BUFFER_BIT);
@@ -351,7 +376,8 @@ window.onload=function(){
 def viewer_html(glb: bytes, *, view_direction=(0.35, -1.0, 0.55)) -> str:
     """A self-contained HTML page (plain WebGL, no libraries, works offline) showing a GLB written by
     :func:`glb_bytes`: the GLB and its texture are embedded as base64, background pure green (0, 255, 0).
-    ``view_direction``: from the model's centre towards the eye (z up)."""
+    ``view_direction``: from the model's centre towards the eye, in the survey frame (x east, y north, z up;
+    mapped to the GLB's Y-up axes)."""
     import base64
     import struct
 
@@ -363,6 +389,7 @@ def viewer_html(glb: bytes, *, view_direction=(0.35, -1.0, 0.55)) -> str:
     img = js["images"][0]
     bv = js["bufferViews"][img["bufferView"]]
     png = data[bin_off + bv.get("byteOffset", 0): bin_off + bv.get("byteOffset", 0) + bv["byteLength"]]
-    d = ",".join(f"{float(x):.6g}" for x in view_direction)
+    dx, dy, dz = (float(x) for x in view_direction)
+    d = ",".join(f"{x:.6g}" for x in (dx, dz, -dy))
     return (_VIEWER.replace("__GLB__", base64.b64encode(data).decode()).replace("__PNG__", base64.b64encode(png).decode())
             .replace("__DIR__", f"[{d}]"))

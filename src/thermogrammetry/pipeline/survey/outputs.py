@@ -1,4 +1,5 @@
-"""What ``survey`` writes: ``cameras.json``, ``survey.json``, the COLMAP text model, ``sparse.ply`` / ``sparse.las``."""
+"""What ``survey`` writes: ``cameras.json``, ``survey.json``, the COLMAP text model, ``sparse.ply`` / ``sparse.las``,
+``cameras.gpkg`` (camera centres and image footprints for QGIS, :mod:`thermogrammetry.products.gpkg`)."""
 
 from __future__ import annotations
 
@@ -186,6 +187,10 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
         project.write_text(CAMERAS_KEY, json.dumps(oc.to_dict(), indent=1) + "\n")
         _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, values)
         _write_clouds(project, rec.points[pts_ok], None if values is None else values[pts_ok], unit, mult, crs)
+        from ...products.gpkg import cameras_gpkg_bytes
+
+        zs = rec.points[pts_ok][:, 2]
+        project.write_bytes("cameras.gpkg", cameras_gpkg_bytes(oc, float(np.median(zs)) if len(zs) else None))
     SurveyStore(project).save_survey(summary)
     return {"images_oriented": summary["images_oriented"], "components": summary["components"], "rms_px": rms, "crs": crs}
 
