@@ -4,7 +4,9 @@ Unit of work: one reference image (rank its partners, match its pairs, fuse its 
 in :mod:`thermogrammetry.dense.fusion`). Work units run on the task runner (:mod:`thermogrammetry.tasks`: in
 this process for ``workers`` 0 or 1, on a local dask.distributed cluster for ``workers`` >= 2, or on an existing
 scheduler); results are collected in image order, so the cloud and the DSM are identical whichever way they
-ran. Points are spilled to per-tile files; the DSM and the cloud files are then written tile by tile, the spill
+ran. Points are spilled to per-tile files (in a scratch folder of the run's own, ``.dense.spill-<pid>-<random>``
+inside the staging folder: concurrent runs into one OUT never share one, and a killed run's is removed by the next
+run once its process is gone); the DSM and the cloud files are then written tile by tile, the spill
 files read in chunks (memory bounded by the tile size); worker results are released as soon as they are fetched.
 
 Outputs in ``out`` (one output set, :class:`~thermogrammetry._atomic.OutputSet`: OUT appears complete or not at
@@ -24,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import OutputSet
+from .._atomic import OutputSet, spill_folder
 from ..dense.fusion import POINT_DTYPE, DenseConfig, rank_pairs, reference_points
 from ..errors import ConfigError, DataFileError
 from ..tasks import open_client, ordered_results
@@ -72,7 +74,7 @@ def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseCon
     sv = SurveyFrames(survey_dir)
     if gsd is not None and not (np.isfinite(gsd) and gsd > 0):
         raise ConfigError(f"--gsd {gsd!r}: expected a positive ground sampling distance in metres")
-    with OutputSet(out_dir, "dense") as stage:
+    with OutputSet(out_dir, "dense", obsolete=(".dense_tiles",)) as stage:  # the fixed-name spill of older versions
         report = _write_dense(Path(stage.stage), sv, survey_dir, gsd, cfg, workers, scheduler, fill, tile, on_image, t0)
         stage.commit({"seconds": report["seconds"]})
     return report
@@ -109,7 +111,7 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
                     f_px = float(np.mean([c.K[0, 0] for c in sv.cameras]))
                     image_gsd = float(np.median(depths)) / f_px
                     gsd = float(gsd) if gsd is not None else float(np.round(2.0 * image_gsd, 3))
-                    spill = TileSpill(out / ".dense_tiles", POINT_DTYPE, gsd, tile)
+                    spill = TileSpill(spill_folder(out, "dense"), POINT_DTYPE, gsd, tile)  # a name of this run's own
                     for p in pending:
                         spill.append(p)
                     pending = []

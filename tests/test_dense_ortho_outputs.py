@@ -1,0 +1,113 @@
+"""dense and ortho against killed and concurrent runs: the spills and temporaries of a run are its own.
+
+A run killed outright (SIGKILL, power loss) leaves its staging folder beside OUT, its spill inside it and its
+GeoTIFF temporaries; the next run removes those whose process is gone, and its cloud has exactly the points of
+a clean run (an older version appended to a fixed-name spill in OUT: a rerun had twice the points). Two runs into
+one OUT at once: each builds its own set, the one that publishes last is what OUT holds, complete. The survey is
+3 frames with TRUE poses (tests/survey_truth.py): ~1.5 s per dense run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+from survey_truth import write_true_dsm, write_true_survey  # noqa: E402
+
+from thermogrammetry.cli.main import main  # noqa: E402
+
+FRAMES = [18, 19, 20]
+
+
+def _dead_pid() -> int:
+    """The id of a process that has ended (a killed run's)."""
+    p = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True)
+    return int(p.stdout)
+
+
+def _las_points(p: Path) -> int:
+    import laspy
+
+    with laspy.open(p) as f:
+        return int(f.header.point_count)
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    root = tmp_path_factory.mktemp("killed")
+    sc, sv = write_true_survey(root / "survey", frames=FRAMES)
+    write_true_dsm(root / "dsm.tif", sc, 0.3)
+    assert main(["dense", str(sv), "-o", str(root / "clean"), "--workers", "0"]) == 0
+    n = json.loads((root / "clean" / "dense.json").read_text())["points"]
+    assert n > 10_000 and _las_points(root / "clean" / "cloud.las") == n
+    return root, sv, n
+
+
+def _stale(folder: Path, pid: int, name: str) -> list[Path]:
+    """What a run of process ``pid`` killed while writing into ``folder/name`` leaves behind."""
+    stage = folder / f".{name}.partial-{pid}-k1ll3d"
+    spill = stage / f".dense.spill-{pid}-k1ll3d"
+    spill.mkdir(parents=True)
+    (spill / "tile_0_0.bin").write_bytes(b"\0" * 4096)
+    (folder / name).mkdir(exist_ok=True)
+    legacy = folder / name / ".dense_tiles"  # the fixed-name spill of an older version, in OUT itself
+    legacy.mkdir()
+    (legacy / "tile_0_0.bin").write_bytes(b"\0" * 4096)
+    tmp = folder / name / f".dsm.tif.{pid}.abcd1234.tmp.tif"
+    tmp.write_bytes(b"II*\0")
+    cog = folder / name / f".ortho.tif.{pid}.abcd1234.cog.tif"
+    cog.write_bytes(b"II*\0")
+    return [stage, legacy, tmp, cog]
+
+
+def test_dense_rerun_after_a_killed_run_has_the_clean_point_count(clean):
+    base, sv, n = clean
+    root = base / "rerun"  # a folder this process has not written into yet (stale files are looked for once)
+    root.mkdir()
+    left = _stale(root, _dead_pid(), "OUT")
+    live = root / f".OUT.partial-{os.getpid()}-running"  # a staging folder of a run still going: kept
+    live.mkdir()
+    assert main(["dense", str(sv), "-o", str(root / "OUT"), "--workers", "0"]) == 0
+    assert json.loads((root / "OUT" / "dense.json").read_text())["points"] == n
+    assert _las_points(root / "OUT" / "cloud.las") == n
+    assert [p for p in left if p.exists()] == [] and live.is_dir()
+    man = json.loads((root / "OUT" / "dense-manifest.json").read_text())
+    assert not [f for f in man["files"] if "tile_" in f or "spill" in f]
+    live.rmdir()
+
+
+def test_two_dense_runs_into_one_out_give_one_clean_cloud(clean):
+    """Run B starts and completes while run A is between its reference images; A then publishes its own set."""
+    from thermogrammetry.pipeline.dense import run_dense
+
+    root, sv, n = clean
+    out = root / "BOTH"
+    started = []
+
+    def a_progress(done, total):
+        if not started:
+            started.append(True)
+            rb = run_dense(sv, out, workers=0)
+            assert rb["points"] == n
+    ra = run_dense(sv, out, workers=0, on_image=a_progress)
+    assert ra["points"] == n and started
+    assert _las_points(out / "cloud.las") == n
+    assert json.loads((out / "dense-manifest.json").read_text())["complete"] is True
+    assert not [p for p in root.iterdir() if p.name.startswith(".BOTH.")]
+
+
+def test_ortho_rerun_removes_a_killed_runs_temporaries(clean):
+    base, sv, _ = clean
+    root = base / "ortho"
+    root.mkdir()
+    left = _stale(root, _dead_pid(), "ORTHO")
+    assert main(["ortho", str(sv), "--dsm", str(base / "dsm.tif"), "-o", str(root / "ORTHO"),
+                 "--workers", "0"]) == 0
+    assert (root / "ORTHO" / "ortho.tif").is_file()
+    assert [p for p in left if p.exists() and p.name != ".dense_tiles"] == []
