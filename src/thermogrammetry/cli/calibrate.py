@@ -24,7 +24,7 @@ from typing import List, Optional
 import typer
 
 from ..pipeline.calibrate import _coded_spec, read_image  # noqa: F401 (kept importable from here)
-from .app import app
+from .app import app, print_error
 
 
 @app.command("calibrate")
@@ -71,10 +71,10 @@ def calibrate(
                             image_size, pixel_pitch_um, focal_mm, output, k45, affinity, name, coded,
                             progress=lambda: progress(console, "calibrate"))
     except CalibrateUsageError as exc:
-        err.print(f"[bold red]error:[/] {exc}", markup=True, highlight=False)
+        print_error(err, exc)
         raise typer.Exit(2) from None
     except ThermogrammetryError as exc:
-        err.print(f"[bold red]error:[/] {type(exc).__name__}: {exc}", markup=True, highlight=False)
+        print_error(err, f"{type(exc).__name__}: {exc}")
         err.print(f"nothing was written to {output}", highlight=False)
         raise typer.Exit(2) from None
     if run.failed is not None:

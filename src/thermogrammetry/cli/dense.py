@@ -7,11 +7,11 @@ from typing import Optional
 
 import typer
 
-from .app import app
+from .app import app, print_error, print_plain
 
 
 def _fail(console, msg, code=2):
-    console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+    print_error(console, msg)
     raise typer.Exit(code)
 
 
@@ -21,8 +21,11 @@ def dense(
     out: Path = typer.Option(..., "-o", "--out", help="Output folder: cloud.las cloud.ply dsm.tif dense.json."),
     gsd: Optional[float] = typer.Option(None, "--gsd", help="DSM cell size in metres (default: 2 × the images' GSD)."),
     fill: bool = typer.Option(False, "--fill", help="Fill DSM holes from the nearest cell (flagged in band 2)."),
-    workers: int = typer.Option(2, "--workers", help="Local dask worker processes (0 or 1 = in this process)."),
+    workers: Optional[int] = typer.Option(None, "--workers", help="Local dask worker processes (0 or 1 = in this process; "
+                                          "default 2, or 1 on a single core; at most the cores)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
+    max_cells: Optional[int] = typer.Option(None, "--max-cells", help="Cap on the DSM's cells (default: sized for this "
+                                            "machine's memory, or $THERMOGRAMMETRY_MAX_CELLS)."),
 ) -> None:
     """Dense matching of an oriented survey: point cloud with each point's frame value, and a DSM GeoTIFF."""
     from rich.console import Console
@@ -30,18 +33,19 @@ def dense(
     from ..pipeline.dense import run_dense
     from ..errors import ThermogrammetryError
 
+    from ..tasks import default_workers
     from .progress import progress
 
     console = Console(stderr=True)
     try:
         with progress(console, "dense") as prog:
             task = prog.add_task("reference images", total=None)
-            rep = run_dense(survey_dir, out, gsd=gsd, workers=workers, scheduler=scheduler, fill=fill,
-                            on_image=lambda k, n: prog.update(task, completed=k, total=n))
+            rep = run_dense(survey_dir, out, gsd=gsd, workers=default_workers(workers), scheduler=scheduler, fill=fill,
+                            on_image=lambda k, n: prog.update(task, completed=k, total=n), max_cells=max_cells)
     except (ThermogrammetryError, OSError, ValueError) as exc:
         _fail(console, str(exc))
     console.print(f"{rep['points']} points, DSM {rep['dsm']['width']}×{rep['dsm']['height']} cells at {rep['gsd_m']} m, "
                   f"completeness {100 * rep['completeness']:.1f} %, {rep['seconds']:.1f} s", highlight=False)
     for n in rep["notes"]:
-        console.print(f"note: {n}", highlight=False)
-    console.print(f"outputs in {out}: cloud.las cloud.ply dsm.tif dense.json", highlight=False)
+        print_plain(console, f"note: {n}")
+    print_plain(console, f"outputs in {out}: cloud.las cloud.ply dsm.tif dense.json")

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .app import app
+from .app import app, print_error, print_plain
 
 
 @app.command("ortho")
@@ -24,8 +24,11 @@ def ortho(
     refractive_index: float = typer.Option(1.5, "--refractive-index", help="For --emissivity fresnel."),
     transmission: bool = typer.Option(False, "--transmission/--no-transmission", help="Atmospheric transmission over the distance, for --correct."),
     humidity: float = typer.Option(50.0, "--humidity", help="Relative humidity in percent, for --transmission."),
-    workers: int = typer.Option(2, "--workers", help="Local dask worker processes (0 or 1 = in this process)."),
+    workers: Optional[int] = typer.Option(None, "--workers", help="Local dask worker processes (0 or 1 = in this process; "
+                                          "default 2, or 1 on a single core; at most the cores)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
+    max_cells: Optional[int] = typer.Option(None, "--max-cells", help="Cap on the cells of the DSM and of the mosaic "
+                                            "(default: sized for this machine's memory, or $THERMOGRAMMETRY_MAX_CELLS)."),
 ) -> None:
     """Orthophoto mosaic with z-buffer visibility, a documented image choice and no blending; 16-bit, source, angle,
     distance and gradient rasters beside it."""
@@ -34,19 +37,20 @@ def ortho(
     from ..errors import ThermogrammetryError
     from ..products.correction import CorrectionConfig
     from ..pipeline.ortho import run_ortho
+    from ..tasks import default_workers
 
     console = Console(stderr=True)
     try:
         corr = CorrectionConfig(ambient_c=ambient_c, emissivity=emissivity, refractive_index=refractive_index,
                                 transmission=transmission, relative_humidity=humidity / 100.0) if correct else None
         rep = run_ortho(survey_dir, dsm, out, gsd=gsd, unit=unit, sampling=sampling, correct=correct, correction=corr,
-                        workers=workers, scheduler=scheduler)
+                        workers=default_workers(workers), scheduler=scheduler, max_cells=max_cells)
     except (ThermogrammetryError, OSError, ValueError) as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+        print_error(console, exc)
         raise typer.Exit(2)
     console.print(f"ortho {rep['width']}×{rep['height']} cells at {rep['gsd_m']} m in {rep['unit']}, {rep['cells']} cells "
                   f"from {rep['images_used']} images ({rep['sampling']}), {rep['seconds']:.1f} s", highlight=False)
     for n in rep["notes"]:
-        console.print(f"note: {n}", highlight=False)
-    console.print(f"outputs in {out}: ortho.tif ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
-                  "ortho_distance.tif ortho_gradient.tif", highlight=False)
+        print_plain(console, f"note: {n}")
+    print_plain(console, f"outputs in {out}: ortho.tif ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
+                         "ortho_distance.tif ortho_gradient.tif")

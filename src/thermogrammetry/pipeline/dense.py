@@ -36,8 +36,8 @@ __all__ = ["run_dense"]
 
 
 
-def _reference_task(survey_path: str, i: int, config: DenseConfig):
-    sv = open_survey(survey_path)
+def _reference_task(survey_path: str, i: int, config: DenseConfig, skip: tuple[str, ...] = ()):
+    sv = open_survey(survey_path, skip)
     cands = rank_pairs(i, sv.cameras, sv.poses, sv, config)
     pts, info = reference_points(i, sv.cameras, sv.poses, sv, config, pairs=cands)
     depth = info.get("depth_m", float("nan"))
@@ -64,24 +64,39 @@ def _in_quad(px, py, quad) -> np.ndarray:
 
 def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseConfig | None = None,
               workers: int = 1, scheduler: str | None = None, fill: bool = False, tile: int = 512,
-              on_image=None) -> dict:
+              on_image=None, max_cells: int | None = None) -> dict:
     """Dense cloud and DSM of a survey folder (see the module docstring). Returns the ``dense.json`` dict.
 
-    ``on_image(done, total)`` is called after each reference image (progress).
+    ``on_image(done, total)`` is called after each reference image (progress). Checked before any work (OUT is not
+    created when refused): the workers (:func:`~thermogrammetry.tasks.check_workers`), ``cameras.json`` and its frames
+    (:class:`SurveyFrames`: a frame that does not decode is skipped by name and listed), ``gsd``, and the DSM's size
+    against ``max_cells`` (:func:`~thermogrammetry.io.limits.max_cells`) as far as the cameras' extent tells it; the
+    DSM grid is checked again once the points give its extent.
     """
+    from ..io.limits import check_cells
+    from ..tasks import check_workers
+
     t0 = time.perf_counter()
     cfg = config or DenseConfig()
-    sv = SurveyFrames(survey_dir)
+    check_workers(workers, scheduler)
+    sv = SurveyFrames(survey_dir, need=3, verb="dense")
     if gsd is not None and not (np.isfinite(gsd) and gsd > 0):
         raise ConfigError(f"--gsd {gsd!r}: expected a positive ground sampling distance in metres")
+    if gsd is not None:  # the DSM covers at least the camera centres' extent: refuse a grid above the cap now
+        C = np.array([im.center for im in sv.images])
+        span = C[:, :2].max(axis=0) - C[:, :2].min(axis=0)
+        check_cells(int(np.ceil(span[0] / gsd)) + 1, int(np.ceil(span[1] / gsd)) + 1,
+                    f"DSM of {survey_dir} at --gsd {gsd:g} m (at least the cameras' extent, {span[0]:.1f} x {span[1]:.1f} m)",
+                    cap=max_cells, what="DSM")
     with OutputSet(out_dir, "dense", obsolete=(".dense_tiles",)) as stage:  # the fixed-name spill of older versions
-        report = _write_dense(Path(stage.stage), sv, survey_dir, gsd, cfg, workers, scheduler, fill, tile, on_image, t0)
+        report = _write_dense(Path(stage.stage), sv, survey_dir, gsd, cfg, workers, scheduler, fill, tile, on_image, t0,
+                              max_cells)
         stage.commit({"seconds": report["seconds"]})
     return report
 
 
 def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig, workers, scheduler, fill: bool,
-                 tile: int, on_image, t0: float) -> dict:
+                 tile: int, on_image, t0: float, max_cells: int | None = None) -> dict:
     """The cloud, the DSM and ``dense.json`` of :func:`run_dense`, written into the staging folder ``out``."""
     from .._atomic import write_atomic_text
     from ..products.cloud import CloudWriter, value_dimension
@@ -89,7 +104,10 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
     from ..products.raster import Grid
     from ..products.raster import write_cog
 
+    from ..io.limits import check_cells
+
     n = len(sv)
+    skip = tuple(name for name, _ in sv.skipped)
     client = open_client(workers, scheduler)
     results: list = []
     infos: list[dict] = []
@@ -97,9 +115,9 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
     try:
         path = str(Path(survey_dir).resolve())
         if client is not None:
-            it = ordered_results(client, _reference_task, [path] * n, list(range(n)), [cfg] * n)
+            it = ordered_results(client, _reference_task, [path] * n, list(range(n)), [cfg] * n, [skip] * n)
         else:
-            it = (_reference_task(path, i, cfg) for i in range(n))
+            it = (_reference_task(path, i, cfg, skip) for i in range(n))
         # the DSM gsd needs the image GSD: collect the first results before spilling
         pending = []
         for i, (pts, info) in enumerate(it):
@@ -132,6 +150,8 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
     if len(fx):
         xmin, ymin = max(xmin, fx[:, 0].min()), max(ymin, fx[:, 1].min())
         xmax, ymax = min(xmax, fx[:, 0].max()), min(ymax, fx[:, 1].max())
+    check_cells(int(np.ceil((xmax - xmin) / spill.gsd)) + 1, int(np.ceil((ymax - ymin) / spill.gsd)) + 1,
+                f"DSM of {survey_dir} at {spill.gsd:g} m ({xmax - xmin:.1f} x {ymax - ymin:.1f} m)", cap=max_cells, what="DSM")
     grid = Grid.covering(xmin, ymin, xmax, ymax, spill.gsd, tile)
     offset = (0.5 * (xmin + xmax), 0.5 * (ymin + ymax), 0.0)
     cw = CloudWriter(out / "cloud.las", out / "cloud.ply", unit=sv.unit, crs=sv.crs, offset_xyz=offset)
@@ -173,8 +193,14 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
         raise
     finally:
         spill.cleanup()
+    if stats["valid"] == 0:
+        raise DataFileError(f"{survey_dir}: the {int(cw.count)} dense point(s) fill no cell of the {grid.width}x{grid.height} "
+                            f"DSM at {grid.gsd:g} m; expected points inside the images' footprints")
     completeness = stats["valid_covered"] / max(1, stats["covered"])
     notes = []
+    if sv.skipped:
+        notes.append(f"{len(sv.skipped)} frame(s) skipped (damaged or unreadable): "
+                     + "; ".join(f"{name}: {why}" for name, why in sv.skipped))
     if sv.unit == "dn":
         notes.append("frames are display numbers of an 8-bit rendering: the cloud carries geometry only, no temperature")
     if sv.unit == "counts":
@@ -192,6 +218,7 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
         "completeness_definition": "share of DSM cells inside >= min_consistent + 1 (default 3) image footprints (at each image's matched depth) "
                                    "that hold a measured height",
         "images": sv.names,
+        "skipped_frames": [{"name": name, "reason": why} for name, why in sv.skipped],
         "pairs": infos,
         "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
         "workers": int(workers) if not scheduler else None,
