@@ -122,6 +122,13 @@ def _(t):
     return ortho_argv(t, tiny_survey(t), dsm(t, transform=tr)), ["dsm.tif", "south-up", "pixel height 1"], t / "OUT"
 
 
+@_c("ortho: truncated DSM (the GDAL reason is kept)")
+def _(t):
+    p = dsm(t, np.random.default_rng(1).normal(100.0, 1.0, (200, 200)), w=200, h=200)
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
+    return ortho_argv(t, tiny_survey(t), p), ["dsm.tif", "cannot be read", "IReadBlock failed"], t / "OUT"
+
+
 @_c("ortho: DSM without georeferencing (a plain TIFF)")
 def _(t):
     import tifffile

@@ -39,9 +39,14 @@ def dense(
     console = Console(stderr=True)
     try:
         with progress(console, "dense") as prog:
-            task = prog.add_task("reference images", total=None)
+            task = []  # added at the first reference image: a refusal before the matching prints no progress line
+
+            def on_image(k, n):
+                if not task:
+                    task.append(prog.add_task("reference images", total=n))
+                prog.update(task[0], completed=k, total=n)
             rep = run_dense(survey_dir, out, gsd=gsd, workers=default_workers(workers), scheduler=scheduler, fill=fill,
-                            on_image=lambda k, n: prog.update(task, completed=k, total=n), max_cells=max_cells)
+                            on_image=on_image, max_cells=max_cells)
     except (ThermogrammetryError, OSError, ValueError) as exc:
         _fail(console, str(exc))
     console.print(f"{rep['points']} points, DSM {rep['dsm']['width']}×{rep['dsm']['height']} cells at {rep['gsd_m']} m, "

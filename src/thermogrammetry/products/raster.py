@@ -185,8 +185,12 @@ def _write_cogs(grid: Grid, specs: dict, tile_fn, *, crs=None, tiles=None) -> No
             finally:
                 if os.path.exists(tmp2):
                     os.unlink(tmp2)
-    except rasterio.errors.RasterioError as exc:
-        raise DataFileError(f"{', '.join(str(sp.path) for sp in specs.values())}: cannot write GeoTIFF ({exc})") from None
+    except _raster_errors() as exc:
+        raise DataFileError(f"{', '.join(str(sp.path) for sp in specs.values())}: cannot write GeoTIFF "
+                            f"({_gdal_reason(exc)}; a full disk?)") from None
+    except OSError as exc:
+        raise DataFileError(f"{', '.join(str(sp.path) for sp in specs.values())}: cannot write GeoTIFF "
+                            f"({exc.strerror or exc})") from None
     finally:
         for key, d in dsts.items():
             try:
@@ -221,6 +225,27 @@ def write_cog(path, grid: Grid, dtype, tile_fn: Callable[[int, int, int, int], n
     spec = RasterSpec(Path(path), dtype, bands, nodata, unit, description, tags, scale, offset, resampling)
     write_cogs(grid, {"a": spec}, lambda *w: {"a": tile_fn(*w)}, crs=crs)
     return Path(path)
+
+
+def _gdal_reason(exc: BaseException) -> str:
+    """The GDAL message behind a rasterio error ("Read failed. See previous exception" names none): the chained
+    cause's text when there is one."""
+    parts = [f"{type(exc).__name__}: {exc}"]
+    cause = exc.__cause__ or exc.__context__
+    if cause is not None and str(cause) and str(cause) not in str(exc):
+        parts.insert(0, str(cause))
+    return "; ".join(parts)
+
+
+def _raster_errors() -> tuple:
+    """The exception classes rasterio and GDAL raise on damaged files or a full disk."""
+    import rasterio.errors
+
+    try:
+        from rasterio._err import CPLE_BaseError
+    except ImportError:  # pragma: no cover - another rasterio layout
+        return (rasterio.errors.RasterioError,)
+    return (rasterio.errors.RasterioError, CPLE_BaseError)
 
 
 def check_north_up(src, path, what: str = "raster") -> Grid:
@@ -276,8 +301,13 @@ def inspect_raster(path, what: str = "DSM", *, max_cells: int | None = None, ban
     p = Path(path)
     if not p.exists():
         raise DataFileError(f"{what} {path}: no such file")
+    import warnings
+
     try:
-        with rasterio.open(p) as src:
+        with warnings.catch_warnings():  # an ungeoreferenced file is reported below, not as a rasterio warning
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            src = rasterio.open(p)
+        with src:
             if src.count < band:
                 raise DataFileError(f"{path}: the {what} has {src.count} band(s); expected band {band} with heights")
             if src.width < 2 or src.height < 2:
@@ -300,8 +330,9 @@ def inspect_raster(path, what: str = "DSM", *, max_cells: int | None = None, ban
                     if first_inf is None:
                         r, c = np.argwhere(bad)[0]
                         first_inf = (int(r + win.row_off), int(c + win.col_off), float(v[r, c]))
-    except rasterio.errors.RasterioError as exc:
-        raise DataFileError(f"{what} {path}: cannot be read as a GeoTIFF ({type(exc).__name__}: {exc})") from None
+    except _raster_errors() as exc:
+        raise DataFileError(f"{what} {path}: cannot be read as a GeoTIFF ({_gdal_reason(exc)}); expected a complete "
+                            "GeoTIFF (a truncated or damaged file?)") from None
     if inf:
         r, c, val = first_inf
         raise DataFileError(f"{path}: the {what} holds {inf} infinite height(s), the first at row {r}, column {c} "
@@ -331,8 +362,8 @@ def read_raster(path, band: int = 1, *, max_cells: int | None = None) -> tuple[n
             tags.update(src.tags(band))
             if src.units and src.units[band - 1]:
                 tags.setdefault("unit", src.units[band - 1])
-    except rasterio.errors.RasterioError as exc:
-        raise DataFileError(f"{path}: cannot read GeoTIFF ({exc}); expected a DSM or product GeoTIFF") from None
+    except _raster_errors() as exc:
+        raise DataFileError(f"{path}: cannot read GeoTIFF ({_gdal_reason(exc)}); expected a DSM or product GeoTIFF") from None
     return a, g, crs, tags
 
 
