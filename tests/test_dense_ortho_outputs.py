@@ -182,3 +182,41 @@ def test_cameras_json_loads_in_linear_time():
     small, large = min(load(2_000) for _ in range(2)), load(8_000)
     assert large < 6 * small + 0.3, (small, large)
     assert large < 5.0
+
+
+def _dense_process(sv: Path, out: Path) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), OMP_NUM_THREADS="1")
+    return subprocess.Popen([sys.executable, "-m", "thermogrammetry", "dense", str(sv), "-o", str(out), "--workers", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def test_dense_sigkilled_mid_run_then_rerun_and_two_processes_at_once(clean):
+    """Real processes: a dense run SIGKILLed after its first reference image leaves its staging folder (with the
+    spill); the rerun removes it and has the clean point count. Two dense processes started together into one OUT:
+    both complete (the one that publishes second swaps its set in over the first), OUT holds one clean cloud."""
+    base, sv, n = clean
+    root = base / "sigkill"
+    root.mkdir()
+    p = _dense_process(sv, root / "OUT")
+    for line in p.stderr:
+        if "reference images 1/" in line:
+            break
+    p.kill()
+    p.wait(timeout=30)
+    left = [q for q in root.iterdir() if ".partial-" in q.name]
+    assert left and not (root / "OUT").exists()
+    assert main(["dense", str(sv), "-o", str(root / "OUT"), "--workers", "0"]) == 0
+    assert _las_points(root / "OUT" / "cloud.las") == n
+    assert not [q for q in root.iterdir() if ".partial-" in q.name]
+
+    both = base / "together"
+    both.mkdir()
+    procs = [_dense_process(sv, both / "OUT") for _ in range(2)]
+    results = [(q.wait(timeout=120), q.stderr.read()) for q in procs]
+    codes = sorted(c for c, _ in results)
+    assert codes == [0, 0], results  # the second to publish publishes over the first (one atomic swap)
+    assert all("Traceback" not in e for _, e in results), results
+    assert _las_points(both / "OUT" / "cloud.las") == n
+    assert json.loads((both / "OUT" / "dense.json").read_text())["points"] == n
+    assert json.loads((both / "OUT" / "dense-manifest.json").read_text())["complete"] is True
+    assert [q.name for q in both.iterdir()] == ["OUT"]

@@ -336,9 +336,8 @@ class OutputSet:
         names = self.files()
         doc = {"verb": self.verb, "complete": True, "files": names, **(manifest or {})}
         try:
-            if not self.out.exists():
-                write_atomic_text(self.stage / self.manifest_name, json.dumps(doc, indent=1) + "\n")
-                os.replace(self.stage, self.out)
+            if not self.out.exists() and self._publish_new(doc):
+                pass
             elif self._swap_into_existing(doc):
                 pass
             else:
@@ -359,6 +358,21 @@ class OutputSet:
             raise DataFileError(f"output folder {self.out}: cannot move the outputs into place ({exc.strerror or exc})") from None
         self.committed = True
         return [self.out / n for n in names]
+
+    def _publish_new(self, doc: dict) -> bool:
+        """Rename the stage to the absent OUT. False when another run published OUT meanwhile (two runs into one OUT
+        at once): the caller then publishes over it as over any existing OUT."""
+        import errno
+
+        write_atomic_text(self.stage / self.manifest_name, json.dumps(doc, indent=1) + "\n")
+        try:
+            os.replace(self.stage, self.out)
+            return True
+        except OSError as exc:
+            if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.EISDIR) or not self.out.is_dir():
+                raise
+        os.unlink(self.stage / self.manifest_name)
+        return False
 
     def _swap_into_existing(self, doc: dict) -> bool:
         """Carry OUT's other files into the stage (hard links) and swap the folders atomically.

@@ -36,18 +36,23 @@ def cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: worker processes allowed on any machine (the verbs' default ``--workers 2``, which a single-core machine runs too)
+ALWAYS_ALLOWED_WORKERS = 2
+
+
 def check_workers(workers, scheduler: str | None = None) -> int:
-    """``workers`` as an int after checking it: >= 0, and at most :func:`cores` unless a ``scheduler`` is given
-    (a cluster's workers are the cluster's business). Raises :class:`~thermogrammetry.errors.ConfigError` naming the
-    value and the core count."""
+    """``workers`` as an int after checking it: >= 0, and at most :func:`cores` (or :data:`ALWAYS_ALLOWED_WORKERS`
+    where there are fewer cores) unless a ``scheduler`` is given (a cluster's workers are the cluster's business).
+    Raises :class:`~thermogrammetry.errors.ConfigError` naming the value and the core count."""
     from .errors import ConfigError
 
     if isinstance(workers, bool) or not isinstance(workers, (int, float)) or int(workers) != workers or workers < 0:
         raise ConfigError(f"--workers {workers!r}: expected a whole number >= 0 (0 or 1 = in this process)")
     n = int(workers)
-    if scheduler is None and n > cores():
+    limit = max(cores(), ALWAYS_ALLOWED_WORKERS)
+    if scheduler is None and n > limit:
         raise ConfigError(f"--workers {n}: more worker processes than the {cores()} core(s) of this machine; expected "
-                          f"at most {cores()} (or --scheduler ADDRESS to run on a cluster of your own)")
+                          f"at most {limit} (or --scheduler ADDRESS to run on a cluster of your own)")
     return n
 
 
