@@ -347,3 +347,12 @@ def _(t):
     cp.write_text(f"id,X,Y,Z\n1,{X0 - 500},{Y0},100\n2,{X0 - 600},{Y0},100\n")
     return ["evaluate", "--dsm", str(dsm(t)), "--checkpoints", str(cp), "-o", str(t / "OUT")], \
         ["cp.csv", "none of the 2 check point(s)"], t / "OUT"
+
+
+# ------------------------------------------------------------------------------------------------ the task runner
+@_c("survey: --workers 1000")
+def _(t):
+    (t / "in").mkdir()
+    for k in range(3):
+        np.savetxt(t / "in" / f"f{k}.csv", 300.0 + np.random.default_rng(k).random((24, 32)), delimiter=",")
+    return ["survey", str(t / "in"), "-o", str(t / "OUT"), "--workers", "1000"], ["--workers 1000", "core(s)"], t / "OUT"
