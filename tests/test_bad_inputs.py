@@ -449,21 +449,6 @@ def test_folder_scan_takes_matrices_and_skips_side_files(tmp_path):
     assert [f.name for f in expand_inputs([str(tmp_path / "gcps.csv")])[0]] == ["gcps.csv"]
 
 
-@pytest.mark.parametrize("name", sorted(CASES))
-def test_bad_input_is_refused_with_a_message(name, tmp_path, capsys):
-    argv, expected, must_not_exist = CASES[name](tmp_path)
-    code = main(argv)  # an escaping exception (a traceback) fails the test here
-    cap = capsys.readouterr()
-    text = " ".join((cap.out + cap.err).replace("│", " ").split())  # rich boxes wrap long lines
-    assert code == 2, f"{name}: exit {code}\n{text}"
-    assert "Traceback" not in text
-    for s in expected:
-        assert s in text, f"{name}: {s!r} not in {text!r}"
-    if must_not_exist is not None:  # nothing half-written
-        assert not Path(must_not_exist).exists(), f"{name}: {must_not_exist} was created"
-    assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name], "staging folder left behind"
-
-
 @_c("references contradicting each other (warmer = fewer counts)")
 def _(t):
     fff = write(t / "a.fff", fff_frame(counts_img()))  # counts rise along rows
@@ -485,3 +470,24 @@ def _(t):
     f = correct_inputs(t)
     return ["correct", "--thermal-image", str(f["thermal"]), "--cameras", str(c), "--thermal", "thermal",
             "--plane", "0,0,1,-5", "-o", str(t / "OUT")], ["cameras.json", "cam_from_world.R", "expected a list of 9 numbers"], t / "OUT"
+
+
+# the verbs that read a survey folder and rasters (dense, ortho, evaluate): cases built in their own module
+from bad_inputs_products import CASES as _PRODUCT_CASES  # noqa: E402
+
+CASES.update(_PRODUCT_CASES)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_bad_input_is_refused_with_a_message(name, tmp_path, capsys):
+    argv, expected, must_not_exist = CASES[name](tmp_path)
+    code = main(argv)  # an escaping exception (a traceback) fails the test here
+    cap = capsys.readouterr()
+    text = " ".join((cap.out + cap.err).replace("│", " ").split())  # rich boxes wrap long lines
+    assert code == 2, f"{name}: exit {code}\n{text}"
+    assert "Traceback" not in text
+    for s in expected:
+        assert s in text, f"{name}: {s!r} not in {text!r}"
+    if must_not_exist is not None:  # nothing half-written
+        assert not Path(must_not_exist).exists(), f"{name}: {must_not_exist} was created"
+    assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name], "staging folder left behind"

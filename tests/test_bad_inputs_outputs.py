@@ -194,3 +194,22 @@ def test_replacing_a_set_is_one_atomic_swap(tmp_path, monkeypatch):
     assert (out / "user.txt").stat().st_ino == inode and (out / "sub" / "user2.txt").read_text() == "user file 2"
     assert json.loads((out / "t-manifest.json").read_text())["files"] == ["a.txt"]
     assert [p.name for p in tmp_path.iterdir()] == ["OUT"]  # no staging folder left
+
+
+def test_a_set_published_while_another_run_created_out_goes_over_it(tmp_path, monkeypatch):
+    """OUT absent when the run looked, created by another run before this one's rename: the rename fails (the
+    folder is not empty) and the set is published over the other run's OUT instead -- both complete, OUT whole."""
+    out = tmp_path / "OUT"
+    a = OutputSet(out, "t")
+    a.path("a.txt").write_text("from A")
+    with OutputSet(out, "t") as b:  # the other run publishes first
+        b.path("a.txt").write_text("from B")
+        b.path("b_only.txt").write_text("B")
+        b.commit()
+    real_exists = type(out).exists
+    monkeypatch.setattr(type(out), "exists", lambda p: False if p == out else real_exists(p))  # A looked before B
+    a.commit({"run": "A"})
+    monkeypatch.undo()
+    assert (out / "a.txt").read_text() == "from A" and (out / "b_only.txt").read_text() == "B"
+    assert json.loads((out / "t-manifest.json").read_text())["run"] == "A"
+    assert [p.name for p in tmp_path.iterdir()] == ["OUT"]

@@ -31,7 +31,7 @@ from pathlib import Path
 from ._libc import libc_function
 from .errors import DataFileError
 
-__all__ = ["write_atomic", "write_atomic_text", "sync_folder", "file_mode", "dir_mode", "check_output_folder", "clean_stale_temporaries", "make_temp", "OutputSet"]
+__all__ = ["write_atomic", "write_atomic_text", "sync_folder", "file_mode", "dir_mode", "check_output_folder", "clean_stale_temporaries", "make_temp", "spill_folder", "OutputSet"]
 
 _LOCK = threading.Lock()
 
@@ -113,9 +113,23 @@ def _owner_pid(name: str, marker: str) -> int | None:
     return int(digits) if digits else None
 
 
+#: endings of the temp files :func:`make_temp` names (``.tmp``; the GeoTIFF writer's ``.tmp.tif`` / ``.cog.tif``)
+_TEMP_SUFFIXES = (".tmp", ".tmp.tif", ".cog.tif")
+
+
+def spill_folder(parent: str | os.PathLike, what: str) -> Path:
+    """A new scratch folder ``<parent>/.<what>.spill-<pid>-<random>`` that no other run shares (created here).
+
+    A run killed outright leaves it behind; :func:`clean_stale_temporaries` removes it once its process is gone.
+    """
+    parent = Path(parent)
+    parent.mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=f".{what}.spill-{os.getpid()}-", dir=parent))
+
+
 def clean_stale_temporaries(folder: str | os.PathLike, *, force: bool = False) -> list[Path]:
-    """Remove temp files (``.*.<pid>.*.tmp``) and staging folders (``.*.partial-<pid>``) in ``folder``
-    left by processes that no longer run.  Returns what was removed.  Done once per folder and process
+    """Remove temp files (``.*.<pid>.*.tmp``, ``.tmp.tif``, ``.cog.tif``), staging folders (``.*.partial-<pid>-*``)
+    and spill folders (``.*.spill-<pid>-*``) in ``folder`` left by processes that no longer run.  Returns what was removed.  Done once per folder and process
     unless ``force``."""
     d = Path(folder)
     key = str(d.resolve()) if d.exists() else str(d)
@@ -133,14 +147,15 @@ def clean_stale_temporaries(folder: str | os.PathLike, *, force: bool = False) -
         if not n.startswith("."):
             continue
         try:
-            if n.endswith(".tmp") and e.is_file(follow_symlinks=False):
-                parts = n[:-4].split(".")
+            suffix = next((s for s in _TEMP_SUFFIXES if n.endswith(s)), None)
+            if suffix is not None and e.is_file(follow_symlinks=False):
+                parts = n[:-len(suffix)].split(".")
                 pid = int(parts[-2]) if len(parts) >= 3 and parts[-2].isdigit() else None
                 if pid is not None and not _pid_alive(pid):
                     os.unlink(e.path)
                     removed.append(Path(e.path))
-            elif ".partial-" in n and e.is_dir(follow_symlinks=False):
-                pid = _owner_pid(n, ".partial-")
+            elif e.is_dir(follow_symlinks=False) and (".partial-" in n or ".spill-" in n):
+                pid = _owner_pid(n, ".partial-" if ".partial-" in n else ".spill-")
                 if pid is not None and not _pid_alive(pid):
                     shutil.rmtree(e.path, ignore_errors=True)
                     removed.append(Path(e.path))
@@ -279,11 +294,14 @@ class OutputSet:
         The output folder the user named.
     verb : str
         Names the manifest (``<verb>-manifest.json``).
+    obsolete : names in OUT that the verb's older versions left there (scratch folders without an owner):
+        not carried into the new set, removed when it is published.
     """
 
-    def __init__(self, out: str | os.PathLike, verb: str):
+    def __init__(self, out: str | os.PathLike, verb: str, *, obsolete: tuple[str, ...] = ()):
         self.out = check_output_folder(out)
         self.verb = verb
+        self.obsolete = tuple(obsolete)
         parent = self.out.parent
         try:
             parent.mkdir(parents=True, exist_ok=True)
@@ -318,15 +336,18 @@ class OutputSet:
         names = self.files()
         doc = {"verb": self.verb, "complete": True, "files": names, **(manifest or {})}
         try:
-            if not self.out.exists():
-                write_atomic_text(self.stage / self.manifest_name, json.dumps(doc, indent=1) + "\n")
-                os.replace(self.stage, self.out)
+            if not self.out.exists() and self._publish_new(doc):
+                pass
             elif self._swap_into_existing(doc):
                 pass
             else:
                 stale = self.out / self.manifest_name
                 if stale.exists():  # the set is being replaced: no manifest until it is complete
                     os.unlink(stale)
+                for n in self.obsolete:
+                    old = self.out / n
+                    if old.is_dir() and not old.is_symlink():
+                        shutil.rmtree(old, ignore_errors=True)
                 for n in names:
                     dst = self.out / n
                     dst.parent.mkdir(parents=True, exist_ok=True)
@@ -337,6 +358,21 @@ class OutputSet:
             raise DataFileError(f"output folder {self.out}: cannot move the outputs into place ({exc.strerror or exc})") from None
         self.committed = True
         return [self.out / n for n in names]
+
+    def _publish_new(self, doc: dict) -> bool:
+        """Rename the stage to the absent OUT. False when another run published OUT meanwhile (two runs into one OUT
+        at once): the caller then publishes over it as over any existing OUT."""
+        import errno
+
+        write_atomic_text(self.stage / self.manifest_name, json.dumps(doc, indent=1) + "\n")
+        try:
+            os.replace(self.stage, self.out)
+            return True
+        except OSError as exc:
+            if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.EISDIR) or not self.out.is_dir():
+                raise
+        os.unlink(self.stage / self.manifest_name)
+        return False
 
     def _swap_into_existing(self, doc: dict) -> bool:
         """Carry OUT's other files into the stage (hard links) and swap the folders atomically.
@@ -350,6 +386,8 @@ class OutputSet:
         new = set(self.files())
         for root, dirs, files in os.walk(self.out):
             rel_root = Path(root).relative_to(self.out)
+            if rel_root == Path("."):
+                dirs[:] = [d for d in dirs if d not in self.obsolete]
             for d in dirs:
                 if os.path.islink(os.path.join(root, d)):  # a symlinked folder is carried as a link, not walked
                     files.append(d)

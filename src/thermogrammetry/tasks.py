@@ -19,11 +19,46 @@ import contextlib
 import itertools
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["in_process", "local_cluster", "open_client", "ordered_results", "run_tasks",
+__all__ = ["in_process", "local_cluster", "open_client", "ordered_results", "run_tasks", "check_workers", "cores", "default_workers",
            "TASKS_IN_FLIGHT"]
 
 #: tasks submitted to a cluster and not yet collected, at most (:func:`run_tasks`)
 TASKS_IN_FLIGHT = 64
+
+
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity; ``os.cpu_count()`` where that is not known)."""
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+#: worker processes allowed on any machine (the verbs' default ``--workers 2``, which a single-core machine runs too)
+ALWAYS_ALLOWED_WORKERS = 2
+
+
+def check_workers(workers, scheduler: str | None = None) -> int:
+    """``workers`` as an int after checking it: >= 0, and at most :func:`cores` (or :data:`ALWAYS_ALLOWED_WORKERS`
+    where there are fewer cores) unless a ``scheduler`` is given (a cluster's workers are the cluster's business).
+    Raises :class:`~thermogrammetry.errors.ConfigError` naming the value and the core count."""
+    from .errors import ConfigError
+
+    if isinstance(workers, bool) or not isinstance(workers, (int, float)) or int(workers) != workers or workers < 0:
+        raise ConfigError(f"--workers {workers!r}: expected a whole number >= 0 (0 or 1 = in this process)")
+    n = int(workers)
+    limit = max(cores(), ALWAYS_ALLOWED_WORKERS)
+    if scheduler is None and n > limit:
+        raise ConfigError(f"--workers {n}: more worker processes than the {cores()} core(s) of this machine; expected "
+                          f"at most {limit} (or --scheduler ADDRESS to run on a cluster of your own)")
+    return n
+
+
+def default_workers(workers: int | None) -> int:
+    """``workers`` when given, else the verbs' default: 2 local worker processes, 1 (in this process) on a single core."""
+    return min(2, cores()) if workers is None else workers
 
 
 def in_process(workers: int, scheduler: str | None = None) -> bool:
@@ -45,6 +80,7 @@ def local_cluster(workers: int, scheduler: str | None = None) -> Iterator[str | 
     if in_process(workers):
         yield None
         return
+    check_workers(workers, scheduler)
     from distributed import LocalCluster
 
     cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=":0",
@@ -63,6 +99,7 @@ def open_client(workers: int = 1, scheduler: str | None = None):
 
         return Client(scheduler)
     if not in_process(workers):
+        check_workers(workers, scheduler)
         from distributed import Client, LocalCluster
 
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None)

@@ -28,3 +28,16 @@ def _root(
     ),
 ) -> None:
     """Thermal-infrared photogrammetry toolkit."""
+
+
+def print_error(console, msg, prefix: str = "error:", style: str = "bold red") -> None:
+    """``error: <msg>`` on ``console`` with the prefix in red and ``msg`` printed literally: a value in brackets
+    (``got [nan, 1]``) is user data, never rich markup. ``prefix="warning:", style="yellow"`` for warnings."""
+    from rich.text import Text
+
+    console.print(Text.assemble((prefix, style), " ", str(msg)), highlight=False, soft_wrap=True)
+
+
+def print_plain(console, msg) -> None:
+    """``msg`` printed literally (no markup, no highlighting): notes and summaries that carry names and values."""
+    console.print(str(msg), markup=False, highlight=False, soft_wrap=True)

@@ -24,7 +24,7 @@ from typing import List, Optional
 import typer
 
 from ..pipeline.calibrate import _coded_spec, read_image  # noqa: F401 (kept importable from here)
-from .app import app
+from .app import app, print_error, print_plain
 
 
 @app.command("calibrate")
@@ -71,10 +71,10 @@ def calibrate(
                             image_size, pixel_pitch_um, focal_mm, output, k45, affinity, name, coded,
                             progress=lambda: progress(console, "calibrate"))
     except CalibrateUsageError as exc:
-        err.print(f"[bold red]error:[/] {exc}", markup=True, highlight=False)
+        print_error(err, exc)
         raise typer.Exit(2) from None
     except ThermogrammetryError as exc:
-        err.print(f"[bold red]error:[/] {type(exc).__name__}: {exc}", markup=True, highlight=False)
+        print_error(err, f"{type(exc).__name__}: {exc}")
         err.print(f"nothing was written to {output}", highlight=False)
         raise typer.Exit(2) from None
     if run.failed is not None:
@@ -111,7 +111,7 @@ def _summary(console, cal: dict, output, keys) -> None:
     console.print(f"[bold]calibration[/] {cal['termination']}: {len(cal['images_used'])}/{n_img} images used, "
                   f"RMS {cal['rms_px']:.3f} px, σ0 {cal['sigma0']:.3f}, redundancy {cal['dof']}", highlight=False)
     for wtext in cal.get("warnings", []):
-        console.print(f"[yellow]warning:[/] {wtext}", highlight=False)
+        print_error(console, wtext, "warning:", "yellow")
     assumed = cal["run"].get("pixel_pitch_assumed")
     for cam in cal["cameras"]:
         w, h = cam["image_size"]
@@ -135,7 +135,7 @@ def _summary(console, cal: dict, output, keys) -> None:
             if k == 5:
                 console.print(f"  ... and {len(rej) - 5} more (see calibration.json)")
                 break
-            console.print(f"  {nm}: {why}", highlight=False)
+            print_plain(console, f"  {nm}: {why}")
     if cal["blunders"]:
         console.print(f"{len(cal['blunders'])} observation(s) rejected as blunders ({cal['blunder_test']})", highlight=False)
     for info in cal.get("exports", {}).values():
@@ -148,5 +148,5 @@ def _summary(console, cal: dict, output, keys) -> None:
                               + (f", max {area:.3f} px / RMS {o['area_rms_residual_px']:.3f} px over the data area"
                                  if area is not None else ""), highlight=False)
             if o.get("warning"):
-                console.print(f"[yellow]warning:[/] {o['warning']}", highlight=False)
-    console.print(f"wrote {len(keys)} files to {output}: {', '.join(k for k in keys if '/' not in k)}", highlight=False)
+                print_error(console, o["warning"], "warning:", "yellow")
+    print_plain(console, f"wrote {len(keys)} files to {output}: {', '.join(k for k in keys if '/' not in k)}")

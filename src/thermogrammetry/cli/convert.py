@@ -9,7 +9,7 @@ from typing import List, Optional, Tuple
 
 import typer
 
-from .app import app
+from .app import app, print_error
 
 _TEMP = re.compile(r"^\s*([-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)\s*(°?[cCkK])?\s*$")
 
@@ -154,7 +154,7 @@ def convert(
             report = convert_files(inputs, out_dir, opts, jobs=jobs, on_file_done=done, on_frame_done=frame)
         except ThermogrammetryError as exc:
             progress.stop()
-            console.print(f"[red]error:[/] {exc}", soft_wrap=True)
+            print_error(console, exc)
             raise typer.Exit(2)
 
     off = 273.15 if u == "C" else 0.0

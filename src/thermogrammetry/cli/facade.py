@@ -26,7 +26,7 @@ from typing import List, Optional
 
 import typer
 
-from .app import app
+from .app import app, print_error, print_plain
 
 
 @app.command("facade")
@@ -106,11 +106,11 @@ def facade(
             d = run_facade(inputs[0], out, plane=plane, cell_m=cell, unit=u, tile_m=tile, occluders_path=occluders,
                            levelling=levelling)
     except NothingMosaickedError as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+        print_error(console, exc)
         console.print(f"nothing was written to {out}", highlight=False)
         raise typer.Exit(1)
     except (ThermogrammetryError, ValueError, OSError) as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+        print_error(console, exc)
         raise typer.Exit(2)
     h, w = d["grid"]["shape"]
     console.print(f"facade {w} x {h} cells of {d['grid']['cell']:.4g}: {d['cells_filled']}/{d['cells_total']} filled from "
@@ -119,7 +119,7 @@ def facade(
         for n, hm in d["homographies"].items():
             console.print(f"  {n}: {hm['points']} points, homography residual RMS {hm['rms_px']:.3g} px", highlight=False)
     for s in d["skipped"][:5]:
-        console.print(f"  skipped {s['image']}: {s['reason']}", highlight=False, soft_wrap=True)
+        print_plain(console, f"  skipped {s['image']}: {s['reason']}")
     if len(d["skipped"]) > 5:
         console.print(f"  ... {len(d['skipped']) - 5} more skipped (facade.json \"skipped\")", highlight=False)
     if d["levelling"] == "offsets":

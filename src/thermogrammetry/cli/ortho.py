@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .app import app
+from .app import app, print_error, print_plain
 
 
 @app.command("ortho")
@@ -29,8 +29,11 @@ def ortho(
                               "interpolation from the rim; flagged in ortho_filled_mask.tif). --no-fill: the DSM as given."),
     max_hole: Optional[float] = typer.Option(None, "--fill-max-hole", help="Largest hole filled entirely, in metres "
                                              "across (default 100 DSM cells); farther than half of it from data stays empty."),
-    workers: int = typer.Option(2, "--workers", help="Local dask worker processes (0 or 1 = in this process)."),
+    workers: Optional[int] = typer.Option(None, "--workers", help="Local dask worker processes (0 or 1 = in this process; "
+                                          "default 2, or 1 on a single core; at most the cores)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
+    max_cells: Optional[int] = typer.Option(None, "--max-cells", help="Cap on the cells of the DSM and of the mosaic "
+                                            "(default: sized for this machine's memory, or $THERMOGRAMMETRY_MAX_CELLS)."),
     dji_sdk: Optional[Path] = typer.Option(None, "--dji-sdk", help="DJI Thermal SDK library (libdirp.so): a survey of DJI R-JPEGs "
                                            "decoded as raw counts is read again in kelvin (also $THERMOGRAMMETRY_DJI_TSDK; docs/dji.md)."),
 ) -> None:
@@ -41,6 +44,7 @@ def ortho(
     from ..errors import ThermogrammetryError
     from ..products.correction import CorrectionConfig
     from ..pipeline.ortho import run_ortho
+    from ..tasks import default_workers
 
     console = Console(stderr=True)
     try:
@@ -50,10 +54,10 @@ def ortho(
 
         rep = run_ortho(survey_dir, dsm, out, gsd=gsd, unit=unit, sampling=sampling, correct=correct, correction=corr,
                         config=OrthoConfig(sampling=sampling, max_angle_deg=max_angle),
-                        workers=workers, scheduler=scheduler, fill=fill, max_hole_m=max_hole,
-                        dji_sdk=None if dji_sdk is None else str(dji_sdk))
+                        workers=default_workers(workers), scheduler=scheduler, fill=fill, max_hole_m=max_hole,
+                        dji_sdk=None if dji_sdk is None else str(dji_sdk), max_cells=max_cells)
     except (ThermogrammetryError, OSError, ValueError) as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+        print_error(console, exc)
         raise typer.Exit(2)
     console.print(f"ortho {rep['width']}×{rep['height']} cells at {rep['gsd_m']} m in {rep['unit']}, {rep['cells']} cells "
                   f"from {rep['images_used']} images ({rep['sampling']}), {rep['seconds']:.1f} s", highlight=False)
@@ -62,6 +66,6 @@ def ortho(
         console.print(f"surface: {f['filled_cells']} DSM cells interpolated (holes up to {f['max_hole_m']:g} m), "
                       f"{f['ortho_cells_on_filled']} mosaic cells on them (ortho_filled_mask.tif)", highlight=False)
     for n in rep["notes"]:
-        console.print(f"note: {n}", highlight=False)
-    console.print(f"outputs in {out}: ortho.tif ortho.qml ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
-                  "ortho_distance.tif ortho_gradient.tif" + (" ortho_filled_mask.tif" if rep.get("fill") else ""), highlight=False)
+        print_plain(console, f"note: {n}")
+    print_plain(console, f"outputs in {out}: ortho.tif ortho.qml ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
+                         "ortho_distance.tif ortho_gradient.tif" + (" ortho_filled_mask.tif" if rep.get("fill") else ""))

@@ -17,7 +17,7 @@ from typing import Optional
 import typer
 
 from .._validate import parse_size
-from .app import app
+from .app import app, print_error, print_plain
 
 
 @app.command("plan")
@@ -111,7 +111,7 @@ def plan(
             write_atomic_text(stage.path("plan.json"), json.dumps(p.summary(), indent=1) + "\n")
             stage.commit()
     except (ThermogrammetryError, OSError, ValueError) as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+        print_error(console, exc)
         raise typer.Exit(2)
     console.print(f"height {p.height_m:.1f} m above ground, GSD {p.gsd_m * 100:.2f} cm, footprint "
                   f"{p.footprint_across_m:.1f} x {p.footprint_along_m:.1f} m", highlight=False)
@@ -121,5 +121,5 @@ def plan(
         console.print(f"video at {p.video_fps:g} Hz and {p.speed_mps:g} m/s: keep every {p.extract_every_n_frames}th frame "
                       f"({p.extraction_rate_hz:.3g} Hz)", highlight=False)
     for n in p.notes:
-        console.print(f"note: {n}", highlight=False)
+        print_plain(console, f"note: {n}")
     console.print(f"outputs in {out}", highlight=False)

@@ -22,7 +22,7 @@ from typing import Optional
 
 import typer
 
-from .app import app
+from .app import app, print_error, print_plain
 
 
 @app.command("texture")
@@ -58,7 +58,7 @@ def texture(
         d = run_texture(survey_dir, mesh, out, unit=None if u is None else u.value, correct=correct, levelling=lev.value, rig_path=rig, config=cfg,
                         fit_poses=fit_poses)
     except (ThermogrammetryError, ValueError, OSError) as exc:
-        console.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+        print_error(console, exc)
         raise typer.Exit(2)
     vis = d.get("faces_visible", d["faces_seen"])
     console.print(f"textured {d['faces_textured']}/{d['faces_total']} faces ({100 * d.get('faces_visible_textured', d['faces_textured']) / max(vis, 1):.1f} % "
@@ -76,5 +76,5 @@ def texture(
     if d.get("mesh_winding"):
         console.print(f"mesh: {d['mesh_winding']['reason']}", highlight=False)
     if d["skipped"]:
-        console.print(f"skipped {len(d['skipped'])} image(s): " + "; ".join(f"{s['image']}: {s['reason']}" for s in d["skipped"][:5]),
-                      highlight=False)
+        print_plain(console, f"skipped {len(d['skipped'])} image(s): "
+                    + "; ".join(f"{s['image']}: {s['reason']}" for s in d["skipped"][:5]))

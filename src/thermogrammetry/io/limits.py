@@ -16,7 +16,8 @@ import os
 
 from ..errors import ConfigError, ImageTooLargeError
 
-__all__ = ["DEFAULT_MAX_PIXELS", "MAX_PIXELS_ENV", "max_pixels", "set_max_pixels", "check_image_size"]
+__all__ = ["DEFAULT_MAX_PIXELS", "MAX_PIXELS_ENV", "max_pixels", "set_max_pixels", "check_image_size",
+           "MAX_CELLS_ENV", "default_max_cells", "max_cells", "check_cells"]
 
 DEFAULT_MAX_PIXELS = 1 << 28
 MAX_PIXELS_ENV = "THERMOGRAMMETRY_MAX_PIXELS"
@@ -64,3 +65,55 @@ def check_image_size(width: int, height: int, where: str, *, frames: int = 1) ->
             f"size cap of {cap / 1e6:.1f} Mpixel; a damaged header or not a real frame (raise the cap with "
             f"{MAX_PIXELS_ENV}=N if the image is genuine)"
         )
+
+
+# ----------------------------------------------------------------------------------------------- raster cells
+MAX_CELLS_ENV = "THERMOGRAMMETRY_MAX_CELLS"
+#: bytes of memory per raster cell the default cap allows for (a DSM read whole as float64 with its mask and one
+#: copy, or the ortho's seven rasters' temporaries on disk)
+BYTES_PER_CELL = 64
+
+
+def default_max_cells() -> int:
+    """The default cap on the cells of one raster: this machine's memory / :data:`BYTES_PER_CELL`, at least 2**24
+    (16.8 M cells); 360 M cells on a 23 GB machine."""
+    try:
+        mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        mem = 8 << 30
+    return max(1 << 24, int(mem) // BYTES_PER_CELL)
+
+
+def max_cells(option: int | None = None) -> int:
+    """The cap in cells: ``option`` (a verb's ``--max-cells``) if given, else ``$THERMOGRAMMETRY_MAX_CELLS``, else
+    :func:`default_max_cells`."""
+    if option is not None:
+        if isinstance(option, bool) or int(option) != option or int(option) < 1:
+            raise ConfigError(f"--max-cells {option!r}: expected a positive integer number of raster cells")
+        return int(option)
+    env = os.environ.get(MAX_CELLS_ENV)
+    if env:
+        try:
+            v = int(float(env))
+        except ValueError:
+            v = 0
+        if v < 1:
+            raise ConfigError(f"${MAX_CELLS_ENV}={env!r}: expected a positive integer number of raster cells")
+        return v
+    return default_max_cells()
+
+
+def check_cells(width: int, height: int, where: str, *, cap: int | None = None, what: str = "raster") -> None:
+    """Refuse a raster of ``width x height`` cells above :func:`max_cells` (``cap`` = the verb's ``--max-cells``).
+
+    Raises
+    ------
+    ImageTooLargeError
+        Naming ``where``, the size, the cap and how to raise it.
+    """
+    limit = max_cells(cap)
+    w, h = int(width), int(height)
+    if w * h > limit:
+        raise ImageTooLargeError(
+            f"{where}: a {what} of {w} x {h} = {w * h:,} cells, above the cap of {limit:,} cells (sized for this "
+            f"machine's memory); raise it with --max-cells N (or {MAX_CELLS_ENV}=N) if that is intended")

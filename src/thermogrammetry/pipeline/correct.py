@@ -147,7 +147,9 @@ def _orientation_from_cameras(path: Path, name: str):
     d = _read_json(path, "cameras file")
     fmt = d.get("format") if isinstance(d, dict) else None
     if fmt == CAMERAS_FORMAT:
-        oc = OrientedCameras.from_dict(d, source=str(path), root=path.parent)
+        # correct reads no frame from the file (the thermal image is given): texture's cameras_fitted.json, whose
+        # frame paths are absolute, is accepted here
+        oc = OrientedCameras.from_dict(d, source=str(path), root=path.parent, confine_frames=False)
         if name not in oc.names():
             raise ConfigError(f"{path}: no image {name!r}; images: {', '.join(oc.names()[:10])}"
                               + (" ..." if len(oc) > 10 else ""))

@@ -4,7 +4,9 @@ Unit of work: one reference image (rank its partners, match its pairs, fuse its 
 in :mod:`thermogrammetry.dense.fusion`). Work units run on the task runner (:mod:`thermogrammetry.tasks`: in
 this process for ``workers`` 0 or 1, on a local dask.distributed cluster for ``workers`` >= 2, or on an existing
 scheduler); results are collected in image order, so the cloud and the DSM are identical whichever way they
-ran. Points are spilled to per-tile files; the DSM and the cloud files are then written tile by tile, the spill
+ran. Points are spilled to per-tile files (in a scratch folder of the run's own, ``.dense.spill-<pid>-<random>``
+inside the staging folder: concurrent runs into one OUT never share one, and a killed run's is removed by the next
+run once its process is gone); the DSM and the cloud files are then written tile by tile, the spill
 files read in chunks (memory bounded by the tile size); worker results are released as soon as they are fetched.
 
 Outputs in ``out`` (one output set, :class:`~thermogrammetry._atomic.OutputSet`: OUT appears complete or not at
@@ -26,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import OutputSet
+from .._atomic import OutputSet, spill_folder
 from ..dense.fusion import POINT_DTYPE, DenseConfig, rank_pairs, reference_points
 from ..errors import ConfigError, DataFileError
 from ..tasks import open_client, ordered_results
@@ -36,8 +38,9 @@ __all__ = ["run_dense"]
 
 
 
-def _reference_task(survey_path: str, i: int, config: DenseConfig, dji_sdk: str | None = None):
-    sv = open_survey(survey_path, dji_sdk)
+def _reference_task(survey_path: str, i: int, config: DenseConfig, skip: tuple[str, ...] = (),
+                    dji_sdk: str | None = None):
+    sv = open_survey(survey_path, skip, dji_sdk)
     cands = rank_pairs(i, sv.cameras, sv.poses, sv, config)
     pts, info = reference_points(i, sv.cameras, sv.poses, sv, config, pairs=cands)
     depth = info.get("depth_m", float("nan"))
@@ -65,7 +68,7 @@ def _in_quad(px, py, quad) -> np.ndarray:
 def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseConfig | None = None,
               workers: int = 1, scheduler: str | None = None, fill: bool = False, tile: int = 512,
               on_image=None, dji_sdk: str | None = None, surface_fill: bool = True,
-              max_hole_m: float | None = None, cloud_options=None) -> dict:
+              max_hole_m: float | None = None, cloud_options=None, max_cells: int | None = None) -> dict:
     """Dense cloud and DSM of a survey folder (see the module docstring). Returns the ``dense.json`` dict.
 
     ``surface_fill``: also write ``dsm_filled.tif`` (holes up to ``max_hole_m`` across filled; default
@@ -75,24 +78,40 @@ def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseCon
     ``on_image(done, total)`` is called after each reference image (progress). ``dji_sdk``: DJI's Thermal SDK
     library, for a survey of DJI R-JPEGs decoded as raw counts: the cloud's values are then temperatures read again
     from the R-JPEGs through the SDK (:class:`~thermogrammetry.pipeline.frames.SurveyFrames`).
+
+    Checked before any work (OUT is not created when refused): the workers
+    (:func:`~thermogrammetry.tasks.check_workers`), ``cameras.json`` and its frames (:class:`SurveyFrames`: a frame
+    that does not decode is skipped by name and listed), ``gsd``, and the DSM's size against ``max_cells``
+    (:func:`~thermogrammetry.io.limits.max_cells`) as far as the cameras' extent tells it; the DSM grid is checked
+    again once the points give its extent.
     """
+    from ..io.limits import check_cells
+    from ..tasks import check_workers
+
     t0 = time.perf_counter()
     cfg = config or DenseConfig()
-    sv = SurveyFrames(survey_dir, dji_sdk=dji_sdk)
+    check_workers(workers, scheduler)
+    sv = SurveyFrames(survey_dir, dji_sdk=dji_sdk, need=3, verb="dense")
     if gsd is not None and not (np.isfinite(gsd) and gsd > 0):
         raise ConfigError(f"--gsd {gsd!r}: expected a positive ground sampling distance in metres")
     if max_hole_m is not None and not (np.isfinite(max_hole_m) and max_hole_m >= 0):
         raise ConfigError(f"--fill-max-hole {max_hole_m!r}: expected a hole size in metres >= 0")
+    if gsd is not None:  # the DSM covers at least the camera centres' extent: refuse a grid above the cap now
+        C = np.array([im.center for im in sv.images])
+        span = C[:, :2].max(axis=0) - C[:, :2].min(axis=0)
+        check_cells(int(np.ceil(span[0] / gsd)) + 1, int(np.ceil(span[1] / gsd)) + 1,
+                    f"DSM of {survey_dir} at --gsd {gsd:g} m (at least the cameras' extent, {span[0]:.1f} x {span[1]:.1f} m)",
+                    cap=max_cells, what="DSM")
     fill_opts = (surface_fill, max_hole_m, cloud_options)
-    with OutputSet(out_dir, "dense") as stage:
+    with OutputSet(out_dir, "dense", obsolete=(".dense_tiles",)) as stage:  # the fixed-name spill of older versions
         report = _write_dense(Path(stage.stage), sv, survey_dir, gsd, cfg, workers, scheduler, fill, tile, on_image, t0,
-                             fill_opts)
+                              fill_opts, max_cells)
         stage.commit({"seconds": report["seconds"]})
     return report
 
 
 def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig, workers, scheduler, fill: bool,
-                 tile: int, on_image, t0: float, fill_opts=(True, None, None)) -> dict:
+                 tile: int, on_image, t0: float, fill_opts=(True, None, None), max_cells: int | None = None) -> dict:
     """The cloud, the DSM and ``dense.json`` of :func:`run_dense`, written into the staging folder ``out``."""
     from .._atomic import write_atomic_text
     from ..products.cloud import CloudWriter, value_dimension
@@ -101,7 +120,10 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
     from ..products.raster import Grid
     from ..products.raster import write_cog
 
+    from ..io.limits import check_cells
+
     n = len(sv)
+    skip = tuple(name for name, _ in sv.skipped)
     client = open_client(workers, scheduler)
     results: list = []
     infos: list[dict] = []
@@ -109,9 +131,10 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
     try:
         path = str(Path(survey_dir).resolve())
         if client is not None:
-            it = ordered_results(client, _reference_task, [path] * n, list(range(n)), [cfg] * n, [sv.dji_sdk] * n)
+            it = ordered_results(client, _reference_task, [path] * n, list(range(n)), [cfg] * n, [skip] * n,
+                                 [sv.dji_sdk] * n)
         else:
-            it = (_reference_task(path, i, cfg, sv.dji_sdk) for i in range(n))
+            it = (_reference_task(path, i, cfg, skip, sv.dji_sdk) for i in range(n))
         # the DSM gsd needs the image GSD: collect the first results before spilling
         pending = []
         for i, (pts, info) in enumerate(it):
@@ -123,7 +146,7 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
                     f_px = float(np.mean([c.K[0, 0] for c in sv.cameras]))
                     image_gsd = float(np.median(depths)) / f_px
                     gsd = float(gsd) if gsd is not None else float(np.round(2.0 * image_gsd, 3))
-                    spill = TileSpill(out / ".dense_tiles", POINT_DTYPE, gsd, tile)
+                    spill = TileSpill(spill_folder(out, "dense"), POINT_DTYPE, gsd, tile)  # a name of this run's own
                     for p in pending:
                         spill.append(p)
                     pending = []
@@ -144,6 +167,8 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
     if len(fx):
         xmin, ymin = max(xmin, fx[:, 0].min()), max(ymin, fx[:, 1].min())
         xmax, ymax = min(xmax, fx[:, 0].max()), min(ymax, fx[:, 1].max())
+    check_cells(int(np.ceil((xmax - xmin) / spill.gsd)) + 1, int(np.ceil((ymax - ymin) / spill.gsd)) + 1,
+                f"DSM of {survey_dir} at {spill.gsd:g} m ({xmax - xmin:.1f} x {ymax - ymin:.1f} m)", cap=max_cells, what="DSM")
     grid = Grid.covering(xmin, ymin, xmax, ymax, spill.gsd, tile)
     offset = (0.5 * (xmin + xmax), 0.5 * (ymin + ymax), 0.0)
     surface_fill, max_hole_m, cloud_options = fill_opts
@@ -190,9 +215,15 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
         raise
     finally:
         spill.cleanup()
+    if stats["valid"] == 0:
+        raise DataFileError(f"{survey_dir}: the {int(cw.count)} dense point(s) fill no cell of the {grid.width}x{grid.height} "
+                            f"DSM at {grid.gsd:g} m; expected points inside the images' footprints")
     filled = write_filled_dsm(out / "dsm.tif", out / "dsm_filled.tif", max_hole_m, sv.crs) if surface_fill else None
     completeness = stats["valid_covered"] / max(1, stats["covered"])
     notes = []
+    if sv.skipped:
+        notes.append(f"{len(sv.skipped)} frame(s) skipped (damaged or unreadable): "
+                     + "; ".join(f"{name}: {why}" for name, why in sv.skipped))
     if sv.unit == "dn":
         notes.append("frames are display numbers of an 8-bit rendering: the cloud carries geometry only, no temperature")
     if sv.unit == "counts":
@@ -216,6 +247,7 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
         "completeness_definition": "share of DSM cells inside >= min_consistent + 1 (default 3) image footprints (at each image's matched depth) "
                                    "that hold a measured height",
         "images": sv.names,
+        "skipped_frames": [{"name": name, "reason": why} for name, why in sv.skipped],
         "pairs": infos,
         "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
         "workers": int(workers) if not scheduler else None,

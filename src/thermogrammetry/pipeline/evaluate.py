@@ -12,9 +12,13 @@ from pathlib import Path
 __all__ = ["run_evaluate"]
 
 
-def run_evaluate(dsm, out, *, reference=None, checkpoints=None, ortho=None) -> dict:
+def run_evaluate(dsm, out, *, reference=None, checkpoints=None, ortho=None, max_cells: int | None = None) -> dict:
     """Evaluate ``dsm`` (GeoTIFF path) and write ``out/evaluate.json`` (and ``evaluate_histogram.png`` with a
-    reference DSM); returns the ``evaluate.json`` dict."""
+    reference DSM); returns the ``evaluate.json`` dict.
+
+    The DSM and the reference are checked before they are read (:func:`~thermogrammetry.products.raster.inspect_raster`:
+    north-up, at most ``max_cells`` cells, finite heights, no infinite one); a comparison without any common cell or
+    check point is refused with its reason (OUT not created)."""
     from .._atomic import OutputSet, write_atomic, write_atomic_text
     from ..errors import ConfigError, DataFileError
     from ..products.evaluate import checkpoint_errors, difference_stats, dsm_difference, read_checkpoints
@@ -24,17 +28,28 @@ def run_evaluate(dsm, out, *, reference=None, checkpoints=None, ortho=None) -> d
     png = None
     if reference is None and checkpoints is None:
         raise ConfigError("nothing to evaluate against: give --reference REF.tif and/or --checkpoints cp.csv")
-    from ..products.raster import same_horizontal_crs
+    from ..products.raster import inspect_raster, same_horizontal_crs
 
-    z, g, crs, _ = read_raster(dsm)
+    info = inspect_raster(dsm, "DSM", max_cells=max_cells)
+    info_r = inspect_raster(reference, "reference DSM", max_cells=max_cells) if reference is not None else None
+    if info_r is not None and (info.crs is None) != (info_r.crs is None):
+        raise DataFileError(f"{reference}: the reference DSM is in {info_r.crs or 'no CRS'}, the DSM {dsm} in "
+                            f"{info.crs or 'no CRS'}; expected both in the same CRS")
+    if info_r is not None and not same_horizontal_crs(info.crs, info_r.crs):
+        raise DataFileError(f"{reference}: CRS {info_r.crs} differs from the DSM's {info.crs}; expected the same CRS")
+    if ortho is not None:
+        inspect_raster(ortho, "ortho", max_cells=max_cells)
+    z, g, crs, _ = read_raster(dsm, max_cells=max_cells)
     rep: dict = {"dsm": str(dsm), "crs": crs, "dsm_vs_reference": None, "checkpoints": None}
     if reference is not None:
-        zr, gr, crs_r, _ = read_raster(reference)
-        if not same_horizontal_crs(crs, crs_r):
-            raise DataFileError(f"{reference}: CRS {crs_r} differs from the DSM's {crs}; expected the same CRS")
+        zr, gr, crs_r, _ = read_raster(reference, max_cells=max_cells)
         diff = dsm_difference(z, g, zr, gr)
         rep["dsm_vs_reference"] = difference_stats(diff)
         rep["dsm_vs_reference"]["unit"] = "m"
+        if not rep["dsm_vs_reference"]["n"]:
+            raise DataFileError(f"{reference}: no cell of the DSM {dsm} has a height in both rasters (the reference "
+                                f"covers X {gr.x0:.2f}..{gr.x0 + gr.width * gr.gsd:.2f}, the DSM X {g.x0:.2f}.."
+                                f"{g.x0 + g.width * g.gsd:.2f} m); expected overlapping rasters of the same area")
     if checkpoints is not None:
         try:
             text = checkpoints.read_text(encoding="utf-8")
@@ -45,6 +60,9 @@ def run_evaluate(dsm, out, *, reference=None, checkpoints=None, ortho=None) -> d
         if ortho is not None:
             o, og, _, _ = read_raster(ortho)
         rep["checkpoints"] = checkpoint_errors(pts, z, g, o, og)
+        if not rep["checkpoints"]["n"]:
+            raise DataFileError(f"{checkpoints}: none of the {len(pts)} check point(s) falls on a DSM cell with a height "
+                                f"({dsm}); expected check points inside the DSM, in its CRS")
     h = (rep["dsm_vs_reference"] or {}).get("histogram")
     if h:
         import matplotlib

@@ -20,25 +20,48 @@ __all__ = ["SurveyFrames", "open_survey"]
 class SurveyFrames:
     """The oriented thermal images of a survey folder with a small frame cache (callable index → frame).
 
-    ``dji_sdk``: DJI's Thermal SDK library (or ``$THERMOGRAMMETRY_DJI_TSDK``). When the survey's frames are raw
-    counts decoded from DJI R-JPEGs (``cameras.json`` names each frame's source file), the frames are read again
-    from those files through the SDK, in kelvin (``unit`` ``"K"``): the products are temperatures without a new
-    survey. A path given explicitly for frames that are not counts of DJI R-JPEGs is refused.
+    Parameters
+    ----------
+    survey_dir : the survey folder (``cameras.json`` in it)
+    cache : frames kept in memory
+    dji_sdk : DJI's Thermal SDK library (or ``$THERMOGRAMMETRY_DJI_TSDK``). When the survey's frames are raw
+        counts decoded from DJI R-JPEGs (``cameras.json`` names each frame's source file), the frames are read again
+        from those files through the SDK, in kelvin (``unit`` ``"K"``): the products are temperatures without a new
+        survey. A path given explicitly for frames that are not counts of DJI R-JPEGs is refused.
+    need : the fewest usable images the verb works with (dense 3, ortho 1)
+    verb : names the verb in the messages
+    check : decode every frame once before any work (:meth:`_check_frames`): a frame that does not decode, is missing
+        or has another size than its camera is skipped by name (``skipped``); a frame whose dtype or bands contradict
+        its declared unit is refused
+    skip : names to leave out without checking (the ``skipped`` of the checked instance, for the worker processes)
     """
 
-    def __init__(self, survey_dir, cache: int = 12, dji_sdk: str | None = None):
+    def __init__(self, survey_dir, cache: int = 12, dji_sdk: str | None = None, *, need: int = 3, verb: str = "dense",
+                 check: bool = True, skip: tuple[str, ...] = ()):
         from ..io.oriented import OrientedCameras
 
         self.root = Path(survey_dir)
         self.oc = OrientedCameras.load(self.root)
-        self.images = [im for im in self.oc.images if im.frame is not None and im.sensor.value == "thermal"]
-        if len(self.images) < 3:
-            raise DataFileError(f"{self.root / 'cameras.json'}: {len(self.images)} oriented thermal image(s) with a "
-                                "decoded frame; expected at least 3 for dense matching")
-        units = sorted({im.unit.value for im in self.images})
+        where = self.root / "cameras.json"
+        thermal = [im for im in self.oc.images if im.sensor.value == "thermal"]
+        with_frame = [im for im in thermal if im.frame is not None]
+        if len(with_frame) < need:
+            raise DataFileError(f"{where}: {len(with_frame)} oriented thermal image(s) with a decoded frame "
+                                f"({len(self.oc.images)} image(s) in the file, {len(thermal)} thermal); {verb} needs at "
+                                f"least {need}")
+        units = sorted({im.unit.value for im in with_frame})
         if len(units) != 1:
-            raise DataFileError(f"{self.root / 'cameras.json'}: frames of mixed units {units}; expected one unit")
+            raise DataFileError(f"{where}: frames of mixed units {units}; expected one unit")
         self.unit = units[0]
+        self.skipped: list[tuple[str, str]] = []
+        skip = set(skip)
+        self.images = [im for im in with_frame if im.name not in skip]
+        if check:
+            self._check_frames()
+        if len(self.images) < need:
+            listed = "; ".join(f"{n}: {r}" for n, r in self.skipped[:5]) + (" ..." if len(self.skipped) > 5 else "")
+            raise DataFileError(f"{where}: {len(self.images)} usable frame(s) of {len(with_frame)}; {verb} needs at "
+                                f"least {need} (skipped: {listed or 'none'})")
         self.names = [im.name for im in self.images]
         self.cameras = [self.oc.camera_of(im) for im in self.images]
         self.poses = [(im.R, im.t) for im in self.images]
@@ -82,6 +105,42 @@ class SurveyFrames:
         check_dji_sdk(sdk)
         self.unit = "K"
         return sdk
+
+    def _check_frames(self) -> None:
+        """Decode every frame once: skip the unreadable ones by name, refuse a dtype/bands that contradict the unit."""
+        from ..errors import ConfigError
+
+        keep = []
+        for k, im in enumerate(self.images):
+            try:
+                a = self.oc.read_frame(im)
+            except DataFileError as exc:
+                self.skipped.append((im.name, str(exc)))
+                continue
+            p = self.oc.frame_path(im)
+            bands = 1 if a.ndim == 2 else (a.shape[2] if a.ndim == 3 else 0)
+            desc = f"{a.dtype} {bands}-band" + (" (colour)" if bands >= 3 else "")
+            which = f"cameras.json image {im.name!r} (unit {im.unit.value!r})"
+            if bands == 0:
+                self.skipped.append((im.name, f"{p}: a {a.ndim}-D array of shape {a.shape}; expected an image"))
+                continue
+            if im.unit.value == "K" and (a.dtype.kind != "f" or bands != 1):
+                raise ConfigError(f"{p}: a {desc} frame, but {which} declares kelvin; expected a float single-band "
+                                  "frame of temperatures in K (or the unit 'dn' for an 8-bit rendering, 'counts' for raw "
+                                  "sensor counts)")
+            if im.unit.value == "counts" and (a.dtype.kind not in "ui" or bands != 1):
+                raise ConfigError(f"{p}: a {desc} frame, but {which} declares raw sensor counts; expected an integer "
+                                  "single-band frame (or the unit 'K' for float kelvin frames)")
+            if im.unit.value == "dn" and a.dtype.kind not in "ui":
+                raise ConfigError(f"{p}: a {desc} frame, but {which} declares display numbers; expected 8- or 16-bit "
+                                  "integers (or the unit 'K' for float kelvin frames)")
+            W, H = self.oc.camera_of(im).image_size
+            if a.shape[:2] != (H, W):
+                self.skipped.append((im.name, f"{p}: frame is {a.shape[1]}x{a.shape[0]} px; camera "
+                                              f"{im.camera_id!r} expects {W}x{H}"))
+                continue
+            keep.append(im)
+        self.images = keep
 
     def _load_display_mask(self):
         """The mask of a camera display burned into the survey's 8-bit frames (``survey`` found it:
@@ -129,13 +188,15 @@ class SurveyFrames:
         return self._cache[i]
 
 
-_WORKER_SURVEYS: dict[str, SurveyFrames] = {}
+_WORKER_SURVEYS: dict[tuple, SurveyFrames] = {}
 
 
-def open_survey(path: str, dji_sdk: str | None = None) -> SurveyFrames:
-    """The :class:`SurveyFrames` of ``path``, kept for the next task of the same worker process (one survey at a time)."""
-    key = f"{path}\0{dji_sdk or ''}"
+def open_survey(path: str, skip: tuple[str, ...] = (), dji_sdk: str | None = None) -> SurveyFrames:
+    """The :class:`SurveyFrames` of ``path`` without the frames ``skip`` (the ones the run's checked instance skipped;
+    not checked again), read through ``dji_sdk`` when given, kept for the next task of the same worker process (one
+    survey at a time)."""
+    key = (path, tuple(skip), dji_sdk or "")
     if key not in _WORKER_SURVEYS:
         _WORKER_SURVEYS.clear()
-        _WORKER_SURVEYS[key] = SurveyFrames(path, dji_sdk=dji_sdk)
+        _WORKER_SURVEYS[key] = SurveyFrames(path, dji_sdk=dji_sdk, need=1, check=False, skip=tuple(skip))
     return _WORKER_SURVEYS[key]

@@ -32,13 +32,13 @@ __all__ = ["run_ortho", "check_dsm_matches_survey"]
 
 
 def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoConfig, margin_m: float,
-                correction=None, unit_out: str = "K", dji_sdk: str | None = None, filled_band: int | None = None):
-    sv = open_survey(survey_path, dji_sdk)
+                correction=None, unit_out: str = "K", dji_sdk: str | None = None, filled_band: int | None = None,
+                dsm_grid: Grid | None = None, skip: tuple[str, ...] = ()):
+    sv = open_survey(survey_path, skip, dji_sdk)
     r0, c0, rows, cols = window
     # ortho cells (with a one-cell pad for the normals) and their DSM heights
     X, Y = grid.cell_centres(r0 - 1, c0 - 1, rows + 2, cols + 2)
-    dsm_meta = _dsm_meta(dsm_path)
-    dg = dsm_meta["grid"]
+    dg = dsm_grid if dsm_grid is not None else _dsm_meta(dsm_path)["grid"]
     pad = int(np.ceil(margin_m / dg.gsd)) + 2
     xa, xb = X.min(), X.max()
     ya, yb = Y.min(), Y.max()
@@ -138,12 +138,20 @@ def _dsm_meta(path):
 
 def check_dsm_matches_survey(meta: dict, sv, dsm_path, survey_dir) -> None:
     """Raise :class:`~thermogrammetry.errors.ConfigError` when the DSM cannot belong to the survey: another
-    horizontal CRS than ``cameras.json``'s, or an extent that no camera can see (the ground within
-    ``max(200 m, 5 × flying height above the DSM)`` of a camera centre, i.e. up to ~79° off nadir)."""
+    horizontal CRS than ``cameras.json``'s (or a CRS on one side only), heights above every camera, or an extent
+    that no camera can see (the ground within ``max(200 m, 5 × flying height above the DSM)`` of a camera centre,
+    i.e. up to ~79° off nadir). ``meta``: ``grid``, ``crs``, ``zmin`` (and ``zmax``) of the DSM."""
     from ..errors import ConfigError
     from ..products.raster import same_horizontal_crs
 
     a, b = meta.get("crs"), sv.crs
+    cams = sv.root / "cameras.json"
+    if a is None and b is not None:
+        raise ConfigError(f"{dsm_path}: the DSM has no CRS, the survey {cams} is in {b}; expected the DSM in the "
+                          f"survey's CRS (assign it if that is what it is: gdal_edit.py -a_srs {b})")
+    if a is not None and b is None:
+        raise ConfigError(f"{dsm_path}: the DSM is in {a}, the survey {cams} has no CRS (a local frame); expected a DSM "
+                          "in the survey's local frame (as 'thermogrammetry dense' writes it, without a CRS)")
     if not same_horizontal_crs(a, b):
         raise ConfigError(f"{dsm_path}: the DSM is in {a}, the survey {survey_dir} in {b}; expected the DSM in the "
                           f"survey's CRS (reproject it first, e.g. gdalwarp -t_srs {b})")
@@ -151,6 +159,11 @@ def check_dsm_matches_survey(meta: dict, sv, dsm_path, survey_dir) -> None:
     dx0, dx1 = g.x0, g.x0 + g.width * g.gsd
     dy0, dy1 = g.y0 - g.height * g.gsd, g.y0
     C = np.array([im.center for im in sv.images])
+    top = float(np.max(C[:, 2]))
+    if float(meta["zmin"]) >= top:
+        raise ConfigError(f"{dsm_path}: every height of the DSM ({float(meta['zmin']):.2f}..{float(meta.get('zmax', meta['zmin'])):.2f} m) "
+                          f"is at or above the highest camera of {survey_dir} (Z {top:.2f} m); expected the ground below "
+                          "the cameras (a DSM of another height reference or unit?)")
     height = max(0.0, float(np.max(C[:, 2])) - float(meta["zmin"]))
     reach = max(200.0, 5.0 * height)
     cx0, cy0 = C[:, :2].min(axis=0) - reach
@@ -165,7 +178,8 @@ def check_dsm_matches_survey(meta: dict, sv, dsm_path, survey_dir) -> None:
 def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: str | None = None,
               sampling: str = "nearest", correct: bool = False, correction=None, workers: int = 1,
               scheduler: str | None = None, tile: int = 512, config: OrthoConfig | None = None, on_tile=None,
-              dji_sdk: str | None = None, fill: bool = True, max_hole_m: float | None = None) -> dict:
+              dji_sdk: str | None = None, fill: bool = True, max_hole_m: float | None = None,
+              max_cells: int | None = None) -> dict:
     """``thermogrammetry ortho``: the mosaic and its companion rasters in ``out_dir``; returns ``ortho.json``.
 
     ``fill`` (default): the mosaic's surface is the DSM with its holes filled
@@ -175,17 +189,27 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
 
     ``on_tile(done, total)`` is called after each mosaic tile (progress). ``dji_sdk``: DJI's Thermal SDK library,
     for a survey of DJI R-JPEGs decoded as raw counts: the mosaic then holds temperatures read again from the
-    R-JPEGs through the SDK (:class:`~thermogrammetry.pipeline.frames.SurveyFrames`)."""
-    from ..errors import ConfigError
+    R-JPEGs through the SDK (:class:`~thermogrammetry.pipeline.frames.SurveyFrames`).
+
+    Every input is checked before any work (OUT is not created when one is refused): the workers
+    (:func:`~thermogrammetry.tasks.check_workers`), ``cameras.json`` and its frames (:class:`SurveyFrames`; a frame
+    that does not decode is skipped by name), the DSM (:func:`~thermogrammetry.products.raster.inspect_raster`,
+    :func:`check_dsm_matches_survey`) and the size of the ortho grid (``max_cells``, default
+    :func:`~thermogrammetry.io.limits.max_cells`). A mosaic without any cell is refused with its reason.
+    """
+    from ..errors import ConfigError, DataFileError
+    from ..io.limits import check_cells
     from ..products.correction import as_correction_config
+    from ..products.raster import inspect_raster
+    from ..tasks import check_workers
 
     t0 = time.perf_counter()
-    sv = SurveyFrames(survey_dir, dji_sdk=dji_sdk)
+    check_workers(workers, scheduler)
+    sv = SurveyFrames(survey_dir, dji_sdk=dji_sdk, need=1, verb="ortho")
     if not Path(dsm_path).exists():
-        from ..errors import DataFileError
-
         raise DataFileError(f"{dsm_path}: no such DSM; expected the dsm.tif written by 'thermogrammetry dense'")
-    meta = _dsm_meta(str(Path(dsm_path).resolve()))
+    info = inspect_raster(dsm_path, "DSM", max_cells=max_cells)
+    meta = {"grid": info.grid, "crs": info.crs, "zmin": info.zmin, "zmax": info.zmax}
     check_dsm_matches_survey(meta, sv, dsm_path, survey_dir)
     cfg = config or OrthoConfig(sampling=sampling)
     notes = []
@@ -218,7 +242,10 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
     if not (np.isfinite(g) and g > 0):
         raise ConfigError(f"--gsd {gsd!r}: expected a positive cell size in metres")
     dg = meta["grid"]
-    grid = Grid(dg.x0, dg.y0, float(g), int(np.ceil(dg.width * dg.gsd / g)), int(np.ceil(dg.height * dg.gsd / g)), tile)
+    gw, gh = int(np.ceil(dg.width * dg.gsd / g)), int(np.ceil(dg.height * dg.gsd / g))
+    check_cells(gw, gh, f"ortho grid of {dsm_path} at {float(g):g} m" + (" (--gsd)" if gsd is not None else ""),
+                cap=max_cells, what="mosaic")
+    grid = Grid(dg.x0, dg.y0, float(g), gw, gh, tile)
     if max_hole_m is not None and not (np.isfinite(max_hole_m) and max_hole_m >= 0):
         raise ConfigError(f"--fill-max-hole {max_hole_m!r}: expected a hole size in metres >= 0")
     if not 0.0 < float(cfg.max_angle_deg) < 90.0:
@@ -248,6 +275,8 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         dpath, band = str(surface.resolve()), 2
     client = open_client(workers, scheduler)
     windows = list(grid.tiles())
+    dg = meta["grid"]  # (the filled surface is written on the DSM's grid)
+    skip = tuple(n for n, _ in sv.skipped)
     stats = {"lo": np.inf, "hi": -np.inf, "cells": 0, "uncorrected": 0, "filled": 0}
     sources: set = set()
 
@@ -274,9 +303,10 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
             nt = len(windows)
             tiles = (collect(r) for r in ordered_results(client, _ortho_task, [spath] * nt, [dpath] * nt, [grid] * nt,
                                                          windows, [cfg] * nt, [margin_m] * nt, [corr] * nt,
-                                                         [unit_out] * nt, [sv.dji_sdk] * nt, [band] * nt))
+                                                         [unit_out] * nt, [sv.dji_sdk] * nt, [band] * nt, [dg] * nt,
+                                                         [skip] * nt))
         else:
-            tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out, sv.dji_sdk, band))
+            tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out, sv.dji_sdk, band, dg, skip))
                      for w in windows)
         crs = sv.crs
         specs = {
@@ -304,8 +334,14 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
             client.close()
         _DSM_META.clear()
         surface.unlink(missing_ok=True)
+    if stats["cells"] == 0:
+        from ..errors import DataFileError
+
+        raise DataFileError(f"{dsm_path}: no cell of the {grid.width}x{grid.height} ortho grid is seen by any of the "
+                            f"{len(sv)} image(s) of {survey_dir}; expected a DSM of the surveyed ground below the "
+                            "cameras (check its heights, extent and CRS)")
     style = _write_style(out, label)
-    # 16-bit encoding with one mapping for the whole mosaic (seed 002)
+    # 16-bit encoding with one mapping for the whole mosaic
     if np.isfinite(stats["lo"]):
         if sv.unit == "K":
             lo_k = stats["lo"] + (273.15 if unit_out == "C" else 0.0)
@@ -347,6 +383,9 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
                      f"{corr.max_angle_deg}° or no real solution)")
     if sv.crs is None:
         notes.append("cameras.json has no CRS: rasters are in the survey's local frame (no CRS written)")
+    if sv.skipped:
+        notes.append(f"{len(sv.skipped)} frame(s) skipped (damaged or unreadable): "
+                     + "; ".join(f"{n}: {r}" for n, r in sv.skipped))
     report = {
         "images": {str(k): sv.names[k] for k in range(len(sv))},
         "unit": label,
@@ -362,6 +401,7 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         "crs": sv.crs,
         "cells": stats["cells"],
         "images_used": len(sources),
+        "skipped_frames": [{"name": n, "reason": r} for n, r in sv.skipped],
         "corrected": bool(correct),
         "correction": None if corr is None else {k: str(getattr(corr, k)) for k in corr.__dataclass_fields__},
         "seconds": round(time.perf_counter() - t0, 2),

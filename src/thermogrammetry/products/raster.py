@@ -20,7 +20,8 @@ from .._atomic import make_temp
 
 from ..errors import DataFileError
 
-__all__ = ["Grid", "RasterSpec", "write_cog", "write_cogs", "read_raster", "read_window"]
+__all__ = ["Grid", "RasterSpec", "RasterInfo", "write_cog", "write_cogs", "read_raster", "read_window", "inspect_raster",
+           "check_north_up"]
 
 
 def same_horizontal_crs(a: str | None, b: str | None) -> bool:
@@ -184,8 +185,12 @@ def _write_cogs(grid: Grid, specs: dict, tile_fn, *, crs=None, tiles=None) -> No
             finally:
                 if os.path.exists(tmp2):
                     os.unlink(tmp2)
-    except rasterio.errors.RasterioError as exc:
-        raise DataFileError(f"{', '.join(str(sp.path) for sp in specs.values())}: cannot write GeoTIFF ({exc})") from None
+    except _raster_errors() as exc:
+        raise DataFileError(f"{', '.join(str(sp.path) for sp in specs.values())}: cannot write GeoTIFF "
+                            f"({_gdal_reason(exc)}; a full disk?)") from None
+    except OSError as exc:
+        raise DataFileError(f"{', '.join(str(sp.path) for sp in specs.values())}: cannot write GeoTIFF "
+                            f"({exc.strerror or exc})") from None
     finally:
         for key, d in dsts.items():
             try:
@@ -222,24 +227,143 @@ def write_cog(path, grid: Grid, dtype, tile_fn: Callable[[int, int, int, int], n
     return Path(path)
 
 
-def read_raster(path, band: int = 1) -> tuple[np.ndarray, Grid, str | None, dict]:
-    """A whole band as float64 (nodata → NaN), its :class:`Grid`, CRS string and tags (with ``unit``)."""
+def _gdal_reason(exc: BaseException) -> str:
+    """The GDAL message behind a rasterio error ("Read failed. See previous exception" names none): the chained
+    cause's text when there is one."""
+    parts = [f"{type(exc).__name__}: {exc}"]
+    cause = exc.__cause__ or exc.__context__
+    if cause is not None and str(cause) and str(cause) not in str(exc):
+        parts.insert(0, str(cause))
+    return "; ".join(parts)
+
+
+def _raster_errors() -> tuple:
+    """The exception classes rasterio and GDAL raise on damaged files or a full disk."""
+    import rasterio.errors
+
+    try:
+        from rasterio._err import CPLE_BaseError
+    except ImportError:  # pragma: no cover - another rasterio layout
+        return (rasterio.errors.RasterioError,)
+    return (rasterio.errors.RasterioError, CPLE_BaseError)
+
+
+def check_north_up(src, path, what: str = "raster") -> Grid:
+    """The :class:`Grid` of an open rasterio dataset, or :class:`DataFileError` naming the file and the transform when
+    it is not a north-up grid of square cells (rotated, sheared, south-up, mirrored, not georeferenced)."""
+    tr = src.transform
+    terms = tuple(float(v) for v in tuple(tr)[:6])
+    if src.crs is None and tr.is_identity:
+        raise DataFileError(f"{path}: the {what} has no georeferencing (no geotransform, no CRS); expected a GeoTIFF "
+                            "with a north-up transform in the survey's CRS")
+    if not all(np.isfinite(terms)):
+        raise DataFileError(f"{path}: the {what}'s transform {terms} has non-finite terms; expected a north-up transform")
+    if abs(tr.b) > 1e-12 * max(1.0, abs(tr.a)) or abs(tr.d) > 1e-12 * max(1.0, abs(tr.e)):
+        raise DataFileError(f"{path}: the {what} is rotated or sheared (transform {terms}, rotation terms b = {tr.b:g}, "
+                            f"d = {tr.d:g}); expected a north-up grid (resample it, e.g. gdalwarp -t_srs with the same CRS)")
+    if tr.e >= 0:
+        raise DataFileError(f"{path}: the {what}'s rows run south-up (pixel height {tr.e:g} >= 0 in transform {terms}); "
+                            "expected a north-up grid with a negative pixel height (gdalwarp writes one)")
+    if tr.a <= 0:
+        raise DataFileError(f"{path}: the {what}'s columns run westwards (pixel width {tr.a:g} <= 0 in transform "
+                            f"{terms}); expected a north-up grid with a positive pixel width")
+    if abs(abs(tr.a) - abs(tr.e)) > 1e-9 * abs(tr.a):
+        raise DataFileError(f"{path}: the {what}'s cells are {tr.a:g} x {-tr.e:g} m; expected square cells")
+    return Grid(tr.c, tr.f, tr.a, src.width, src.height)
+
+
+@dataclass(frozen=True)
+class RasterInfo:
+    """What :func:`inspect_raster` found: the grid, the CRS, the finite heights' range and count."""
+
+    path: str
+    grid: Grid
+    crs: str | None
+    zmin: float
+    zmax: float
+    finite: int
+
+
+def inspect_raster(path, what: str = "DSM", *, max_cells: int | None = None, band: int = 1) -> RasterInfo:
+    """Check a height raster before any work and describe it: readable, north-up with square cells
+    (:func:`check_north_up`), at least 2 x 2 cells, at most the cell cap (:func:`~thermogrammetry.io.limits.check_cells`),
+    finite heights somewhere and no infinite one. Read block by block (memory bounded by a block).
+
+    Raises
+    ------
+    DataFileError
+        Naming the file, the value found and what was expected.
+    """
     import rasterio
+
+    from ..io.limits import check_cells
+
+    p = Path(path)
+    if not p.exists():
+        raise DataFileError(f"{what} {path}: no such file")
+    import warnings
+
+    try:
+        with warnings.catch_warnings():  # an ungeoreferenced file is reported below, not as a rasterio warning
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            src = rasterio.open(p)
+        with src:
+            if src.count < band:
+                raise DataFileError(f"{path}: the {what} has {src.count} band(s); expected band {band} with heights")
+            if src.width < 2 or src.height < 2:
+                raise DataFileError(f"{path}: the {what} is {src.width} x {src.height} cell(s); expected at least 2 x 2 "
+                                    "cells of heights")
+            check_cells(src.width, src.height, f"{path}", cap=max_cells, what=what)
+            g = check_north_up(src, path, what)
+            crs = src.crs.to_string() if src.crs else None
+            zmin, zmax, finite, inf, first_inf = np.inf, -np.inf, 0, 0, None
+            for _, win in src.block_windows(band):
+                a = src.read(band, window=win, masked=True)
+                v = np.asarray(a.astype(np.float64).filled(np.nan))
+                ok = np.isfinite(v)
+                if ok.any():
+                    finite += int(ok.sum())
+                    zmin, zmax = min(zmin, float(v[ok].min())), max(zmax, float(v[ok].max()))
+                bad = np.isinf(v)
+                if bad.any():
+                    inf += int(bad.sum())
+                    if first_inf is None:
+                        r, c = np.argwhere(bad)[0]
+                        first_inf = (int(r + win.row_off), int(c + win.col_off), float(v[r, c]))
+    except _raster_errors() as exc:
+        raise DataFileError(f"{what} {path}: cannot be read as a GeoTIFF ({_gdal_reason(exc)}); expected a complete "
+                            "GeoTIFF (a truncated or damaged file?)") from None
+    if inf:
+        r, c, val = first_inf
+        raise DataFileError(f"{path}: the {what} holds {inf} infinite height(s), the first at row {r}, column {c} "
+                            f"({val}); expected finite heights in metres (NaN or nodata where there is none)")
+    if not finite:
+        raise DataFileError(f"{path}: the {what} has no finite height (all {g.width * g.height} cells are nodata or "
+                            "NaN); expected heights in metres")
+    return RasterInfo(str(path), g, crs, float(zmin), float(zmax), int(finite))
+
+
+def read_raster(path, band: int = 1, *, max_cells: int | None = None) -> tuple[np.ndarray, Grid, str | None, dict]:
+    """A whole band as float64 (nodata → NaN), its :class:`Grid`, CRS string and tags (with ``unit``).
+
+    Refused before reading: a transform that is not north-up (:func:`check_north_up`), more cells than the cap
+    (``max_cells``, :func:`~thermogrammetry.io.limits.check_cells`)."""
+    import rasterio
+
+    from ..io.limits import check_cells
 
     try:
         with rasterio.open(path) as src:
+            check_cells(src.width, src.height, f"{path}", cap=max_cells)
+            g = check_north_up(src, path)
             a = src.read(band, masked=True).astype(np.float64).filled(np.nan)
-            tr = src.transform
-            if abs(tr.b) > 1e-12 or abs(tr.d) > 1e-12 or abs(abs(tr.a) - abs(tr.e)) > 1e-9 * abs(tr.a):
-                raise DataFileError(f"{path}: expected a north-up raster with square cells, got transform {tuple(tr)[:6]}")
-            g = Grid(tr.c, tr.f, tr.a, src.width, src.height)
             crs = src.crs.to_string() if src.crs else None
             tags = dict(src.tags())
             tags.update(src.tags(band))
             if src.units and src.units[band - 1]:
                 tags.setdefault("unit", src.units[band - 1])
-    except rasterio.errors.RasterioIOError as exc:
-        raise DataFileError(f"{path}: cannot read GeoTIFF ({exc}); expected a DSM or product GeoTIFF") from None
+    except _raster_errors() as exc:
+        raise DataFileError(f"{path}: cannot read GeoTIFF ({_gdal_reason(exc)}); expected a DSM or product GeoTIFF") from None
     return a, g, crs, tags
 
 
