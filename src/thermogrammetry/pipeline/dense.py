@@ -125,7 +125,6 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
     n = len(sv)
     skip = tuple(name for name, _ in sv.skipped)
     client = open_client(workers, scheduler)
-    results: list = []
     infos: list[dict] = []
     spill = None
     try:
