@@ -14,7 +14,7 @@ from .selfcal_ladder import adjust_block
 __all__ = ["BLOCK_RMS_GATE_PX", "GNSS_FLAG_SIGMA", "BLOCK_GNSS_FAR_SHARE", "BLOCK_ROTATION_SIGMA_DEG",
            "PRECISE_GNSS_SIGMA_M", "tie_rms", "precise_datum", "block_rotation_sigma", "gnss_far_share",
            "block_rejection", "check_gnss_offset", "unregister_images", "GNSS_RESECTION_MAX_DEG", "extend_with_gnss",
-           "prune_gnss_contradicting", "ATTITUDE_FLAG_DEG", "attitude_check"]
+           "prune_gnss_contradicting", "ATTITUDE_FLAG_DEG", "attitude_check", "unconverged_sigma", "refuse_sigma"]
 
 
 #: a block whose final tie-point reprojection RMS exceeds this is rejected (reported, not exported)
@@ -110,6 +110,32 @@ def block_rejection(rms: float, far: float, rot_sigma: float, result, *, pruned:
                f"centres are more than {GNSS_FLAG_SIGMA:g} σ from their GNSS positions: its tie points contradict "
                "the GNSS (a wrong relative orientation)")
     return why
+
+
+def unconverged_sigma(fa) -> str:
+    """Why an accepted block's σ cannot be reported, or ``""``: its final adjustment (already adjusted again once
+    from where it stopped, :func:`~thermogrammetry.sfm.selfcal_ladder.adjust_block`) did not converge. The
+    covariance of a solve that stopped short of its minimum describes no estimate: σ of cameras, centres and check
+    points would be reported as if it had converged."""
+    from ..results import Termination
+
+    t = fa.result.termination
+    if t is Termination.CONVERGED:
+        return ""
+    return (f"the final adjustment did not converge ({t.value}: {fa.result.reason or 'no reason given'}), also "
+            "when adjusted again from where it stopped: its σ (cameras, camera centres and rotations, check points, "
+            "σ0) are not reported")
+
+
+def refuse_sigma(fa, why: str) -> None:
+    """Mark the σ of a final adjustment ``fa`` as not available (in place): centres', rotations' and cameras' σ NaN
+    (null in the outputs), no covariance (check points then carry none), ``fa.sigma_refused = why``."""
+    fa.center_std = np.full_like(np.asarray(fa.center_std, float), np.nan)
+    fa.rotation_std_deg = np.full_like(np.asarray(fa.rotation_std_deg, float), np.nan)
+    fa.covariance = None
+    res = fa.result
+    res.camera_std = [np.full_like(np.asarray(c, float), np.nan) for c in (res.camera_std or [])]
+    fa.sigma_refused = why
 
 
 def check_gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | None, list[str]]:

@@ -10,10 +10,10 @@ import numpy as np
 from ..._memory import release_free_heap
 from ...sfm.block_gates import (BLOCK_RMS_GATE_PX, BLOCK_ROTATION_SIGMA_DEG, GNSS_FLAG_SIGMA, block_rejection,
                                 block_rotation_sigma, check_gnss_offset, extend_with_gnss, gnss_far_share, precise_datum,
-                                prune_gnss_contradicting, tie_rms, unregister_images)
+                                prune_gnss_contradicting, refuse_sigma, tie_rms, unconverged_sigma, unregister_images)
 from ...sfm.reconstruction import restore_to, snapshot_of
 from ...sfm.rig_block import rig_by_registration, rig_own_before, rig_refuse, rig_scale_local
-from ...sfm.selfcal_ladder import adjust_block
+from ...sfm.selfcal_ladder import FocalKnown, adjust_block
 from ...store import ProjectStore
 from .controls import _gnss_xyz, _read_manual_ties, _read_markers
 from .inputs import _attitudes
@@ -216,10 +216,20 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             images, fa, cal_used, cal_steps, nts = extend_with_gnss(rec, xy, images, ctrl, names, ci, self_cal, adjust_kw,
                                                                       opt.reconstruction, (fa, cal_used, cal_steps), rms, far)
             notes += nts
+        no_sigma = unconverged_sigma(fa)
+        if no_sigma:
+            # never reported with σ as if it had converged: the orientation is kept, its σ refused
+            refuse_sigma(fa, no_sigma)
+            for c_ in {int(c) for c in rec.image_camera[np.asarray(images)]}:
+                rec.cameras[c_] = rec.cameras[c_].replace(param_std=np.full(len(rec.cameras[c_].param_names), np.nan))
+            notes.append(f"block {ci + 1}: {no_sigma}")
         oriented[images] = True
         fa_all.append((ci, images, fa, datum, geo))
-        results.append({"block": ci + 1, "images": len(images), "datum": str(datum), "sigma0": float(fa.result.sigma0),
+        results.append({"block": ci + 1, "images": len(images), "datum": str(datum),
+                        "sigma0": None if no_sigma else float(fa.result.sigma0),
                         "termination": fa.result.termination.value, "reason": fa.result.reason,
+                        "converged": not no_sigma, **({"sigma_refused": no_sigma} if no_sigma else {}),
+                        **({"first_termination": list(fa.first_termination)} if getattr(fa, "first_termination", None) else {}),
                         "self_calibration": sorted({n for v in cal_used.values() for n in v}),
                         "self_calibration_steps": cal_steps, **({"gnss_offset": gnss_off} if gnss_off else {}),
                         **({"added_at_gnss": [names[i] for i in images[n_own:]]} if len(images) > n_own else {})})
@@ -234,6 +244,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     checks, gcp_errors, gcp_rejected = _check_points(rec, fa_all, ctrl, names, c_ids)
     extra = _survey_extra(project, inp, rec, names, oriented, meta, lt_verdict, notes, t_ids, tie_out,
                           rig=(rig_used, rig_reg, rig_master, rig_unpaired, rig_out, rig_only) if inp.rig is not None else None)
+    extra["camera_start"] = _camera_start(inputs, rec, meta, camera)
     out = _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results,
                          extra=extra, rig_only={k: w for k, w in rig_only.items() if oriented[k]})
     out["seconds_georef"] = time.perf_counter() - t0
@@ -241,11 +252,48 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
 
 
 def _focal_from_exif(inputs: dict, rec, cam_index: int) -> bool:
-    """True when every image of this camera had its starting focal length from EXIF focal length and pixel pitch
-    (``camera_guess.source`` "EXIF focal ... / pitch ..." or a 35 mm-equivalent focal), not a guess."""
-    srcs = [str(im.get("camera_guess", {}).get("source", "")) for im, c in zip(inputs["images"], rec.image_camera)
-            if int(c) == cam_index]
-    return bool(srcs) and all(s_.startswith("EXIF") and "assumed" not in s_ for s_ in srcs)
+    """True when every image of this camera had its starting focal length from the files, not a guess: EXIF focal
+    length and pixel pitch, a 35 mm-equivalent focal, or the EXIF focal length / field of view with the camera
+    table's pitch (``camera_guess.focal_source`` "exif" or "camera_table:..."; inputs without that key: the
+    ``source`` text "EXIF focal ... / pitch ..." or a 35 mm-equivalent focal)."""
+    guesses = [im.get("camera_guess", {}) for im, c in zip(inputs["images"], rec.image_camera) if int(c) == cam_index]
+
+    def known(g) -> bool:
+        fs = g.get("focal_source")
+        if fs is not None:
+            return fs == "exif" or str(fs).startswith("camera_table:")
+        s_ = str(g.get("source", ""))
+        return s_.startswith("EXIF") and "assumed" not in s_
+
+    return bool(guesses) and all(known(g) for g in guesses)
+
+
+def _camera_start(inputs: dict, rec, meta: dict, camera=None) -> dict:
+    """survey.json ``camera_start``: per camera id where its starting focal length came from (``focal_source``:
+    ``"exif"``, ``"camera_table:<camera>"``, ``"camera_file"`` for a thermal camera given with ``--camera`` or the
+    rig file, ``"assumed"``, ``"default"``), the start ``f_px`` with its σ (``focal_sigma_px``, None when unknown),
+    the text ``source``, and the camera table's entry when it knows the camera."""
+    out = {}
+    for k, cid in enumerate(meta["camera_ids"]):
+        g = next((im.get("camera_guess", {}) for im, c in zip(inputs["images"], rec.image_camera) if int(c) == k), {})
+        given = camera is not None and str(cid).startswith("thermal")
+        fs = "camera_file" if given else g.get("focal_source", "exif" if _focal_from_exif(inputs, rec, k) else "default")
+        f = (float(camera.param_dict["fx"]) if "fx" in camera.param_dict else None) if given else g.get("f_px")
+        out[str(cid)] = {"focal_source": fs, "f_px": f, "focal_sigma_px": None if given else g.get("focal_sigma_px"),
+                         "source": "camera file" if given else g.get("source"),
+                         **({"camera_table": g["camera_table"]} if g.get("camera_table") else {})}
+    return out
+
+
+def _focal_prior(inputs: dict, rec, cam_index: int) -> float | None:
+    """The focal length (px) the camera's images started from when it came from the files or the camera table
+    (:func:`_focal_from_exif`): the reference of the focal-length guard of the self-calibration, which every
+    adjustment of the block (and every later one, e.g. with images added at their GNSS positions) is held to,
+    not the value the previous adjustment left. None otherwise."""
+    if not _focal_from_exif(inputs, rec, cam_index):
+        return None
+    f = [float(im["camera_guess"]["f_px"]) for im, c in zip(inputs["images"], rec.image_camera) if int(c) == cam_index]
+    return float(np.median(f)) if f else None
 
 
 def _controls(inp: SurveyInput, opt: SurveyOptions, inputs: dict, names: list):
@@ -280,6 +328,9 @@ def _self_calibration(project: ProjectStore, inp: SurveyInput, opt: SurveyOption
     # length and pixel pitch: a video or an image without them starts from a guess (1 x the width), which
     # self-calibration is there to correct (a factor 2.3 on the synthetic video of tests/test_io_video.py)
     focal_known = {k: _focal_from_exif(inputs, rec, k) for k in range(len(meta["camera_ids"]))}
+    # the guard's reference: the files' (or the camera table's) focal length, not the last adjustment's
+    focal_known = FocalKnown({k: v for k, v in focal_known.items()},
+                             {k: _focal_prior(inputs, rec, k) for k in range(len(meta["camera_ids"]))})
     self_cal, lt_note = _low_texture_self_calibration(project, meta["camera_ids"], self_cal, focal_known)
     notes += [lt_note] if lt_note else []
     return self_cal, focal_known, notes
@@ -332,7 +383,11 @@ def _check_points(rec, fa_all, ctrl, names, c_ids):
     for ci, images, fa, datum, geo in fa_all:
         if not geo:
             continue
-        checks += [c for c in intersect_check_points(rec, fa, ctrl) if c["xyz"] is not None or c["n_images"] > 0]
+        cs = [c for c in intersect_check_points(rec, fa, ctrl) if c["xyz"] is not None or c["n_images"] > 0]
+        if getattr(fa, "sigma_refused", ""):
+            for c in cs:  # the error is measured; a σ from an unconverged adjustment is not reported
+                c["std"], c["sigma_refused"] = None, fa.sigma_refused
+        checks += cs
         gcp_errors += [fa.gcp_residuals_m[g] for g in np.nonzero(fa.gcp_used)[0]]
         gcp_rejected += [{"image": names[i], "id": gid, "residual_px": e} for i, gid, e in fa.gcp_rejected]
     # merge check points seen in several blocks: keep the one with most images
