@@ -138,9 +138,10 @@ def refuse_sigma(fa, why: str) -> None:
     fa.sigma_refused = why
 
 
-def check_gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | None, list[str]]:
+def check_gnss_offset(rec, xy, images, ctrl, self_cal, focal_known=None, **kw) -> tuple[dict | None, list[str]]:
     """Look for a constant GNSS-vs-GCP datum offset in a GNSS-placed block with >= 3 GCPs
-    (:func:`~thermogrammetry.sfm.georef.gnss_offset`): one adjustment on the GCPs alone (GNSS σ × 1000), the
+    (:func:`~thermogrammetry.sfm.georef.gnss_offset`): one adjustment on the GCPs alone (GNSS σ × 1000; its
+    self-calibration on the ladder of :func:`~thermogrammetry.sfm.selfcal_ladder.adjust_block`), the
     block restored afterwards; the GNSS positions (and the block's start) are shifted by the significant axes.
     Returns the report entry and notes."""
     from dataclasses import replace as dc_replace
@@ -167,7 +168,9 @@ def check_gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | Non
         restore_to(rec, snap)
         if bad:
             weak = dc_replace(weak, gcp_obs=[o for o in weak.gcp_obs if (int(o[0]), ctrl.gcp_ids[o[1]]) not in bad])
-        fa = final_adjustment(rec, xy, images, weak, self_calibrate=self_cal, compute_covariance=True, **kw)
+        # with the self-calibration ladder and its focal-length guard (``focal_known``): a focal length run away on a
+        # flat block (a projective twin) would move the heights, and the GNSS with them
+        fa, _, _ = adjust_block(rec, xy, images, weak, self_cal, focal_known=focal_known, compute_covariance=True, **kw)
         off = gnss_offset(rec.centers()[images], fa.center_std[images], ctrl.gnss_xyz[images], ctrl.gnss_sigma[images]) \
             if fa.result.success else None
     finally:

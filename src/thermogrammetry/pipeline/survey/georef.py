@@ -88,7 +88,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         if geo:
             apply_similarity(rec, images, S)
             if datum.from_gnss and ctrl.gcp_obs and inp.rig is None:
-                gnss_off, nts = check_gnss_offset(rec, xy, images, ctrl, self_cal, tie_sigma_px=opt.tie_sigma_px,
+                gnss_off, nts = check_gnss_offset(rec, xy, images, ctrl, self_cal, focal_known=focal_known,
+                                                  tie_sigma_px=opt.tie_sigma_px,
                                              max_error_px=opt.reconstruction.max_error_px, georeferenced=True)
                 notes += [f"block {ci + 1}: {x}" for x in nts]
         elif rigv is not None:
@@ -222,6 +223,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             refuse_sigma(fa, no_sigma)
             for c_ in {int(c) for c in rec.image_camera[np.asarray(images)]}:
                 rec.cameras[c_] = rec.cameras[c_].replace(param_std=np.full(len(rec.cameras[c_].param_names), np.nan))
+            if rig_out and rig_out[-1].get("block") == ci + 1 and "std" in rig_out[-1]:
+                rig_out[-1].update({"std": None, "sigma_refused": no_sigma})
             notes.append(f"block {ci + 1}: {no_sigma}")
         oriented[images] = True
         fa_all.append((ci, images, fa, datum, geo))

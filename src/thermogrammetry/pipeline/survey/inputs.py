@@ -105,12 +105,17 @@ def _camera_guess(width, height, md) -> dict:
     f35 = raw.get(41989)
     model = getattr(md, "model", None) or ""
     make = getattr(md, "make", None) or (exif.get("make") if isinstance(exif, dict) else None) or ""
-    if not model and isinstance(getattr(md, "extra", None), dict):
-        model = (md.extra.get("xmp") or {}).get("Model") or ""  # DJI's XMP model name
+    xmp = (getattr(md, "extra", None) or {}).get("xmp") or {} if isinstance(getattr(md, "extra", None), dict) else {}
     focal = getattr(md, "focal_length_mm", None)
     pitch = getattr(md, "pixel_pitch_um", None)
     pitch = pitch[0] if isinstance(pitch, (tuple, list)) else pitch
-    tab = table_focal(make, model, (width, height), focal) if model else None
+    tab = None
+    # the reader's model (a FLIR file's camera-info model first), then EXIF Model, then DJI's XMP model name
+    for name in dict.fromkeys(m for m in (model, exif.get("model") if isinstance(exif, dict) else None,
+                                          xmp.get("Model")) if m):
+        tab = table_focal(make, name, (width, height), focal)
+        if tab is not None:
+            break
     table = ({"camera_table": {"camera": tab.camera, "native_size": list(tab.native_size), "upscale": tab.upscale,
                                "how": tab.how, "source": tab.source}} if tab is not None else {})
     if focal and pitch:
@@ -120,7 +125,7 @@ def _camera_guess(width, height, md) -> dict:
     if focal and tab is not None and tab.f_px and tab.pixel_pitch_um:
         return {"f_px": tab.f_px, "source": f"EXIF {tab.how}", "pitch_um": tab.pixel_pitch_um,
                 "focal_source": f"camera_table:{tab.camera}", "focal_sigma_px": tab.sigma_px, **table}
-    if pitch is None and model.upper() in _PITCH_UM:
+    if pitch is None and str(model).upper() in _PITCH_UM:
         pitch = _PITCH_UM[model.upper()]
         if focal:
             f = focal / (pitch * 1e-3)
