@@ -126,3 +126,12 @@ def test_an_adjustment_at_its_iteration_limit_is_adjusted_again_then_its_sigma_r
     outcome = [Termination.CONVERGED, Termination.CONVERGED]
     fa, used, steps = adjust_block(rec, None, np.arange(4), None, ("fx", "fy"), compute_covariance=False)
     assert calls == [50] and not getattr(fa, "first_termination", None)
+
+
+def test_a_block_that_contradicts_its_gnss_after_stopping_at_its_limit_stays_rejected_when_adjusted_again():
+    from thermogrammetry.sfm.block_gates import block_rejection
+
+    conv = SimpleNamespace(termination=Termination.CONVERGED, reason="converged")
+    assert block_rejection(1.0, 0.5, 0.0, conv) == ""
+    assert "did not converge" in block_rejection(1.0, 0.5, 0.0, conv, stopped_at_limit=True)
+    assert block_rejection(1.0, 0.1, 0.0, conv, stopped_at_limit=True) == ""  # its centres agree with their GNSS

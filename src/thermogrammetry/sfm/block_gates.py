@@ -80,12 +80,15 @@ def gnss_far_share(rec, images, ctrl) -> float:
     return float(np.mean(np.array(z) > GNSS_FLAG_SIGMA)) if z else 0.0
 
 
-def block_rejection(rms: float, far: float, rot_sigma: float, result, *, pruned: bool = False) -> str:
+def block_rejection(rms: float, far: float, rot_sigma: float, result, *, pruned: bool = False,
+                    stopped_at_limit: bool | None = None) -> str:
     """Why an adjusted block is not an orientation, or ``""``: its tie RMS ``rms`` (px) above
     :data:`BLOCK_RMS_GATE_PX`; a share ``far`` of its centres beyond :data:`GNSS_FLAG_SIGMA` from their GNSS above
     :data:`BLOCK_GNSS_FAR_SHARE` after the GNSS-contradicting images were left out (``pruned``) or with an adjustment
     (``result``) stopped at its iteration limit; its median rotation σ ``rot_sigma`` (degrees) above
-    :data:`BLOCK_ROTATION_SIGMA_DEG` (0 when the datum is not precise enough to gate it, :func:`precise_datum`)."""
+    :data:`BLOCK_ROTATION_SIGMA_DEG` (0 when the datum is not precise enough to gate it, :func:`precise_datum`).
+    ``stopped_at_limit``: whether the adjustment stopped at its iteration limit, also when adjusted again from there
+    (default: ``result``'s termination)."""
     from ..results import Termination
 
     why = ""
@@ -103,7 +106,8 @@ def block_rejection(rms: float, far: float, rot_sigma: float, result, *, pruned:
         why = (f"its camera rotations have σ {rot_sigma:.1f}° (median over its images, > "
                f"{BLOCK_ROTATION_SIGMA_DEG:g}°): its GNSS/GCP datum does not fix its rotation (positions nearly on "
                "a line or a short arc)")
-    elif far > BLOCK_GNSS_FAR_SHARE and result.termination is Termination.MAX_ITERATIONS:
+    elif far > BLOCK_GNSS_FAR_SHARE and (result.termination is Termination.MAX_ITERATIONS if stopped_at_limit is None
+                                         else stopped_at_limit):
         # the tie points and the GNSS disagree across the block and the adjustment finds no minimum: a wrong
         # relative orientation held together by GNSS, not an orientation
         why = (f"the final adjustment did not converge ({result.reason}) and {100 * far:.0f} % of its camera "

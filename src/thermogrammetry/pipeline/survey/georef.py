@@ -174,8 +174,9 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         v = fa.tie_residuals
         rms = tie_rms(v)
         far = gnss_far_share(rec, images, ctrl) if geo else 0.0
-        if (pre is not None and ci not in pruned_blocks and fa.result.termination is Termination.MAX_ITERATIONS
-                and (far > 0 or fa.gnss_rejected)):
+        # at its iteration limit, also if a second adjustment from there converged (selfcal_ladder.adjust_block)
+        at_limit = fa.result.termination is Termination.MAX_ITERATIONS or bool(getattr(fa, "first_termination", None))
+        if (pre is not None and ci not in pruned_blocks and at_limit and (far > 0 or fa.gnss_rejected)):
             # the adjustment found no minimum and some centres contradict their GNSS: a few wrongly resected images
             # can be the cause. The block as the orientation left it, without the images that no similarity puts
             # near their GNSS (sfm.georef.gnss_consensus), is adjusted once more
@@ -203,7 +204,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             attitude_blocks.add(ci)
             queue.insert(0, (ci, images))
             continue
-        why = block_rejection(rms, far, rot_sigma, fa.result, pruned=ci in pruned_blocks)
+        why = block_rejection(rms, far, rot_sigma, fa.result, pruned=ci in pruned_blocks, stopped_at_limit=at_limit)
         if why:
             for i in images:
                 rec.status[i].reason = f"in block {ci + 1} ({len(images)} images) rejected: {why}"
