@@ -322,7 +322,9 @@ def _second_pass(rec, xy, ctrl, names, self_cal, opt: SurveyOptions, oriented, f
             r.update({"images": len(images2), "sigma0": float(fa2.result.sigma0), "termination": fa2.result.termination.value,
                       "reason": fa2.result.reason, "self_calibration": sorted({n for v in cal2.values() for n in v}),
                       "self_calibration_steps": steps2,
-                      "added_at_gnss": r.get("added_at_gnss", []) + [names[i] for i in images2[n_own:]]})
+                      "added_at_gnss": r.get("added_at_gnss", []) + [names[i] for i in images2[n_own:]],
+                      "converged": True})  # (extend_with_gnss keeps only an adjustment that converged)
+            r.pop("sigma_refused", None)
             for k_rej, members in rejected_at.items():
                 # the rejected block's entry says where its images went (it still counts them as its own)
                 moved = [names[i] for i in images2[n_own:] if int(i) in members]
