@@ -35,8 +35,10 @@ def test_focal_length_in_pixels_with_sigma():
     assert m2.upscale == 4.0 and m2.native_size == (160, 120) and m2.pixel_pitch_um == pytest.approx(3.0)
     assert 580.0 < m2.f_px < 600.0 and 25.0 < m2.sigma_px < 50.0
     # an upscaled (high-resolution mode) image: the focal length on its own grid is twice the core's
-    h30 = table_focal("DJI", "H30T", (1280, 1024), 24.0)
-    assert h30.upscale == 2.0 and h30.f_px == pytest.approx(24.0 / 0.006)
+    m4 = table_focal("DJI", "M4T", (1280, 1024), 12.0)
+    assert m4.upscale == 2.0 and m4.f_px == pytest.approx(12.0 / 0.006)
+    # without the file's focal length, the M4T's 45° diagonal field of view: within 2 % of the 12 mm lens
+    assert table_focal("DJI", "M4T", (640, 512)).f_px == pytest.approx(1000.0, rel=0.02)
     # a camera with several lenses and a file without a focal length: no guess
     none = table_focal("DJI", "XT", (640, 512))
     assert none.f_px is None and "several lenses" in none.how

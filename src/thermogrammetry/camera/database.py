@@ -92,7 +92,6 @@ _S = "manufacturer spec sheet"
 # FLIR Tau 2 640 (XT, Vue Pro), 17 µm; the 9 mm lens's published 69° is 11 % wider than its pinhole 62°: left out
 _TAU_640 = (Lens(9.0), Lens(13.0, 45.0), Lens(19.0, 32.0))
 _TAU_336 = (Lens(9.0, 35.0), Lens(13.0, 25.0), Lens(19.0, 17.0))  # FLIR Tau 2 336
-_DJI_640_12 = ThermalCore((640, 512), 12.0, ((1280, 1024),))  # DJI's 640x512 12 µm VOx cores (super-resolution 1280)
 
 #: the table (add a camera: an entry here, its source, a test in tests/test_camera_table.py; docs/cameras.md)
 CAMERA_TABLE: tuple[CameraEntry, ...] = (
@@ -112,7 +111,7 @@ CAMERA_TABLE: tuple[CameraEntry, ...] = (
     CameraEntry("DJI Mavic 2 Enterprise Advanced", "DJI", ("M2EA", "MAVIC2ENTERPRISEADVANCED"),
                 (ThermalCore((640, 512), 12.0),), _S, "lens not in the table: the files' focal length is used"),
     CameraEntry("DJI Matrice 30T", "DJI", ("M30T",),
-                (ThermalCore((640, 512), 12.0, ((1280, 1024),), (Lens(9.1, None, 61.0),)),), _S),
+                (ThermalCore((640, 512), 12.0, (), (Lens(9.1, None, 61.0),)),), _S),
     CameraEntry("DJI Mavic 3 Thermal", "DJI", ("M3T",),
                 (ThermalCore((640, 512), 12.0, (), (Lens(9.1, None, 61.0),)),), _S),
     CameraEntry("DJI Matrice 3TD", "DJI", ("M3TD",),
@@ -122,11 +121,13 @@ CAMERA_TABLE: tuple[CameraEntry, ...] = (
     CameraEntry("DJI Zenmuse H20N", "DJI", ("H20N", "ZH20N", "ZENMUSEH20N"),
                 (ThermalCore((640, 512), 12.0),), _S, "lenses not in the table: the files' focal length is used"),
     CameraEntry("DJI Zenmuse H30T", "DJI", ("H30T", "ZH30T", "ZENMUSEH30T"),
-                (ThermalCore((640, 512), 12.0, ((1280, 1024),), (Lens(24.0, None, 32.0),)),), _S,
-                "1280x1024 is the high-resolution mode of the 640x512 core"),
+                (ThermalCore((640, 512), 12.0),), _S,
+                "its 1280x1024 frames and its lens are not in the table (the published focal length and field of "
+                "view do not agree with a 640x512 12 µm core): the files' focal length is used"),
     CameraEntry("DJI Matrice 4T", "DJI", ("M4T",),
                 (ThermalCore((640, 512), 12.0, ((1280, 1024),), (Lens(None, None, 45.0),)),), _S,
-                "1280x1024 is the super-resolution mode of the 640x512 core"),
+                "1280x1024 is the super-resolution mode of the 640x512 core; the files' 12 mm with 12 µm gives a "
+                "DFOV of 44.6°, the published 45°"),
     CameraEntry("FLIR Vue Pro", "FLIR", ("VUEPRO", "VUEPROR", "FLIRVUEPRO", "FLIRVUEPROR"),
                 (ThermalCore((640, 512), 17.0, (), _TAU_640), ThermalCore((336, 256), 17.0, (), _TAU_336)), _S),
     CameraEntry("FLIR Duo Pro", "FLIR", ("DUOPRO", "DUOPROR", "FLIRDUOPRO", "FLIRDUOPROR", "DUO", "DUOR"),
