@@ -17,17 +17,17 @@ FRAMES = [18, 19, 20, 33, 34]  # 2 lines of a few frames: small and fast
 @pytest.fixture(scope="module")
 def mc(tmp_path_factory):
     root = tmp_path_factory.mktemp("sigma_mc")
-    return root, monte_carlo(root, 4, frames=FRAMES, seed=1, dsm_gsd=0.2)
+    return root, monte_carlo(root, 8, frames=FRAMES, seed=1, dsm_gsd=0.2)
 
 
 def test_ortho_sigma_scatter_matches_prediction_in_a_monte_carlo(mc):
-    # 4 runs: per cell the RMS over 4 draws has a chi distribution with 4 degrees of freedom, whose median is
-    # ~0.92 of the true σ (its relative spread ~1/sqrt(8) = 0.35 per cell; the median over ~10^4 cells is
-    # tight). A correct model gives a median ratio ~0.9; the band 0.7-1.15 refuses a σ off by 30 %.
+    # 8 runs: per cell the RMS over 8 draws has a chi distribution with 8 degrees of freedom, whose median is
+    # ~0.96 of the true σ (its relative spread ~1/sqrt(16) = 0.25 per cell; the median over ~10^4 cells is
+    # tight). A correct model gives ~0.95 (the NETD estimate runs ~5-10 % high); 0.75-1.15 refuses a σ off by 25 %.
     _, m = mc
     tab = mc_table(m)
     assert tab["cells"] > 5000
-    assert 0.7 < tab["median_ratio"] < 1.15, tab
+    assert 0.75 < tab["median_ratio"] < 1.15, tab
     assert 0.9 < tab["within_2sigma"] < 0.995, tab
     assert 0.04 < np.median(m["netd"]) < 0.065  # the NETD estimated from the frames (true 0.05 K)
 
@@ -48,8 +48,8 @@ def test_ortho_sigma_tif_contract(mc):
     ok = np.isfinite(v)
     assert np.allclose(a[0][ok] ** 2, (a[1:][:, ok] ** 2).sum(axis=0), rtol=1e-4)
     assert np.all(a[3][ok] == 0)  # no --correct
-    # noise-free frames, no pose sigma in cameras.json: the estimated NETD is tiny, the DSM σ (one cell, 0.2 m) remains
-    assert rep["sigma"]["netd"] < 0.02 and rep["sigma"]["dsm_sigma_m"] == pytest.approx(0.2)
+    # noise-free frames, no pose sigma in cameras.json: the estimated NETD is the estimator's floor (interpolation on the flattest tenth), the DSM σ (one cell, 0.2 m) remains
+    assert rep["sigma"]["netd"] < 0.035 and rep["sigma"]["dsm_sigma_m"] == pytest.approx(0.2)
     man = json.loads((root / "o" / "ortho-manifest.json").read_text())
     assert "ortho_sigma.tif" in man["files"]
     j = json.loads((root / "o" / "ortho.json").read_text())["sigma"]

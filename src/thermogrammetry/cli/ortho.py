@@ -63,5 +63,10 @@ def ortho(
                       f"{f['ortho_cells_on_filled']} mosaic cells on them (ortho_filled_mask.tif)", highlight=False)
     for n in rep["notes"]:
         console.print(f"note: {n}", highlight=False)
+    if rep.get("sigma"):
+        sg = rep["sigma"]["total"]
+        console.print(f"σ per cell (ortho_sigma.tif): median {sg['median']:.3g}, p95 {sg['p95']:.3g} {rep['unit']} "
+                      f"(sensor noise {rep['sigma']['netd']:.3g} {rep['unit']}: {rep['sigma']['netd_source']['method'].split(' (')[0]})", highlight=False)
     console.print(f"outputs in {out}: ortho.tif ortho.qml ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
-                  "ortho_distance.tif ortho_gradient.tif" + (" ortho_filled_mask.tif" if rep.get("fill") else ""), highlight=False)
+                  "ortho_distance.tif ortho_gradient.tif" + (" ortho_filled_mask.tif" if rep.get("fill") else "")
+                  + (" ortho_sigma.tif" if rep.get("sigma") else ""), highlight=False)
