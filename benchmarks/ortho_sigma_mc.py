@@ -8,7 +8,7 @@ the runs against the RMS of the predicted σ (tests/sigma_mc.py).
 Usage::
 
     python benchmarks/ortho_sigma_mc.py [--runs 30] [--sampling nearest|bilinear] [--center-std 0.005]
-                                        [--rotation-std 0.005] [--netd 0.05] [--dir DIR]
+                                        [--rotation-std 0.005] [--netd 0.05] [--given-netd] [--dir DIR]
 """
 
 from __future__ import annotations
@@ -34,10 +34,11 @@ def main(argv=None):
     ap.add_argument("--rotation-std", type=float, default=0.005)
     ap.add_argument("--netd", type=float, default=0.05)
     ap.add_argument("--dir", default=None)
+    ap.add_argument("--given-netd", action="store_true", help="tell the model the NETD (else estimated from the frames)")
     a = ap.parse_args(argv)
     root = Path(a.dir or tempfile.mkdtemp(prefix="sigma_mc_"))
     mc = monte_carlo(root, a.runs, frames=FRAMES, netd=a.netd, center_std=a.center_std,
-                     rotation_std_deg=a.rotation_std, sampling=a.sampling)
+                     rotation_std_deg=a.rotation_std, sampling=a.sampling, given_netd=a.given_netd)
     tab = mc_table(mc)
     tab["netd_estimated"] = {"median": sorted(tab["netd_estimated"])[len(tab["netd_estimated"]) // 2],
                              "true": a.netd}

@@ -27,8 +27,10 @@ def _rot(w):
 
 
 def monte_carlo(root, runs: int, *, frames, netd=0.05, center_std=0.005, rotation_std_deg=0.005, sampling="nearest",
-                dsm_gsd=0.1, seed=0) -> dict:
-    """Returns per-cell arrays (``truth``, ``values`` (runs, h, w), ``sigma`` (runs, 4, h, w)) and the NETDs
+                dsm_gsd=0.1, seed=0, given_netd: bool = False) -> dict:
+    """``given_netd``: the model is told the NETD (isolates the geometry part) instead of estimating it.
+
+    Returns per-cell arrays (``truth``, ``values`` (runs, h, w), ``sigma`` (runs, 4, h, w)) and the NETDs
     estimated per run."""
     from thermogrammetry.io.oriented import OrientedCameras
     from thermogrammetry.pipeline.ortho import run_ortho
@@ -41,7 +43,7 @@ def monte_carlo(root, runs: int, *, frames, netd=0.05, center_std=0.005, rotatio
         sc, _ = write_true_survey(base, frames=frames, sensor=False)
         write_true_dsm(root / "dsm.tif", sc, dsm_gsd)
     cfg = OrthoConfig(sampling=sampling)
-    sig = SigmaConfig(dsm_sigma_m=0.0)
+    sig = SigmaConfig(dsm_sigma_m=0.0, netd=netd if given_netd else None)
     run_ortho(base, root / "dsm.tif", root / "truth", workers=0, config=cfg, sigma=False)
     with rasterio.open(root / "truth" / "ortho.tif") as s:
         truth = s.read(1)
@@ -95,6 +97,7 @@ def mc_table(mc: dict) -> dict:
     pred = np.sqrt(np.mean(s[:, ok] ** 2, axis=0))
     ratio = scat / pred
     return {"runs": int(len(v)), "cells": int(ok.sum()), "median_ratio": float(np.median(ratio)),
+            "rms_ratio": float(np.sqrt(np.mean(scat ** 2) / np.mean(pred ** 2))),
             "within_2sigma": float(np.mean(np.abs(err) <= 2 * s[:, ok])),
             "pred_median": float(np.median(pred)), "pred_p95": float(np.quantile(pred, 0.95)),
             "scatter_median": float(np.median(scat)), "scatter_p95": float(np.quantile(scat, 0.95)),

@@ -10,7 +10,7 @@ cell, no blending: :mod:`.ortho`):
     estimated from the frames themselves (:func:`estimate_netd`): pairs of overlapping frames sampled at
     the same ground points, the difference after the pair's own offset (its median), robust scatter (1.4826
     MAD) divided by the difference's noise factor (√2 for two single pixels), on the flattest tenth of the
-    points so that misregistration times the gradient does not enter.
+    points, less the geometry model's own variance of the difference there (misregistration × gradient).
 **geometry**
     the pixel position's 2 × 2 covariance Σ_uv = J diag(σ²) Jᵀ, J the finite-difference Jacobian of the
     projection with respect to the camera centre (3, σ = ``center_std``, m), the rotation's left increment
@@ -210,7 +210,8 @@ def correction_sigma(t0, angle_rad, distance_m, on, config, sig: SigmaConfig, di
     return dTc, np.sqrt(var)
 
 
-def estimate_netd(frames, cameras, poses, points, *, max_pairs: int = 40, seed: int = 0) -> tuple[float, dict]:
+def estimate_netd(frames, cameras, poses, points, *, max_pairs: int = 40, pose_std=None,
+                  z_std: float = 0.0) -> tuple[float, dict]:
     """The sensor noise (frames' unit) from pairs of overlapping frames at the same ground points.
 
     Parameters
@@ -221,7 +222,10 @@ def estimate_netd(frames, cameras, poses, points, *, max_pairs: int = 40, seed: 
     Each image is paired with the image whose centre is nearest. Per pair, both frames are sampled bilinearly
     at the points both see; ``d = I_a − I_b − median`` (the pair's offset); per point the noise factor
     ``√(Σw_a² + Σw_b²)`` (the bilinear weights) normalises ``d``; the points whose larger frame gradient is in
-    the lowest tenth are kept. NETD = 1.4826 · MAD of the normalised differences. Returns ``(netd, record)``.
+    the lowest tenth are kept; s = 1.4826 · MAD of the normalised differences. The pose's share of them
+    (``pose_std(k)`` → (center_std, rotation_std_deg), ``z_std``: the geometry model's variance of ``d`` at
+    those points, median) is removed in quadrature: NETD = √(s² − geo) (at least s / 2). Returns
+    ``(netd, record)``.
     """
     n = len(poses)
     C = np.array([-np.asarray(R).T @ np.asarray(t) for R, t in poses])
@@ -236,26 +240,26 @@ def estimate_netd(frames, cameras, poses, points, *, max_pairs: int = 40, seed: 
         pairs = [pairs[i] for i in np.linspace(0, len(pairs) - 1, max_pairs).astype(int)]
     P = np.asarray(points, float)
     P = P[np.isfinite(P).all(axis=1)]
-    ds, gs = [], []
+    ds, gs, geos = [], [], []
     for a, b in pairs:
         samp = []
         for k in (a, b):
             cam, (R, t) = cameras[k], poses[k]
-            uv = _uv(cam, np.asarray(R), np.asarray(t), P)
+            cs, rs = pose_std(k) if pose_std is not None else (None, None)
+            uv, cov = pixel_covariance(cam, np.asarray(R), np.asarray(t), P, cs, rs, z_std)
             fr = np.asarray(frames(k), float)
             if fr.ndim == 3:
                 fr = fr[..., 0]
-            samp.append((uv, fr))
-        W0, H0 = samp[0][1].shape[1], samp[0][1].shape[0]
+            samp.append((uv, fr, cov))
         ok = np.ones(len(P), bool)
-        for uv, fr in samp:
+        for uv, fr, _ in samp:
             H, W = fr.shape
             with np.errstate(invalid="ignore"):
                 ok &= (uv[:, 0] >= 1) & (uv[:, 0] < W - 2) & (uv[:, 1] >= 1) & (uv[:, 1] < H - 2)
         if ok.sum() < 50:
             continue
-        vals, w2s, grads = [], [], []
-        for uv, fr in samp:
+        vals, w2s, grads, geo, tr = [], [], [], 0.0, 0.0
+        for uv, fr, cov in samp:
             u, v = uv[ok, 0], uv[ok, 1]
             x0, y0 = np.floor(u).astype(int), np.floor(v).astype(int)
             fx, fy = u - x0, v - y0
@@ -263,22 +267,35 @@ def estimate_netd(frames, cameras, poses, points, *, max_pairs: int = 40, seed: 
                                                                              + fr[y0 + 1, x0 + 1] * fx) * fy)
             w2s.append(((1 - fx) * (1 - fy)) ** 2 + (fx * (1 - fy)) ** 2 + ((1 - fx) * fy) ** 2 + (fx * fy) ** 2)
             r, c = np.rint(v).astype(int), np.rint(u).astype(int)
-            grads.append(np.hypot(fr[r, c + 1] - fr[r, c - 1], fr[r + 1, c] - fr[r - 1, c]) / 2)
+            # the gradient over 3 × 5 pixels (its noise NETD²/24 per axis, not NETD²/2: the flattest points are
+            # chosen by the signal, not by the noise)
+            gx = sum(fr[r + i, np.minimum(c + 2, W - 1)] - fr[r + i, np.maximum(c - 2, 0)] for i in (-1, 0, 1)) / 12
+            gy = sum(fr[np.minimum(r + 2, H - 1), c + i] - fr[np.maximum(r - 2, 0), c + i] for i in (-1, 0, 1)) / 12
+            grads.append(np.hypot(gx, gy))
+            cv = cov[ok]
+            geo = geo + gx * gx * cv[:, 0, 0] + gy * gy * cv[:, 1, 1] + 2 * gx * gy * cv[:, 0, 1]
+            tr = tr + (cv[:, 0, 0] + cv[:, 1, 1]) / 24  # the gradients' own noise: NETD² / 24 per axis
             vals.append(val)
         d = vals[0] - vals[1]
         fin = np.isfinite(d)
         d = (d - np.median(d[fin])) / np.sqrt(w2s[0] + w2s[1])
         ds.append(d[fin])
+        geos.append(np.stack([geo, tr])[:, fin] / (w2s[0] + w2s[1])[fin])
         gs.append(np.maximum(grads[0], grads[1])[fin])
-    del W0, H0
     if not ds:
         return float("nan"), {"method": "no overlapping frames", "pairs": 0, "points": 0}
-    d, g = np.concatenate(ds), np.concatenate(gs)
+    d, g, geo = np.concatenate(ds), np.concatenate(gs), np.concatenate(geos, axis=1)
     keep = g <= np.quantile(g, 0.1)
     dk = d[keep]
-    netd = float(1.4826 * np.median(np.abs(dk - np.median(dk))))
+    raw = float(1.4826 * np.median(np.abs(dk - np.median(dk))))
+    # the pose's share of the kept differences (the geometry model's variance of d), removed in quadrature
+    netd = raw
+    for _ in range(3):  # the squared gradients de-biased by the noise being estimated
+        share = float(np.median(np.maximum(geo[0, keep] - netd * netd * geo[1, keep], 0.0)))
+        netd = float(np.sqrt(max(raw * raw - share, 0.25 * raw * raw)))
     return netd, {"method": "overlapping frames (robust scatter of the difference at the same ground points, "
-                            "flattest tenth, per-pair offset removed)", "pairs": len(ds), "points": int(keep.sum())}
+                            "flattest tenth, per-pair offset removed, the pose's share removed)", "pairs": len(ds),
+                           "points": int(keep.sum()), "raw_scatter": raw}
 
 
 def summarise(bands: np.ndarray) -> dict:
@@ -334,15 +351,16 @@ def prepare_sigma(sv, dsm_path, config: SigmaConfig | None, unit: str) -> tuple[
     ``sv``: the survey's frames (callable index → frame, ``cameras``, ``poses``, ``images`` with the pose σ)."""
     cfg = config or SigmaConfig()
     pts, dsm_gsd = dsm_points(dsm_path)
+    z_std = float(dsm_gsd if cfg.dsm_sigma_m is None else cfg.dsm_sigma_m)
     if cfg.netd is not None:
         netd, rec = float(cfg.netd), {"method": "given"}
     else:
-        netd, rec = estimate_netd(sv, sv.cameras, sv.poses, pts)
+        netd, rec = estimate_netd(sv, sv.cameras, sv.poses, pts, z_std=z_std,
+                                  pose_std=lambda k: (sv.images[k].center_std, sv.images[k].rotation_std_deg))
     notes = []
     if not np.isfinite(netd):
         netd = 0.0
         notes.append("sensor noise not estimated (no overlapping frames): sensor band 0")
-    z_std = float(dsm_gsd if cfg.dsm_sigma_m is None else cfg.dsm_sigma_m)
     missing = sum(1 for im in sv.images if im.center_std is None or im.rotation_std_deg is None)
     if missing:
         notes.append(f"{missing} image(s) without a pose σ in cameras.json: their pose taken as exact")
