@@ -67,5 +67,11 @@ def ortho(
                       f"{f['ortho_cells_on_filled']} mosaic cells on them (ortho_filled_mask.tif)", highlight=False)
     for n in rep["notes"]:
         print_plain(console, f"note: {n}")
+    if rep.get("sigma"):
+        sg = rep["sigma"]["total"]
+        print_plain(console, f"σ per cell (ortho_sigma.tif): median {sg['median']:.3g}, p95 {sg['p95']:.3g} {rep['unit']} "
+                             f"(sensor noise {rep['sigma']['netd']:.3g} {rep['unit']}: "
+                             f"{rep['sigma']['netd_source']['method'].split(' (')[0]})")
     print_plain(console, f"outputs in {out}: ortho.tif ortho.qml ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
-                         "ortho_distance.tif ortho_gradient.tif" + (" ortho_filled_mask.tif" if rep.get("fill") else ""))
+                         "ortho_distance.tif ortho_gradient.tif" + (" ortho_filled_mask.tif" if rep.get("fill") else "")
+                         + (" ortho_sigma.tif" if rep.get("sigma") else ""))

@@ -33,7 +33,7 @@ __all__ = ["run_ortho", "check_dsm_matches_survey"]
 
 def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoConfig, margin_m: float,
                 correction=None, unit_out: str = "K", dji_sdk: str | None = None, filled_band: int | None = None,
-                dsm_grid: Grid | None = None, skip: tuple[str, ...] = ()):
+                dsm_grid: Grid | None = None, skip: tuple[str, ...] = (), sigma: dict | None = None):
     sv = open_survey(survey_path, skip, dji_sdk)
     r0, c0, rows, cols = window
     # ortho cells (with a one-cell pad for the normals) and their DSM heights
@@ -82,6 +82,13 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
     occ = occluders(D, dg, dr0, dc0, occluder_subdivision(cell_px, cfg.bin_px), min_span_m=0.5 * tol_min)
     res = ortho_tile(X, Y, Z, nrm, occ, images, sv, cfg, gsd=grid.gsd, masks=sv.display_mask)
     v = res["value"]
+    parts = None
+    if sigma is not None:  # the σ model (products.ortho_sigma): sensor, geometry, correction
+        from ..products.ortho_sigma import correction_sigma, tile_sigma
+
+        parts = tile_sigma(res, X, Y, Z, sv, sv.cameras, sv.poses,
+                           lambda k: (sv.images[k].center_std, sv.images[k].rotation_std_deg),
+                           str(cfg.sampling), sigma["netd"], sigma["z_std"])
     notes = 0
     if correction is not None:
         from ..products.correction import apply_correction
@@ -89,7 +96,14 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
         on = res["source"] >= 0
         Tc, eps, tau, valid = apply_correction(v, np.radians(res["angle_deg"]), res["distance_m"], on, correction)
         notes = int((on & ~valid).sum())
+        if parts is not None:
+            dtc, sc = correction_sigma(v, np.radians(res["angle_deg"]), res["distance_m"], on, correction,
+                                       sigma["config"], sigma["z_std"])
+            parts = np.stack([parts[0] * np.abs(dtc), parts[1] * np.abs(dtc), sc])
         v = np.where(valid, Tc, np.nan)
+    if parts is not None:
+        parts = np.where(np.isfinite(v), parts, np.nan)
+        res["sigma"] = np.concatenate([np.sqrt((parts ** 2).sum(axis=0))[None], parts]).astype(np.float32)
     if unit_out == "C":
         v = v - 273.15
     res["value"] = v.astype(np.float32)
@@ -114,6 +128,15 @@ def _write_style(out: Path, label: str) -> dict:
     lo, hi = robust_limits(np.asarray(v.astype(np.float64).filled(np.nan)))
     write_atomic_text(out / "ortho.qml", thermal_qml(lo, hi, label))
     return {"file": "ortho.qml", "min": lo, "max": hi, "unit": label, "limits": "2nd and 98th percentiles of the values"}
+
+
+def _sigma_report(rec: dict, kept: list) -> dict:
+    """``ortho.json``'s ``sigma``: the model's inputs and the figures of ``ortho_sigma.tif``."""
+    from ..products.ortho_sigma import summarise
+
+    vals = np.concatenate(kept, axis=1) if kept else np.zeros((4, 0), np.float32)
+    return {"file": "ortho_sigma.tif", "bands": ["total random", "sensor", "geometry", "correction"],
+            **rec, **summarise(vals.astype(np.float64))}
 
 
 _DSM_META: dict = {}
@@ -179,7 +202,7 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
               sampling: str = "nearest", correct: bool = False, correction=None, workers: int = 1,
               scheduler: str | None = None, tile: int = 512, config: OrthoConfig | None = None, on_tile=None,
               dji_sdk: str | None = None, fill: bool = True, max_hole_m: float | None = None,
-              max_cells: int | None = None) -> dict:
+              max_cells: int | None = None, sigma=True) -> dict:
     """``thermogrammetry ortho``: the mosaic and its companion rasters in ``out_dir``; returns ``ortho.json``.
 
     ``fill`` (default): the mosaic's surface is the DSM with its holes filled
@@ -196,6 +219,9 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
     that does not decode is skipped by name), the DSM (:func:`~thermogrammetry.products.raster.inspect_raster`,
     :func:`check_dsm_matches_survey`) and the size of the ortho grid (``max_cells``, default
     :func:`~thermogrammetry.io.limits.max_cells`). A mosaic without any cell is refused with its reason.
+
+    ``sigma``: ``ortho_sigma.tif`` with the σ model of :mod:`thermogrammetry.products.ortho_sigma` (True, or a
+    :class:`~thermogrammetry.products.ortho_sigma.SigmaConfig`); False: not written.
     """
     from ..errors import ConfigError, DataFileError
     from ..io.limits import check_cells
@@ -253,13 +279,14 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
     margin_m = min(50.0, (meta["zmax"] - meta["zmin"]) * np.tan(np.radians(cfg.max_angle_deg)))
     with OutputSet(out_dir, "ortho") as stage:
         report = _write_ortho(Path(stage.stage), sv, grid, meta, cfg, margin_m, corr, unit_out, label, notes, correct,
-                              survey_dir, dsm_path, workers, scheduler, t0, on_tile, (bool(fill), max_hole_m))
+                              survey_dir, dsm_path, workers, scheduler, t0, on_tile, (bool(fill), max_hole_m),
+                              sigma_cfg=False if sigma is False else (None if sigma is True else sigma))
         stage.commit({"seconds": report["seconds"]})
     return report
 
 
 def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label, notes, correct, survey_dir, dsm_path,
-                 workers, scheduler, t0, on_tile=None, fill_opts=(True, None)) -> dict:
+                 workers, scheduler, t0, on_tile=None, fill_opts=(True, None), sigma_cfg=False) -> dict:
     """The rasters and ``ortho.json`` of :func:`run_ortho`, written into the staging folder ``out``."""
     from ..products.dsm import write_filled_dsm
     from ..radiometry.encoding import choose_uint16_mapping, encode_uint16
@@ -268,7 +295,13 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
     spath = str(Path(survey_dir).resolve())
     dpath = str(Path(dsm_path).resolve())
     surface = out / ".ortho_surface.tif"  # the filled DSM the tiles read (removed once the mosaic is written)
-    fill_rec, band = None, None
+    fill_rec, band, sig, sig_rec = None, None, None, None
+    if sigma_cfg is not False:
+        from ..products.ortho_sigma import prepare_sigma
+
+        sig, sig_rec = prepare_sigma(sv, dpath, sigma_cfg, label)
+        sig_keep = []
+        sig_stride = max(1, grid.width * grid.height // 4_000_000)
     if fill_opts[0]:
         fill_rec = write_filled_dsm(dpath, surface, fill_opts[1], sv.crs)
         fill_rec.pop("file")
@@ -293,6 +326,10 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
             on_tile(stats["tiles"], len(windows))
         got = {"value": v, "source": np.stack([res["source"], res["row"], res["col"]]), "angle": res["angle_deg"].astype(np.float32),
                "distance": res["distance_m"].astype(np.float32)}
+        if sig is not None:
+            got["sigma"] = res["sigma"]
+            s4 = res["sigma"].reshape(4, -1)
+            sig_keep.append(s4[:, np.isfinite(s4[0])][:, ::sig_stride])
         if band:
             got["filled"] = res["filled"]
             stats["filled"] += int((res["filled"] == 1).sum())
@@ -304,9 +341,10 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
             tiles = (collect(r) for r in ordered_results(client, _ortho_task, [spath] * nt, [dpath] * nt, [grid] * nt,
                                                          windows, [cfg] * nt, [margin_m] * nt, [corr] * nt,
                                                          [unit_out] * nt, [sv.dji_sdk] * nt, [band] * nt, [dg] * nt,
-                                                         [skip] * nt))
+                                                         [skip] * nt, [sig] * nt))
         else:
-            tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out, sv.dji_sdk, band, dg, skip))
+            tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out, sv.dji_sdk, band, dg, skip,
+                                         sig))
                      for w in windows)
         crs = sv.crs
         specs = {
@@ -324,6 +362,14 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
             "distance": RasterSpec(out / "ortho_distance.tif", np.float32, nodata=float("nan"), unit="m",
                                    description="camera-to-surface distance (m)"),
         }
+        if sig is not None:
+            specs["sigma"] = RasterSpec(out / "ortho_sigma.tif", np.float32, bands=4, nodata=float("nan"), unit=label,
+                                        description=[f"{b} standard deviation [{label}]" for b in
+                                                     ("total random", "sensor", "geometry", "correction")],
+                                        tags={"product": "thermogrammetry ortho sigma", "unit": label,
+                                              "systematic": "unknown",
+                                              "systematic_note": sig_rec["systematic_note"],
+                                              "netd": f"{sig_rec['netd']:.6g}", "dsm_sigma_m": f"{sig_rec['dsm_sigma_m']:.6g}"})
         if band:
             specs["filled"] = RasterSpec(out / "ortho_filled_mask.tif", np.uint8, nodata=255, resampling="nearest",
                                          description="1 = the cell lies on interpolated DSM heights (a filled hole), "
@@ -410,6 +456,7 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         "fill": None if fill_rec is None else {**fill_rec, "ortho_cells_on_filled": stats["filled"],
                                                "mask": "ortho_filled_mask.tif"},
         "dji_sdk": sv.dji_sdk,
+        "sigma": None if sig is None else _sigma_report(sig_rec, sig_keep),
         "notes": notes,
     }
     write_atomic_text(out / "ortho.json", json.dumps(report, indent=1) + "\n")
