@@ -125,6 +125,7 @@ def pytest_collection_modifyitems(session, config, items):
     for item in items:
         first_of_file.setdefault(item.path.name, order[item])
     items.sort(key=lambda it: (rank.get(it.path.name, len(rank)), first_of_file[it.path.name], order[it]))
-    if config.getoption("dist", "no") == "loadgroup":
+    # (on the xdist workers "dist" is "no" and "loadgroup" is set: the controller passes the scheduling on)
+    if config.getoption("dist", "no") == "loadgroup" or config.getoption("loadgroup", False):
         for item, group in _module_fixture_groups(items).items():
             item.add_marker(pytest.mark.xdist_group(group))
