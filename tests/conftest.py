@@ -129,3 +129,10 @@ def pytest_collection_modifyitems(session, config, items):
     if config.getoption("dist", "no") == "loadgroup" or config.getoption("loadgroup", False):
         for item, group in _module_fixture_groups(items).items():
             item.add_marker(pytest.mark.xdist_group(group))
+            # xdist's worker gives the scheduler a test's group as a suffix of its node id ("<id>@<group>"), but
+            # pytest-xdist 3.8 sets ``item._nodeid``, which pytest 9 no longer reads (the id is ``item._id``): the
+            # suffix is set here the way pytest 9 keeps it
+            if "@" not in item.nodeid.rsplit("]", 1)[-1]:
+                from _pytest.nodeid import coerce_node_id
+
+                item._id = coerce_node_id(f"{item.nodeid}@{group}")
