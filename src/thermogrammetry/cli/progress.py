@@ -62,7 +62,9 @@ def progress(console, prefix: str, *, transient: bool = True, elapsed: bool = Fa
     """A rich progress bar when ``console`` is a terminal, else a :class:`LogProgress` with ``prefix`` printing to the
     console's stream (``elapsed``: each line with the task's elapsed time)."""
     if not console.is_terminal:
-        return LogProgress(prefix, file=getattr(console, "file", None), elapsed=elapsed)
+        # progress goes to stderr, or to the console's own stream when that is not stdout (a run's log stream)
+        stream = getattr(console, "file", None)
+        return LogProgress(prefix, file=None if stream is sys.stdout else stream, elapsed=elapsed)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
