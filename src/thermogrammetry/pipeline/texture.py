@@ -11,6 +11,7 @@ Reads through :class:`~thermogrammetry.io.oriented.OrientedCameras`, calls
     vertices.ply                 per-vertex temperature_k
     texture.json                 counts, index -> image name, unit, offsets, what altered the values, pose_fit
     cameras_fitted.json          the poses used, when they were fitted (``fit_poses="auto"`` or ``"mesh"``; not in rig mode)
+    frames/                      the frames of cameras_fitted.json (hard links to the survey's, or copies)
     report.html                  coverage, views per face, offsets, a rendered view in °C
     viewer.html                  the GLB in a self-contained WebGL page (offline, no libraries)
 
@@ -533,6 +534,27 @@ def _survey_tie_sigma(survey_dir) -> float | None:
         return None
 
 
+def _link_frame(cameras, im: dict, store) -> str:
+    """The frame of image ``im`` placed beside ``cameras_fitted.json`` (a hard link where the file system allows it,
+    else a copy; the survey's file is never moved) and its path relative to the texture folder, so that the file
+    reads like any cameras.json: frame paths inside its own folder."""
+    import os
+    import shutil
+    import posixpath
+
+    src = cameras.frame_path(im["name"])
+    rel = posixpath.normpath(str(im["frame"]).replace("\\", "/"))
+    if posixpath.isabs(rel) or rel.startswith("../") or rel == "..":
+        rel = f"frames/{src.name}"
+    dst = store.local_path(rel)
+    if src is not None and src.is_file() and not dst.exists():
+        try:
+            os.link(src, dst)
+        except OSError:
+            shutil.copy2(src, dst)
+    return rel
+
+
 def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, correct: bool = False, levelling: str = "none",
                 rig_path=None, config=None, progress=None, fit_poses: str = "auto") -> dict:
     """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict.
@@ -645,8 +667,8 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
                     pz = fitted[im["name"]]
                     im["cam_from_world"] = {"R": np.asarray(pz.R).tolist(), "t": np.asarray(pz.t).tolist()}
                     im["center"] = np.asarray(pz.center).tolist()
-                if im.get("frame"):  # the frames stay in the survey folder: their paths from here
-                    im["frame"] = str(cameras.frame_path(im["name"]).resolve())
+                if im.get("frame"):
+                    im["frame"] = _link_frame(cameras, im, store)
             store.write_text("cameras_fitted.json", json.dumps(doc, indent=1) + "\n")
         store.write_bytes("source_texture.tif", tx.int32_tiff_bytes(result.source))
         store.write_bytes("angle_texture.tif", tx.float32_tiff_bytes(result.angle_deg))
