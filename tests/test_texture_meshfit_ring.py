@@ -93,7 +93,7 @@ def test_poses_fitted_to_the_mesh_texture_the_ring_within_the_targets(tmp_path, 
     # (AVX2-only EPYC, the survey's poses without a common mode: 99.70 % -> 99.997 %, median 0.015 -> 0.018 K). The fit
     # keeps the share within 0.2 K; below 0.02 K (a tenth of that target) the median no longer measures the poses
     # (AVX-512 EPYC, 2026-12-02: survey 0.905 deg RMS, common part 0.17 deg; fitted 0.82 deg; 89.2 % -> 93.8 %.) The
-    # survey's scatter differs by machine, so the absolute bound is the least measured share, less a point
+    # survey's scatter differs by machine, so the absolute bound is the least measured share, less about two points
     assert share1 > 0.92 and share1 >= share0 - 0.001, (share0, share1, r0, r1, c0, c1, s0, s1)
     assert np.median(e1) < 0.035 and np.median(e1) < max(0.7 * np.median(e0), 0.02), (np.median(e0), np.median(e1))
     # visible faces (from the 48 true stations) textured: measured 97.4 % -> 97.7 % (98.4 % with the true poses)

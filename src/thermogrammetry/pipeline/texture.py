@@ -50,6 +50,9 @@ every triangle's vertex order is reversed and ``texture.json`` says so (``mesh_w
 from __future__ import annotations
 
 import json
+import os
+import posixpath
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -535,19 +538,13 @@ def _survey_tie_sigma(survey_dir) -> float | None:
 
 
 def _link_frame(cameras, im: dict, store) -> str:
-    """The frame of image ``im`` placed beside ``cameras_fitted.json`` (a hard link where the file system allows it,
-    else a copy; the survey's file is never moved) and its path relative to the texture folder, so that the file
-    reads like any cameras.json: frame paths inside its own folder."""
-    import os
-    import shutil
-    import posixpath
-
-    src = cameras.frame_path(im["name"])
+    """The frame of image ``im`` placed beside ``cameras_fitted.json`` at the same relative path as in the survey's
+    cameras.json (a hard link where the file system allows it, else a copy; the survey's file is never moved), so
+    that the file reads like any cameras.json. The path is returned. ``cameras`` was loaded with its frames confined
+    to its folder, so ``im["frame"]`` is relative and stays inside."""
     rel = posixpath.normpath(str(im["frame"]).replace("\\", "/"))
-    if posixpath.isabs(rel) or rel.startswith("../") or rel == "..":
-        rel = f"frames/{src.name}"
-    dst = store.local_path(rel)
-    if src is not None and src.is_file() and not dst.exists():
+    src, dst = cameras.frame_path(im["name"]), store.local_path(rel)
+    if src.is_file() and not dst.exists():
         try:
             os.link(src, dst)
         except OSError:
