@@ -14,7 +14,7 @@ from .selfcal_ladder import adjust_block
 __all__ = ["BLOCK_RMS_GATE_PX", "GNSS_FLAG_SIGMA", "BLOCK_GNSS_FAR_SHARE", "BLOCK_ROTATION_SIGMA_DEG",
            "PRECISE_GNSS_SIGMA_M", "tie_rms", "precise_datum", "block_rotation_sigma", "gnss_far_share",
            "block_rejection", "check_gnss_offset", "unregister_images", "GNSS_RESECTION_MAX_DEG", "extend_with_gnss",
-           "prune_gnss_contradicting", "ATTITUDE_FLAG_DEG", "attitude_check"]
+           "prune_gnss_contradicting", "ATTITUDE_FLAG_DEG", "attitude_check", "unconverged_sigma", "refuse_sigma"]
 
 
 #: a block whose final tie-point reprojection RMS exceeds this is rejected (reported, not exported)
@@ -80,12 +80,15 @@ def gnss_far_share(rec, images, ctrl) -> float:
     return float(np.mean(np.array(z) > GNSS_FLAG_SIGMA)) if z else 0.0
 
 
-def block_rejection(rms: float, far: float, rot_sigma: float, result, *, pruned: bool = False) -> str:
+def block_rejection(rms: float, far: float, rot_sigma: float, result, *, pruned: bool = False,
+                    stopped_at_limit: bool | None = None) -> str:
     """Why an adjusted block is not an orientation, or ``""``: its tie RMS ``rms`` (px) above
     :data:`BLOCK_RMS_GATE_PX`; a share ``far`` of its centres beyond :data:`GNSS_FLAG_SIGMA` from their GNSS above
     :data:`BLOCK_GNSS_FAR_SHARE` after the GNSS-contradicting images were left out (``pruned``) or with an adjustment
     (``result``) stopped at its iteration limit; its median rotation σ ``rot_sigma`` (degrees) above
-    :data:`BLOCK_ROTATION_SIGMA_DEG` (0 when the datum is not precise enough to gate it, :func:`precise_datum`)."""
+    :data:`BLOCK_ROTATION_SIGMA_DEG` (0 when the datum is not precise enough to gate it, :func:`precise_datum`).
+    ``stopped_at_limit``: whether the adjustment stopped at its iteration limit, also when adjusted again from there
+    (default: ``result``'s termination)."""
     from ..results import Termination
 
     why = ""
@@ -103,7 +106,8 @@ def block_rejection(rms: float, far: float, rot_sigma: float, result, *, pruned:
         why = (f"its camera rotations have σ {rot_sigma:.1f}° (median over its images, > "
                f"{BLOCK_ROTATION_SIGMA_DEG:g}°): its GNSS/GCP datum does not fix its rotation (positions nearly on "
                "a line or a short arc)")
-    elif far > BLOCK_GNSS_FAR_SHARE and result.termination is Termination.MAX_ITERATIONS:
+    elif far > BLOCK_GNSS_FAR_SHARE and (result.termination is Termination.MAX_ITERATIONS if stopped_at_limit is None
+                                         else stopped_at_limit):
         # the tie points and the GNSS disagree across the block and the adjustment finds no minimum: a wrong
         # relative orientation held together by GNSS, not an orientation
         why = (f"the final adjustment did not converge ({result.reason}) and {100 * far:.0f} % of its camera "
@@ -112,9 +116,36 @@ def block_rejection(rms: float, far: float, rot_sigma: float, result, *, pruned:
     return why
 
 
-def check_gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | None, list[str]]:
+def unconverged_sigma(fa) -> str:
+    """Why an accepted block's σ cannot be reported, or ``""``: its final adjustment (already adjusted again once
+    from where it stopped, :func:`~thermogrammetry.sfm.selfcal_ladder.adjust_block`) did not converge. The
+    covariance of a solve that stopped short of its minimum describes no estimate: σ of cameras, centres and check
+    points would be reported as if it had converged."""
+    from ..results import Termination
+
+    t = fa.result.termination
+    if t is Termination.CONVERGED:
+        return ""
+    return (f"the final adjustment did not converge ({t.value}: {fa.result.reason or 'no reason given'}), also "
+            "when adjusted again from where it stopped: its σ (cameras, camera centres and rotations, check points, "
+            "σ0) are not reported")
+
+
+def refuse_sigma(fa, why: str) -> None:
+    """Mark the σ of a final adjustment ``fa`` as not available (in place): centres', rotations' and cameras' σ NaN
+    (null in the outputs), no covariance (check points then carry none), ``fa.sigma_refused = why``."""
+    fa.center_std = np.full_like(np.asarray(fa.center_std, float), np.nan)
+    fa.rotation_std_deg = np.full_like(np.asarray(fa.rotation_std_deg, float), np.nan)
+    fa.covariance = None
+    res = fa.result
+    res.camera_std = [np.full_like(np.asarray(c, float), np.nan) for c in (res.camera_std or [])]
+    fa.sigma_refused = why
+
+
+def check_gnss_offset(rec, xy, images, ctrl, self_cal, focal_known=None, **kw) -> tuple[dict | None, list[str]]:
     """Look for a constant GNSS-vs-GCP datum offset in a GNSS-placed block with >= 3 GCPs
-    (:func:`~thermogrammetry.sfm.georef.gnss_offset`): one adjustment on the GCPs alone (GNSS σ × 1000), the
+    (:func:`~thermogrammetry.sfm.georef.gnss_offset`): one adjustment on the GCPs alone (GNSS σ × 1000; its
+    self-calibration on the ladder of :func:`~thermogrammetry.sfm.selfcal_ladder.adjust_block`), the
     block restored afterwards; the GNSS positions (and the block's start) are shifted by the significant axes.
     Returns the report entry and notes."""
     from dataclasses import replace as dc_replace
@@ -141,7 +172,9 @@ def check_gnss_offset(rec, xy, images, ctrl, self_cal, **kw) -> tuple[dict | Non
         restore_to(rec, snap)
         if bad:
             weak = dc_replace(weak, gcp_obs=[o for o in weak.gcp_obs if (int(o[0]), ctrl.gcp_ids[o[1]]) not in bad])
-        fa = final_adjustment(rec, xy, images, weak, self_calibrate=self_cal, compute_covariance=True, **kw)
+        # with the self-calibration ladder and its focal-length guard (``focal_known``): a focal length run away on a
+        # flat block (a projective twin) would move the heights, and the GNSS with them
+        fa, _, _ = adjust_block(rec, xy, images, weak, self_cal, focal_known=focal_known, compute_covariance=True, **kw)
         off = gnss_offset(rec.centers()[images], fa.center_std[images], ctrl.gnss_xyz[images], ctrl.gnss_sigma[images]) \
             if fa.result.success else None
     finally:

@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..results import Termination
 from .reconstruction import restore_to, snapshot_of
 
-__all__ = ["SELF_CALIBRATION_LADDER", "FIXED_INTERIOR_LADDER", "INTRINSICS_PLAUSIBLE", "intrinsics_problem",
+__all__ = ["FocalKnown", "MAX_ITERATIONS_RETRY", "SELF_CALIBRATION_LADDER", "FIXED_INTERIOR_LADDER", "INTRINSICS_PLAUSIBLE", "intrinsics_problem",
            "intrinsics_check", "ladder_sets", "fixed_interior_rungs", "adjust_block"]
 
 
@@ -38,6 +39,24 @@ FIXED_INTERIOR_LADDER = (("k1", "k2", "p1", "p2"), ("k1", "k2"), ("k1",), ())
 #: of the radius. Measured on the Thermitage fresco walls (thermal only, 6 frames tied by wrong matches): fy/fx
 #: 1.26 and a rank-deficient solve, reported as an oriented block before this check.
 INTRINSICS_PLAUSIBLE = {"focal": 0.30, "aspect": 0.05, "principal_point": 0.15, "corner_distortion": 0.20}
+
+
+class FocalKnown(dict):
+    """Camera index -> whether its starting focal length is the files' (EXIF, or EXIF/field of view with the camera
+    table's pixel pitch), the ``focal_known`` of :func:`intrinsics_check`; ``prior``: camera index -> that focal
+    length (px) or None. With a prior, the focal band of :data:`INTRINSICS_PLAUSIBLE` is measured from it, not
+    from the camera the adjustment started from: an adjustment that starts from an earlier adjustment's camera (the
+    block adjusted again with images added at their GNSS positions) cannot walk the focal length away 30 % at a
+    time."""
+
+    def __init__(self, known=(), prior=None):
+        super().__init__(known)
+        self.prior = dict(prior or {})
+
+
+#: an adjustment of the ladder that stops at its iteration limit (with an accepted self-calibration) is adjusted
+#: again once from where it stopped, with this many iterations (the final adjustment's default is 50)
+MAX_ITERATIONS_RETRY = 200
 
 
 def intrinsics_problem(fa, start_cams: dict, free_sets: dict, focal_known: dict | None = None) -> tuple[int | None, str]:
@@ -75,8 +94,10 @@ def intrinsics_check(fa, start_cams: dict, free_sets: dict, focal_known: dict | 
                 return c, f"camera {cam.name or c}: σ of {', '.join(bad)} not finite (the block does not determine them)", "sigma"
         if "fx" in p and "fy" in p:
             known = True if focal_known is None else bool(focal_known.get(c, False))
-            if known and (abs(p["fx"] / p0["fx"] - 1) > lim["focal"] or abs(p["fy"] / p0["fy"] - 1) > lim["focal"]):
-                return c, (f"camera {cam.name or c}: focal length {p['fx']:.1f}/{p['fy']:.1f} px from a start of {p0['fx']:.1f} px "
+            ref = getattr(focal_known, "prior", {}).get(c) if focal_known is not None else None
+            fx0, fy0, what = (ref, ref, "the files' (or the camera table's)") if ref else (p0["fx"], p0["fy"], "a start of")
+            if known and (abs(p["fx"] / fx0 - 1) > lim["focal"] or abs(p["fy"] / fy0 - 1) > lim["focal"]):
+                return c, (f"camera {cam.name or c}: focal length {p['fx']:.1f}/{p['fy']:.1f} px from {what} {fx0:.1f} px "
                         f"(more than {lim['focal']:.0%} apart)"), "focal"
             if abs(p["fy"] / p["fx"] - 1) > lim["aspect"]:
                 return c, f"camera {cam.name or c}: fy/fx = {p['fy'] / p['fx']:.3f} (pixels are square to within {lim['aspect']:.0%})", "aspect"
@@ -151,6 +172,21 @@ def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dic
         fa.cameras_after = {c: rec.cameras[c] for c in cams_in}
         fa.covariance_asked = bool(kw.get("compute_covariance", True))
         cam, why, check = intrinsics_check(fa, start, sets, focal_known)
+        if not why and fa.result.termination is Termination.MAX_ITERATIONS:
+            # stopped at the iteration limit, not converged: adjusted again once from where it stopped (its
+            # state is in ``rec``) with more iterations, and that adjustment checked like the first
+            n0, r0 = fa.result.iterations, fa.result.reason
+            kw2 = {**kw, "max_iterations": max(MAX_ITERATIONS_RETRY, 4 * int(kw.get("max_iterations", 50)))}
+            fa2 = final_adjustment(rec, xy, images, ctrl, self_calibrate=sets, rig=rigv, **kw2)
+            fa2.cameras_after = {c: rec.cameras[c] for c in cams_in}
+            fa2.covariance_asked = fa.covariance_asked
+            fa2.notes = fa.notes + [f"the final adjustment stopped without converging ({r0 or n0}); adjusted again from "
+                                    f"there with up to {kw2['max_iterations']} iterations: "
+                                    f"{fa2.result.termination.value}" + (f" ({fa2.result.reason})" if fa2.result.reason else "")
+                                    ] + fa2.notes
+            fa2.first_termination = (fa.result.termination.value, r0)
+            fa = fa2
+            cam, why, check = intrinsics_check(fa, start, sets, focal_known)
         if not why:
             return fa, sets, steps
         held = ""

@@ -10,12 +10,13 @@ import numpy as np
 from ..._memory import release_free_heap
 from ...sfm.block_gates import (BLOCK_RMS_GATE_PX, BLOCK_ROTATION_SIGMA_DEG, GNSS_FLAG_SIGMA, block_rejection,
                                 block_rotation_sigma, check_gnss_offset, extend_with_gnss, gnss_far_share, precise_datum,
-                                prune_gnss_contradicting, tie_rms, unregister_images)
+                                prune_gnss_contradicting, refuse_sigma, tie_rms, unconverged_sigma, unregister_images)
 from ...sfm.reconstruction import restore_to, snapshot_of
 from ...sfm.rig_block import rig_by_registration, rig_own_before, rig_refuse, rig_scale_local
-from ...sfm.selfcal_ladder import adjust_block
+from ...sfm.selfcal_ladder import FocalKnown, adjust_block
 from ...store import ProjectStore
 from .controls import _gnss_xyz, _read_manual_ties, _read_markers
+from .camera_start import _camera_start, _focal_from_exif, _focal_prior  # noqa: F401 (re-exported)
 from .inputs import _attitudes
 from .lowtexture import _low_texture_self_calibration, _low_texture_sequence_used
 from .options import SurveyInput, SurveyOptions
@@ -88,7 +89,8 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         if geo:
             apply_similarity(rec, images, S)
             if datum.from_gnss and ctrl.gcp_obs and inp.rig is None:
-                gnss_off, nts = check_gnss_offset(rec, xy, images, ctrl, self_cal, tie_sigma_px=opt.tie_sigma_px,
+                gnss_off, nts = check_gnss_offset(rec, xy, images, ctrl, self_cal, focal_known=focal_known,
+                                                  tie_sigma_px=opt.tie_sigma_px,
                                              max_error_px=opt.reconstruction.max_error_px, georeferenced=True)
                 notes += [f"block {ci + 1}: {x}" for x in nts]
         elif rigv is not None:
@@ -172,8 +174,9 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         v = fa.tie_residuals
         rms = tie_rms(v)
         far = gnss_far_share(rec, images, ctrl) if geo else 0.0
-        if (pre is not None and ci not in pruned_blocks and fa.result.termination is Termination.MAX_ITERATIONS
-                and (far > 0 or fa.gnss_rejected)):
+        # at its iteration limit, also if a second adjustment from there converged (selfcal_ladder.adjust_block)
+        at_limit = fa.result.termination is Termination.MAX_ITERATIONS or bool(getattr(fa, "first_termination", None))
+        if (pre is not None and ci not in pruned_blocks and at_limit and (far > 0 or fa.gnss_rejected)):
             # the adjustment found no minimum and some centres contradict their GNSS: a few wrongly resected images
             # can be the cause. The block as the orientation left it, without the images that no similarity puts
             # near their GNSS (sfm.georef.gnss_consensus), is adjusted once more
@@ -201,7 +204,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             attitude_blocks.add(ci)
             queue.insert(0, (ci, images))
             continue
-        why = block_rejection(rms, far, rot_sigma, fa.result, pruned=ci in pruned_blocks)
+        why = block_rejection(rms, far, rot_sigma, fa.result, pruned=ci in pruned_blocks, stopped_at_limit=at_limit)
         if why:
             for i in images:
                 rec.status[i].reason = f"in block {ci + 1} ({len(images)} images) rejected: {why}"
@@ -216,10 +219,22 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             images, fa, cal_used, cal_steps, nts = extend_with_gnss(rec, xy, images, ctrl, names, ci, self_cal, adjust_kw,
                                                                       opt.reconstruction, (fa, cal_used, cal_steps), rms, far)
             notes += nts
+        no_sigma = unconverged_sigma(fa)
+        if no_sigma:
+            # never reported with σ as if it had converged: the orientation is kept, its σ refused
+            refuse_sigma(fa, no_sigma)
+            for c_ in {int(c) for c in rec.image_camera[np.asarray(images)]}:
+                rec.cameras[c_] = rec.cameras[c_].replace(param_std=np.full(len(rec.cameras[c_].param_names), np.nan))
+            if rig_out and rig_out[-1].get("block") == ci + 1 and "std" in rig_out[-1]:
+                rig_out[-1].update({"std": None, "sigma_refused": no_sigma})
+            notes.append(f"block {ci + 1}: {no_sigma}")
         oriented[images] = True
         fa_all.append((ci, images, fa, datum, geo))
-        results.append({"block": ci + 1, "images": len(images), "datum": str(datum), "sigma0": float(fa.result.sigma0),
+        results.append({"block": ci + 1, "images": len(images), "datum": str(datum),
+                        "sigma0": None if no_sigma else float(fa.result.sigma0),
                         "termination": fa.result.termination.value, "reason": fa.result.reason,
+                        "converged": not no_sigma, **({"sigma_refused": no_sigma} if no_sigma else {}),
+                        **({"first_termination": list(fa.first_termination)} if getattr(fa, "first_termination", None) else {}),
                         "self_calibration": sorted({n for v in cal_used.values() for n in v}),
                         "self_calibration_steps": cal_steps, **({"gnss_offset": gnss_off} if gnss_off else {}),
                         **({"added_at_gnss": [names[i] for i in images[n_own:]]} if len(images) > n_own else {})})
@@ -234,18 +249,11 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     checks, gcp_errors, gcp_rejected = _check_points(rec, fa_all, ctrl, names, c_ids)
     extra = _survey_extra(project, inp, rec, names, oriented, meta, lt_verdict, notes, t_ids, tie_out,
                           rig=(rig_used, rig_reg, rig_master, rig_unpaired, rig_out, rig_only) if inp.rig is not None else None)
+    extra["camera_start"] = _camera_start(inputs, rec, meta, camera)
     out = _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results,
                          extra=extra, rig_only={k: w for k, w in rig_only.items() if oriented[k]})
     out["seconds_georef"] = time.perf_counter() - t0
     return out
-
-
-def _focal_from_exif(inputs: dict, rec, cam_index: int) -> bool:
-    """True when every image of this camera had its starting focal length from EXIF focal length and pixel pitch
-    (``camera_guess.source`` "EXIF focal ... / pitch ..." or a 35 mm-equivalent focal), not a guess."""
-    srcs = [str(im.get("camera_guess", {}).get("source", "")) for im, c in zip(inputs["images"], rec.image_camera)
-            if int(c) == cam_index]
-    return bool(srcs) and all(s_.startswith("EXIF") and "assumed" not in s_ for s_ in srcs)
 
 
 def _controls(inp: SurveyInput, opt: SurveyOptions, inputs: dict, names: list):
@@ -280,6 +288,9 @@ def _self_calibration(project: ProjectStore, inp: SurveyInput, opt: SurveyOption
     # length and pixel pitch: a video or an image without them starts from a guess (1 x the width), which
     # self-calibration is there to correct (a factor 2.3 on the synthetic video of tests/test_io_video.py)
     focal_known = {k: _focal_from_exif(inputs, rec, k) for k in range(len(meta["camera_ids"]))}
+    # the guard's reference: the files' (or the camera table's) focal length, not the last adjustment's
+    focal_known = FocalKnown({k: v for k, v in focal_known.items()},
+                             {k: _focal_prior(inputs, rec, k) for k in range(len(meta["camera_ids"]))})
     self_cal, lt_note = _low_texture_self_calibration(project, meta["camera_ids"], self_cal, focal_known)
     notes += [lt_note] if lt_note else []
     return self_cal, focal_known, notes
@@ -311,7 +322,9 @@ def _second_pass(rec, xy, ctrl, names, self_cal, opt: SurveyOptions, oriented, f
             r.update({"images": len(images2), "sigma0": float(fa2.result.sigma0), "termination": fa2.result.termination.value,
                       "reason": fa2.result.reason, "self_calibration": sorted({n for v in cal2.values() for n in v}),
                       "self_calibration_steps": steps2,
-                      "added_at_gnss": r.get("added_at_gnss", []) + [names[i] for i in images2[n_own:]]})
+                      "added_at_gnss": r.get("added_at_gnss", []) + [names[i] for i in images2[n_own:]],
+                      "converged": True})  # (extend_with_gnss keeps only an adjustment that converged)
+            r.pop("sigma_refused", None)
             for k_rej, members in rejected_at.items():
                 # the rejected block's entry says where its images went (it still counts them as its own)
                 moved = [names[i] for i in images2[n_own:] if int(i) in members]
@@ -332,7 +345,11 @@ def _check_points(rec, fa_all, ctrl, names, c_ids):
     for ci, images, fa, datum, geo in fa_all:
         if not geo:
             continue
-        checks += [c for c in intersect_check_points(rec, fa, ctrl) if c["xyz"] is not None or c["n_images"] > 0]
+        cs = [c for c in intersect_check_points(rec, fa, ctrl) if c["xyz"] is not None or c["n_images"] > 0]
+        if getattr(fa, "sigma_refused", ""):
+            for c in cs:  # the error is measured; a σ from an unconverged adjustment is not reported
+                c["std"], c["sigma_refused"] = None, fa.sigma_refused
+        checks += cs
         gcp_errors += [fa.gcp_residuals_m[g] for g in np.nonzero(fa.gcp_used)[0]]
         gcp_rejected += [{"image": names[i], "id": gid, "residual_px": e} for i, gid, e in fa.gcp_rejected]
     # merge check points seen in several blocks: keep the one with most images

@@ -15,7 +15,8 @@ from .options import IMAGE_SUFFIXES, SurveyInput, SurveyOptions, VIDEO_SUFFIXES
 from .store import SurveyStore, frame_key
 
 
-# thermal cores whose pixel pitch the files do not state (µm); focal length comes from EXIF
+# thermal cores whose pixel pitch the files do not state (µm): kept for callers; the camera table
+# (:mod:`thermogrammetry.camera.database`) is what the survey reads
 _PITCH_UM = {"M3T": 12.0, "M30T": 12.0, "H20T": 12.0, "H20N": 12.0, "H30T": 12.0, "M4T": 12.0, "M3TD": 12.0,
              "XT2": 17.0, "ZH20T": 12.0, "MAVIC2-ENTERPRISE-ADVANCED": 12.0, "M2EA": 12.0}
 
@@ -88,29 +89,66 @@ def _attitudes(inputs: dict, crs: str | None) -> np.ndarray | None:
 
 
 def _camera_guess(width, height, md) -> dict:
-    """Focal length in px from EXIF (35 mm equivalent, or focal + pixel pitch); notes when guessed."""
+    """The starting focal length in px of a frame and where it came from.
+
+    In this order: EXIF focal length and pixel pitch (FocalPlaneResolution); EXIF focal length and the camera
+    table's pitch (:func:`thermogrammetry.camera.database.table_focal`, by the files' make and model; the pitch on
+    the image's grid when the image is an upscaled core); EXIF 35 mm-equivalent focal length; the table's field of
+    view (a file without a focal length, e.g. the Mavic 2 Enterprise Dual); EXIF focal length with 17 µm assumed;
+    1.0 x the image width. Keys: ``f_px``, ``source`` (text), ``pitch_um``, ``focal_source`` (``"exif"``,
+    ``"camera_table:<camera>"``, ``"assumed"`` or ``"default"``), ``focal_sigma_px`` (σ of the start, None when
+    unknown) and, from the table, ``camera_table`` (camera name, native size, upscale, how)."""
+    from ...camera.database import LENS_FOCAL_SIGMA, table_focal
+
     exif = getattr(md, "exif", {}) or {}
     raw = exif.get("raw_exif", {}) if isinstance(exif, dict) else {}
     f35 = raw.get(41989)
-    model = (getattr(md, "model", None) or "").upper()
+    model = getattr(md, "model", None) or ""
+    make = getattr(md, "make", None) or (exif.get("make") if isinstance(exif, dict) else None) or ""
+    xmp = (getattr(md, "extra", None) or {}).get("xmp") or {} if isinstance(getattr(md, "extra", None), dict) else {}
     focal = getattr(md, "focal_length_mm", None)
     pitch = getattr(md, "pixel_pitch_um", None)
     pitch = pitch[0] if isinstance(pitch, (tuple, list)) else pitch
-    if pitch is None and model in _PITCH_UM:
-        pitch = _PITCH_UM[model]
+    tab = None
+    # the reader's model (a FLIR file's camera-info model first), then EXIF Model, then DJI's XMP model name
+    for name in dict.fromkeys(m for m in (model, exif.get("model") if isinstance(exif, dict) else None,
+                                          xmp.get("Model")) if m):
+        tab = table_focal(make, name, (width, height), focal)
+        if tab is not None:
+            break
+    table = ({"camera_table": {"camera": tab.camera, "native_size": list(tab.native_size), "upscale": tab.upscale,
+                               "how": tab.how, "source": tab.source}} if tab is not None else {})
     if focal and pitch:
-        return {"f_px": focal / (pitch * 1e-3), "source": f"EXIF focal {focal:g} mm / pitch {pitch:g} µm", "pitch_um": pitch}
+        f = focal / (pitch * 1e-3)
+        return {"f_px": f, "source": f"EXIF focal {focal:g} mm / pitch {pitch:g} µm", "pitch_um": pitch,
+                "focal_source": "exif", "focal_sigma_px": LENS_FOCAL_SIGMA * f, **table}
+    if focal and tab is not None and tab.f_px and tab.pixel_pitch_um:
+        return {"f_px": tab.f_px, "source": f"EXIF {tab.how}", "pitch_um": tab.pixel_pitch_um,
+                "focal_source": f"camera_table:{tab.camera}", "focal_sigma_px": tab.sigma_px, **table}
+    if pitch is None and str(model).upper() in _PITCH_UM:
+        pitch = _PITCH_UM[model.upper()]
+        if focal:
+            f = focal / (pitch * 1e-3)
+            return {"f_px": f, "source": f"EXIF focal {focal:g} mm / pitch {pitch:g} µm", "pitch_um": pitch,
+                    "focal_source": "exif", "focal_sigma_px": LENS_FOCAL_SIGMA * f, **table}
     if f35:
         try:
             f35 = float(f35)
         except (TypeError, ValueError):
             f35 = None
     if f35:
-        return {"f_px": f35 * np.hypot(width, height) / 43.2666, "source": f"EXIF 35 mm-equivalent focal {f35:g} mm", "pitch_um": pitch}
+        f = f35 * np.hypot(width, height) / 43.2666
+        return {"f_px": f, "source": f"EXIF 35 mm-equivalent focal {f35:g} mm", "pitch_um": pitch,
+                "focal_source": "exif", "focal_sigma_px": LENS_FOCAL_SIGMA * f, **table}
+    if tab is not None and tab.f_px:
+        return {"f_px": tab.f_px, "source": f"no focal length in the file: {tab.how}",
+                "pitch_um": tab.pixel_pitch_um, "focal_source": f"camera_table:{tab.camera}",
+                "focal_sigma_px": tab.sigma_px, **table}
     if focal:
-        return {"f_px": focal / 0.017, "source": f"EXIF focal {focal:g} mm, pixel pitch assumed 17 µm", "pitch_um": 17.0}
+        return {"f_px": focal / 0.017, "source": f"EXIF focal {focal:g} mm, pixel pitch assumed 17 µm", "pitch_um": 17.0,
+                "focal_source": "assumed", "focal_sigma_px": None, **table}
     return {"f_px": 1.0 * max(width, height), "source": "no focal length in the file: 1.0 x image width assumed (self-calibrated)",
-            "pitch_um": None}
+            "pitch_um": None, "focal_source": "default", "focal_sigma_px": None, **table}
 
 
 def frame_values(im, path, counts_dtype=np.uint16) -> tuple[str, np.ndarray, str]:
@@ -214,6 +252,7 @@ def _decode(path: Path, input_unit: str | None, overlap: float | None = None, dj
         class _Md:  # what _camera_guess reads
             exif = ex
             model = ex.get("model")
+            make = ex.get("make")
             focal_length_mm = ex.get("focal_length_mm")
             pixel_pitch_um = ex.get("pixel_pitch_um")  # EXIF FocalPlane resolution, when written
         md = _Md
@@ -342,6 +381,7 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
                 class _Md:
                     exif = ex
                     model = ex.get("model")
+                    make = ex.get("make")
                     focal_length_mm = ex.get("focal_length_mm")
                     pixel_pitch_um = ex.get("pixel_pitch_um")  # EXIF FocalPlane resolution, when written
                 h, w = img.shape[:2]

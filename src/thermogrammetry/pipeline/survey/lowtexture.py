@@ -74,8 +74,8 @@ def _low_texture_self_calibration(project: ProjectStore, camera_ids: list, self_
         # synthetic facade walk filmed at 25 fps, 28 frames extracted (benchmarks/survey_lowtexture.py --synthetic
         # --video): fx 933 px for a true 765, rotations 9.6 deg RMS; with the camera file 1.3 deg
         note += ("; " if note else "low-texture sequence: ") + (
-            f"the focal length of {', '.join(guessed)} is not known (no EXIF focal length, no camera file; a video "
-            "carries none) and a walk along a wall determines it only weakly: expect rotations several degrees off "
+            f"the focal length of {', '.join(guessed)} is not known (no EXIF focal length, no camera file, the "
+            "files' camera not in the camera table; a video carries none) and a walk along a wall determines it only weakly: expect rotations several degrees off "
             "(give --camera camera.json from `thermogrammetry calibrate`)")
     return out, note
 

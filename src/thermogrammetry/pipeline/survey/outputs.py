@@ -177,7 +177,9 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
         "gcp_rejected_measurements": gcp_rejected,
         "checkpoint_errors": [{"id": c["id"], "n_images": c["n_images"], "reason": c.get("reason", ""),
                                **({"dx": float(c["error"][0]), "dy": float(c["error"][1]), "dz": float(c["error"][2]),
-                                   "sx": float(c["std"][0]), "sy": float(c["std"][1]), "sz": float(c["std"][2])}
+                                   **({"sx": float(c["std"][0]), "sy": float(c["std"][1]), "sz": float(c["std"][2])}
+                                      if c.get("std") is not None else {"sx": None, "sy": None, "sz": None,
+                                                                        "sigma_refused": c.get("sigma_refused", "")})}
                                   if c.get("error") is not None else {})} for c in checks],
         "failed_inputs": inputs["failed"],
         "notes": inputs.get("notes", []) + notes + sorted({im["note"] for im in inputs["images"] if im.get("note")}),

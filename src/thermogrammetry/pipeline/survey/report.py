@@ -102,7 +102,7 @@ def write_survey_report(project) -> None:
                              f"{html.escape(b['start'])}). Thermal frames without an orientation of their own are not "
                              "oriented.</p>")
                 continue
-            sd = b.get("std", {})
+            sd = b.get("std") or {}
             rows = "".join(f"<tr><th>{k}</th><td>{v:.4f}</td><td>{_f(sd.get('rotation_deg', [None] * 3)[a], '{:.4f}')}</td></tr>"
                            for a, (k, v) in enumerate(zip(("ω (deg)", "φ (deg)", "κ (deg)"), b["rotation_vector_deg"])))
             rows += "".join(f"<tr><th>{k}</th><td>{v:.4f}</td><td>{_f(sd.get('t_base_rgb_frame', [None] * 3)[a], '{:.4f}')}</td></tr>"
@@ -122,7 +122,7 @@ def write_survey_report(project) -> None:
     if s.get("checkpoint_errors"):
         parts.append("<table><tr><th>check point</th><th>images</th><th>dX</th><th>dY</th><th>dZ</th><th>σX</th><th>σY</th><th>σZ</th></tr>" + "".join(
             f"<tr><td class=l>{html.escape(c['id'])}</td><td>{c['n_images']}</td>" + (
-                "".join(f"<td>{c[k]:.4f}</td>" for k in ("dx", "dy", "dz", "sx", "sy", "sz")) if "dx" in c
+                "".join(f"<td>{_f(c[k])}</td>" for k in ("dx", "dy", "dz", "sx", "sy", "sz")) if "dx" in c
                 else f"<td class=l colspan=6>{html.escape(c.get('reason', ''))}</td>") + "</tr>" for c in s["checkpoint_errors"]) + "</table>")
     if s.get("gnss", {}).get("n"):
         parts.append(_axis_table("Camera centres against GNSS (adjusted antenna − given)", s["gnss"]))
