@@ -137,3 +137,17 @@ def test_a_block_that_contradicts_its_gnss_after_stopping_at_its_limit_stays_rej
     assert block_rejection(1.0, 0.5, 0.0, conv) == ""
     assert "did not converge" in block_rejection(1.0, 0.5, 0.0, conv, stopped_at_limit=True)
     assert block_rejection(1.0, 0.1, 0.0, conv, stopped_at_limit=True) == ""  # its centres agree with their GNSS
+
+
+def test_with_the_lens_sigma_the_focal_band_is_three_sigma_of_the_lens_value():
+    from thermogrammetry.sfm.selfcal_ladder import FOCAL_PRIOR_K, FocalKnown, intrinsics_check
+
+    start = {0: _cam(fx=758.3, fy=758.3)}
+    fk = FocalKnown({0: True}, {0: 758.3}, {0: 37.9})
+    assert fk.priors() == {0: (758.3, 37.9)}
+    # the M3T strip over flat ground: 886 px against 758.3 ± 37.9 px is 3.4 σ -> refused (held)
+    cam, why, check = intrinsics_check(_fa(_cam(fx=886.1, fy=886.1)), start, {0: ("fx", "fy")}, fk)
+    assert check == "focal" and "3 σ" in why and FOCAL_PRIOR_K == 3.0
+    # 2.5 σ: accepted; without a σ the 30 % band of the files' value applies (886 px is 17 % off: accepted)
+    assert intrinsics_check(_fa(_cam(fx=853.0, fy=853.0)), start, {0: ("fx", "fy")}, fk)[2] == ""
+    assert intrinsics_check(_fa(_cam(fx=886.1, fy=886.1)), start, {0: ("fx", "fy")}, FocalKnown({0: True}, {0: 758.3}))[2] == ""

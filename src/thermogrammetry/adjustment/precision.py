@@ -112,6 +112,24 @@ def _gauge_basis(pb, lay, st):
     return G, E
 
 
+
+def _eigvalsh(A: np.ndarray) -> np.ndarray:
+    """Ascending eigenvalues of the symmetric ``A`` (n, n), of a copy (``A`` is kept). LAPACK's default driver
+    (``syevr``) can stop without converging on an ill-conditioned reduced matrix ("Internal Error", seen with
+    SciPy 1.17 on a 20-station ring whose solve had converged); the divide-and-conquer (``syevd``) and QR
+    (``syev``) drivers are tried next, and the error is raised only when all three fail."""
+    bad = int(A.size - np.count_nonzero(np.isfinite(A)))
+    if bad:
+        raise np.linalg.LinAlgError(f"the reduced normal matrix has {bad} non-finite entries of {A.size}")
+    err = None
+    for driver in ("evr", "evd", "ev"):
+        try:
+            return scipy.linalg.eigvalsh(A.copy(order="F"), overwrite_a=True, check_finite=False, driver=driver)
+        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError) as exc:
+            err = exc
+    raise err
+
+
 def precision(pb, lay, st, data, opt, active, warnings):
     """Precision and reliability at the adjusted state ``st`` (see the module docstring).
 
@@ -234,14 +252,25 @@ def precision(pb, lay, st, data, opt, active, warnings):
     else:
         if nc:
             # Jacobi scaling in place: Sn = D^-1 S D^-1 (unit diagonal), S^-1 = D^-1 Sn^-1 D^-1
-            d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+            dS = np.diag(S)
+            neg = np.nonzero(~(dS > 0))[0]
+            if len(neg):
+                # S = U - W V^-1 W^T cannot have a diagonal <= 0 in exact arithmetic: some points' 3x3 normal blocks
+                # are too near singular for their inverse (rays nearly parallel, points near infinity)
+                return (
+                    Termination.NUMERICAL_FAILURE,
+                    f"the reduced normal matrix is not positive definite ({len(neg)} diagonal entries <= 0: "
+                    f"{', '.join(lay.names[i] for i in neg[np.argsort(dS[neg])][:4])}): points whose normal blocks are "
+                    "numerically singular (rays nearly parallel or points near infinity)",
+                )
+            d = np.sqrt(dS)
             Sn = S
             del S
             Sn /= d[:, None]
             Sn /= d[None, :]
             # eigenvalues only, of a copy (the eigenvectors and their LAPACK workspace are 3 more nc x nc
             # matrices); the null direction is computed only when the test fails
-            ev = scipy.linalg.eigvalsh(Sn.copy(order="F"), overwrite_a=True, check_finite=False)
+            ev = _eigvalsh(Sn)
             if ev[0] <= opt.rank_tolerance * ev[-1]:
                 ev, evec = np.linalg.eigh(Sn)
                 k = np.argsort(-np.abs(evec[:, 0]))[:4]

@@ -187,6 +187,7 @@ class BundleProblem:
         self._gnss: list[tuple] = []  # (pose idx (K,), xyz (K,3), sigma (K,3), lever (K,3))
         self._dist: list[tuple] = []  # (point a (K,), point b (K,), distance (K,), sigma (K,))
         self._att: list[tuple] = []  # (pose idx (K,), R_obs (K,3,3) cam_from_world, sigma (K,3) rad)
+        self._cprior: list[tuple] = []  # (camera (K,), parameter index (K,), value (K,), sigma (K,))
         self.plane_n: list[np.ndarray] = []  # unit normals
         self.plane_d: list[float] = []  # offsets: n . X = d (m)
         self.plane_fixed: list[bool] = []
@@ -380,6 +381,41 @@ class BundleProblem:
         for k in range(len(v)):
             _check_rotation(R[k], f"R_cam_from_world[{k}]")
         self._att.append((np.asarray(self.view_pose)[v], R.copy(), _sigma(sigma_rad, len(v), 3, "sigma_rad")))
+
+    def add_camera_prior(self, camera: int, values: dict, sigmas: dict) -> None:
+        """Weighted priors on intrinsic parameters of camera block ``camera`` (a calibration's values with their
+        σ, or a lens's nominal focal length): one residual ``(θ - value) / σ`` per parameter, in the parameter's
+        own unit (px for ``fx``, ``fy``, ``cx``, ``cy``; unitless for distortion). A prior on a parameter held
+        fixed has no effect on the estimate (its residual is constant).
+
+        Parameters
+        ----------
+        camera : int
+            Camera block index (:meth:`add_camera`).
+        values, sigmas : dict
+            Parameter name -> prior value, and -> its standard deviation (> 0, finite); the same names in both.
+        """
+        c = self._check_indices([camera], len(self.cameras), "camera")[0]
+        names = list(self.cameras[c].param_names)
+        if set(values) != set(sigmas):
+            raise InvalidInputError(f"camera prior: values for {sorted(values)} but sigmas for {sorted(sigmas)}; "
+                                    "expected the same parameter names")
+        unknown = [n for n in values if n not in names]
+        if unknown:
+            raise InvalidInputError(f"camera prior: {unknown} are not parameters of camera {c} "
+                                    f"(model parameters: {', '.join(names)})")
+        k = np.array([names.index(n) for n in values], dtype=np.int64)
+        v = np.array([float(values[n]) for n in values])
+        sg = np.array([float(sigmas[n]) for n in values])
+        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(sg)) and np.all(sg > 0)):
+            raise InvalidInputError(f"camera prior: values {v.tolist()} and sigmas {sg.tolist()}; expected finite "
+                                    "values and finite sigmas > 0")
+        self._cprior.append((np.full(len(k), c, dtype=np.int64), k, v, sg))
+
+    def camera_prior_observations(self):
+        if not self._cprior:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
+        return tuple(np.concatenate([a[j] for a in self._cprior]) for j in range(4))
 
     def attitude_observations(self):
         if not self._att:

@@ -193,6 +193,15 @@ def evaluate(pb, lay: Layout, st: State, data: Data, want_jac: bool, sel=None, e
                 pcol = lay.point_col[pts_]
                 trip(rws, 1, sgn * u, pcol, pcol >= 0)
         row += nd
+    nq = len(data.q_cam) if extra else 0
+    if nq:
+        # priors on intrinsics: (θ - θ0) / σ, d/dθ = 1 / σ where θ is free
+        th = np.array([st.cam_params[c][k] for c, k in zip(data.q_cam, data.q_k)])
+        r[row : row + nq] = (th - data.q_val) / data.q_sig
+        if want_jac:
+            qc = np.array([lay.cam_cols[c][k] for c, k in zip(data.q_cam, data.q_k)], dtype=np.int64)
+            trip(row + np.arange(nq), 1, (1.0 / data.q_sig)[:, None, None], qc, qc >= 0)
+        row += nq
     na = len(data.a_pose) if extra else 0
     if na:
         # attitude priors: e = log(R R_obs^T); with R <- exp([dw]x) R, de = J_l^-1(e) dw

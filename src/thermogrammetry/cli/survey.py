@@ -66,7 +66,7 @@ def survey(
     images: List[Path] = typer.Argument(..., help="Thermal frames: files and/or folders (R-JPEG, TIFF, SEQ/CSQ, 8-bit JPEG/PNG, videos)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder (written as a whole at the end)."),
     input_unit: Optional[str] = typer.Option(None, "--input-unit", help="K or C: unit of float TIFFs that declare none."),
-    camera: Optional[Path] = typer.Option(None, "--camera", help="camera.json from `calibrate`: intrinsics held fixed (else self-calibration)."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="The camera's calibration, held fixed (else self-calibration): camera.json from `calibrate`, a Metashape XML, an OpenCV YAML/XML or a one-camera COLMAP cameras.txt."),
     rgb: List[Path] = typer.Option([], "--rgb", help="RGB images (folder or files) oriented in the same block."),
     rig: Optional[Path] = typer.Option(None, "--rig", help="rig.json (needs --rgb): thermal poses from the paired RGB poses through R, t, "
                                        "held or estimated (Barazzetti et al. 2013; see docs/verbs/survey.md)."),
@@ -164,8 +164,8 @@ def survey_inputs(*, images, out, input_unit, camera, rgb, rig, gnss, crs, gcps,
     ThermogrammetryError, ValueError, OSError
         An unusable argument or file (the message names it); the caller exits with status 2.
     """
-    from ..camera import Camera
     from ..errors import ThermogrammetryError
+    from ..io.camera_file import read_camera_file
     from ..pipeline.survey import SurveyInput, SurveyOptions
 
     if dji_sdk is not None:
@@ -203,7 +203,7 @@ def survey_inputs(*, images, out, input_unit, camera, rgb, rig, gnss, crs, gcps,
     for p in (gcp_measurements, check_measurements):
         if p is not None:
             read_measurements_csv(p)
-    cam = Camera.load(camera) if camera is not None else None
+    cam = read_camera_file(camera) if camera is not None else None
     extra = {}
     for flag, val, sizes in (("--lever-arm", lever_arm, (3,)), ("--gnss-sigma", gnss_sigma, (2, 3))):
         if val is None:

@@ -19,6 +19,7 @@ _LAZY = {
     "read_metashape_calibration": ".metashape",
     "write_metashape_calibration": ".metashape",
     "MetashapeCalibration": ".metashape",
+    "read_camera_file": ".camera_file",
     "read_bal": ".bal",
     "BALProblem": ".bal",
     "read_thermal": ".thermal",

@@ -169,7 +169,8 @@ def parallel_ray_points(rec, obs) -> np.ndarray:
 def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_calibrate=(), tie_sigma_px: float = 1.0,
                       max_error_px: float = 4.0, gcp_reject_px: float = 5.0, compute_covariance: bool = True,
                       georeferenced: bool = True, max_iterations: int = 50, rig=None, manual_ties=None,
-                      final_loss: str = "trivial", attitude_priors: bool = False) -> FinalAdjustment:
+                      final_loss: str = "trivial", attitude_priors: bool = False,
+                      focal_priors: dict | None = None) -> FinalAdjustment:
     """One pass of :func:`final_adjustment`: a robust round, then ``final_loss`` rounds (least squares by default).
 
     ``rec`` is updated in place (cameras, poses, points).
@@ -182,6 +183,8 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
     ``attitude_priors``: the images' observed attitudes (``ctrl.attitude``) enter as priors, each with σ
     :data:`~.attitude.ATTITUDE_SIGMA_DEG` · sqrt(n) (together one observation of the block's rotation): the datum of a
     block whose GNSS positions lie on one line (:func:`similarity_start`).
+    ``focal_priors``: camera index -> (focal length px, σ px), the lens's value (EXIF or the camera table): where fx
+    and fy are self-calibrated they enter with this weighted prior (``BundleProblem.add_camera_prior``).
     """
     from ..adjustment import BundleProblem, SolverOptions, solve
 
@@ -246,6 +249,9 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
             free = {n.lower() for n in sc}
             fixed = [n for n in cam.param_names if n.lower() not in free]
             cam_block[int(c)] = pb.add_camera(cam, fixed=fixed if fixed else False, name=f"camera{c}")
+            fpr = (focal_priors or {}).get(int(c))
+            if fpr is not None and {"fx", "fy"} <= free:
+                pb.add_camera_prior(cam_block[int(c)], {"fx": fpr[0], "fy": fpr[0]}, {"fx": fpr[1], "fy": fpr[1]})
         slaves = {} if rig is None else {int(s): int(m) for s, m in rig.master.items() if in_block[s] and in_block[m]}
         view = {int(i): pb.add_pose((rec.R[i], rec.t[i]), name=f"image{i}") for i in images if int(i) not in slaves}
         if slaves:
@@ -297,7 +303,7 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
                 and any(w in str(res.reason) for w in ("point's normal block is singular", "undetermined",
                                                        # a singular point block seen only by the precision step: a
                                                        # point observed from one centre (rig of zero base)
-                                                       "precision step failed"))):
+                                                       "precision step failed", "not positive definite"))):
             notes.append(f"final adjustment (round {round_ + 1}) stopped: {res.reason}; solved again without the points "
                          f"whose rays meet at less than {MIN_FINAL_TRI_ANGLE_DEG:g}°")
             drop_parallel = True

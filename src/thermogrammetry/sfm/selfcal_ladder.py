@@ -9,7 +9,7 @@ import numpy as np
 from ..results import Termination
 from .reconstruction import restore_to, snapshot_of
 
-__all__ = ["FocalKnown", "MAX_ITERATIONS_RETRY", "SELF_CALIBRATION_LADDER", "FIXED_INTERIOR_LADDER", "INTRINSICS_PLAUSIBLE", "intrinsics_problem",
+__all__ = ["FocalKnown", "FOCAL_PRIOR_K", "MAX_ITERATIONS_RETRY", "SELF_CALIBRATION_LADDER", "FIXED_INTERIOR_LADDER", "INTRINSICS_PLAUSIBLE", "intrinsics_problem",
            "intrinsics_check", "ladder_sets", "fixed_interior_rungs", "adjust_block"]
 
 
@@ -47,11 +47,27 @@ class FocalKnown(dict):
     length (px) or None. With a prior, the focal band of :data:`INTRINSICS_PLAUSIBLE` is measured from it, not
     from the camera the adjustment started from: an adjustment that starts from an earlier adjustment's camera (the
     block adjusted again with images added at their GNSS positions) cannot walk the focal length away 30 % at a
-    time."""
+    time. ``sigma``: camera index -> σ (px) of that focal length or None; with both, an adjustment that frees fx
+    and fy also weights them towards the prior (:func:`~thermogrammetry.sfm.georef.final_adjustment`
+    ``focal_priors``): a block that cannot determine its focal length (a flat field flown at one height: focal
+    length and heights are a twin) keeps the lens's value within its σ instead of running away."""
 
-    def __init__(self, known=(), prior=None):
+    def __init__(self, known=(), prior=None, sigma=None):
         super().__init__(known)
         self.prior = dict(prior or {})
+        self.sigma = dict(sigma or {})
+
+    def priors(self) -> dict:
+        """Camera index -> (focal length px, σ px) for the cameras with both."""
+        return {c: (float(f), float(self.sigma[c])) for c, f in self.prior.items()
+                if f and self.sigma.get(c) and np.isfinite(self.sigma[c]) and self.sigma[c] > 0}
+
+
+#: a self-calibrated focal length more than this many σ of the lens's value (:class:`FocalKnown` ``sigma``) from it
+#: is refused (held at the lens's value; only the distortion self-calibrated). On the shared M3T flight's single
+#: strip (16 frames on one line over flat ground) the weighted prior alone let fx run to 886 px against 758 ± 38 px
+#: (3.4 σ; rotations 0.93° RMS from the whole flight's) where holding it gives 0.28°
+FOCAL_PRIOR_K = 3.0
 
 
 #: an adjustment of the ladder that stops at its iteration limit (with an accepted self-calibration) is adjusted
@@ -96,9 +112,14 @@ def intrinsics_check(fa, start_cams: dict, free_sets: dict, focal_known: dict | 
             known = True if focal_known is None else bool(focal_known.get(c, False))
             ref = getattr(focal_known, "prior", {}).get(c) if focal_known is not None else None
             fx0, fy0, what = (ref, ref, "the files' (or the camera table's)") if ref else (p0["fx"], p0["fy"], "a start of")
-            if known and (abs(p["fx"] / fx0 - 1) > lim["focal"] or abs(p["fy"] / fy0 - 1) > lim["focal"]):
+            sg = getattr(focal_known, "sigma", {}).get(c) if (focal_known is not None and ref) else None
+            # with the lens's σ: FOCAL_PRIOR_K σ of it (a block that pulls its focal length that far from the lens's
+            # value against the weighted prior is a twin of its heights, not a measurement of the lens)
+            band = min(lim["focal"], FOCAL_PRIOR_K * sg / ref) if sg else lim["focal"]
+            if known and (abs(p["fx"] / fx0 - 1) > band or abs(p["fy"] / fy0 - 1) > band):
                 return c, (f"camera {cam.name or c}: focal length {p['fx']:.1f}/{p['fy']:.1f} px from {what} {fx0:.1f} px "
-                        f"(more than {lim['focal']:.0%} apart)"), "focal"
+                           + (f"± {sg:.1f} px (more than {FOCAL_PRIOR_K:g} σ, {band:.0%}, apart)" if sg and band < lim["focal"]
+                              else f"(more than {band:.0%} apart)")), "focal"
             if abs(p["fy"] / p["fx"] - 1) > lim["aspect"]:
                 return c, f"camera {cam.name or c}: fy/fx = {p['fy'] / p['fx']:.3f} (pixels are square to within {lim['aspect']:.0%})", "aspect"
         if "cx" in p and (abs(p["cx"] - p0["cx"]) > lim["principal_point"] * w or abs(p["cy"] - p0["cy"]) > lim["principal_point"] * h):
@@ -138,7 +159,8 @@ def fixed_interior_rungs(want, tried) -> list:
     return out if out and out[-1] == () else out + [()]
 
 
-def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dict | None = None, **kw):
+def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dict | None = None,
+                 limit_handled=None, **kw):
     """:func:`~thermogrammetry.sfm.georef.final_adjustment` with a self-calibration the block can carry.
 
     The requested parameters first. When one camera's intrinsics are implausible (:data:`INTRINSICS_PLAUSIBLE`)
@@ -148,12 +170,19 @@ def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dic
     steps down. ``rec`` is restored and the block adjusted again, until the solve is accepted or every camera
     is held fixed. (On the frescoes, RGB + thermal through a rig, the thermal camera with 2 frames of its own
     ran to fy = 316 px while the RGB camera, 40 frames, was well determined: only the thermal one steps down.)
+    An accepted adjustment that stopped at its iteration limit is adjusted again once from where it stopped
+    (:data:`MAX_ITERATIONS_RETRY` iterations; ``fa.first_termination`` records the first pass) unless
+    ``limit_handled(fa)`` is true (the caller has its own remedy for that block, e.g. leaving wrongly resected
+    images out); when that second solve fails outright, the first adjustment is returned as it stopped.
     Returns the final adjustment, the free parameters used per camera index and the reasons of every step.
     """
     from .georef import final_adjustment
 
     cams_in = sorted({int(c) for c in rec.image_camera[np.asarray(images)]})
     start = {c: rec.cameras[c] for c in cams_in}
+    fp = focal_known.priors() if isinstance(focal_known, FocalKnown) else {}
+    if fp and "focal_priors" not in kw:
+        kw = {**kw, "focal_priors": {c: v for c, v in fp.items() if c in cams_in}}
     ladder = ladder_sets(self_cal, cams_in)
     level = {c: 0 for c in cams_in}
     snap = snapshot_of(rec)
@@ -172,10 +201,13 @@ def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dic
         fa.cameras_after = {c: rec.cameras[c] for c in cams_in}
         fa.covariance_asked = bool(kw.get("compute_covariance", True))
         cam, why, check = intrinsics_check(fa, start, sets, focal_known)
-        if not why and fa.result.termination is Termination.MAX_ITERATIONS:
+        if (not why and fa.result.termination is Termination.MAX_ITERATIONS
+                and not (limit_handled is not None and limit_handled(fa))):
             # stopped at the iteration limit, not converged: adjusted again once from where it stopped (its
             # state is in ``rec``) with more iterations, and that adjustment checked like the first
             n0, r0 = fa.result.iterations, fa.result.reason
+            snap_limit = snapshot_of(rec)
+            rig_limit = (rigv.R.copy(), rigv.t.copy()) if rigv is not None else None
             kw2 = {**kw, "max_iterations": max(MAX_ITERATIONS_RETRY, 4 * int(kw.get("max_iterations", 50)))}
             fa2 = final_adjustment(rec, xy, images, ctrl, self_calibrate=sets, rig=rigv, **kw2)
             fa2.cameras_after = {c: rec.cameras[c] for c in cams_in}
@@ -185,9 +217,20 @@ def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dic
                                     f"{fa2.result.termination.value}" + (f" ({fa2.result.reason})" if fa2.result.reason else "")
                                     ] + fa2.notes
             fa2.first_termination = (fa.result.termination.value, r0)
-            fa = fa2
-            cam, why, check = intrinsics_check(fa, start, sets, focal_known)
+            cam2, why2, check2 = intrinsics_check(fa2, start, sets, focal_known)
+            if why2 and cam2 is None:
+                # the second solve failed outright (e.g. its precision step): the first adjustment, as it stopped
+                restore_to(rec, snap_limit)
+                if rig_limit is not None:
+                    rigv.R, rigv.t = rig_limit[0].copy(), rig_limit[1].copy()
+                fa.notes = fa.notes + [f"the final adjustment stopped without converging ({r0 or n0}); adjusted again "
+                                       f"from there with up to {kw2['max_iterations']} iterations: {why2}; the first "
+                                       "adjustment kept as it stopped"]
+            else:
+                fa, cam, why, check = fa2, cam2, why2, check2
         if not why:
+            fa.focal_priors_used = {c: kw["focal_priors"][c] for c in kw.get("focal_priors", {})
+                                    if {"fx", "fy"} <= {n.lower() for n in sets.get(c, ())}}
             return fa, sets, steps
         held = ""
         if check == "focal" and cam is not None:

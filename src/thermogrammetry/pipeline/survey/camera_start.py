@@ -49,3 +49,14 @@ def _focal_prior(inputs: dict, rec, cam_index: int) -> float | None:
         return None
     f = [float(im["camera_guess"]["f_px"]) for im, c in zip(inputs["images"], rec.image_camera) if int(c) == cam_index]
     return float(np.median(f)) if f else None
+
+
+def _focal_prior_sigma(inputs: dict, rec, cam_index: int) -> float | None:
+    """σ (px) of :func:`_focal_prior`: the median ``camera_guess.focal_sigma_px`` of the camera's images (the lens's
+    nominal focal length, 5 %; the camera table's field of view with its tolerance), None when unknown."""
+    if _focal_prior(inputs, rec, cam_index) is None:
+        return None
+    s_ = [im["camera_guess"].get("focal_sigma_px") for im, c in zip(inputs["images"], rec.image_camera)
+          if int(c) == cam_index]
+    s_ = [float(v) for v in s_ if v is not None and np.isfinite(v) and v > 0]
+    return float(np.median(s_)) if s_ else None

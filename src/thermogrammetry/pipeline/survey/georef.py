@@ -16,7 +16,7 @@ from ...sfm.rig_block import rig_by_registration, rig_own_before, rig_refuse, ri
 from ...sfm.selfcal_ladder import FocalKnown, adjust_block
 from ...store import ProjectStore
 from .controls import _gnss_xyz, _read_manual_ties, _read_markers
-from .camera_start import _camera_start, _focal_from_exif, _focal_prior  # noqa: F401 (re-exported)
+from .camera_start import _camera_start, _focal_from_exif, _focal_prior, _focal_prior_sigma  # noqa: F401 (re-exported)
 from .inputs import _attitudes
 from .lowtexture import _low_texture_self_calibration, _low_texture_sequence_used
 from .options import SurveyInput, SurveyOptions
@@ -110,8 +110,12 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         # the final adjustment's options for this block (the images and the rig may change below)
         adjust_kw = dict(focal_known=focal_known, attitude_priors=geo and datum.from_attitude, tie_sigma_px=opt.tie_sigma_px,
                          max_error_px=opt.reconstruction.max_error_px, georeferenced=geo, manual_ties=t_obs or None)
+        # a block at its iteration limit whose centres contradict their GNSS is pruned below (wrong resections), not
+        # adjusted on from where it stopped
+        prunable = (lambda fa_: pre is not None and ci not in pruned_blocks  # noqa: B023 (called at once)
+                    and (gnss_far_share(rec, images, ctrl) > 0 or bool(fa_.gnss_rejected))) if geo else None
         if rigv is not None and not refused:
-            fa, cal_used, cal_steps = adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv,
+            fa, cal_used, cal_steps = adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, limit_handled=prunable,
                                                     compute_covariance=len(images) <= 2500, **adjust_kw)
             if not rigv.fixed:
                 ok, why = rig_estimate_accepted(rigv, fa)
@@ -129,12 +133,24 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             rigv = None
             fa = None
         if fa is None:
-            fa, cal_used, cal_steps = adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv,
+            fa, cal_used, cal_steps = adjust_block(rec, xy, images, ctrl, self_cal, rigv=rigv, limit_handled=prunable,
                                                     compute_covariance=len(images) <= 2500, **adjust_kw)
         release_free_heap()
         notes += [f"block {ci + 1}: {x}" for x in fa.notes]
         notes += [f"block {ci + 1}: {x}" for x in cal_steps]
         if cal_steps and cal_steps[-1].startswith("with the camera held fixed"):
+            if pre is not None and ci not in pruned_blocks and rigv is None:
+                # a few wrongly resected images (far from their GNSS after the orientation) can make the solve fail
+                # (their points' normal blocks near-singular): the block without them is adjusted once more
+                kept, nts = prune_gnss_contradicting(rec, pre, images, ctrl, names, ci,
+                                                      f"the final adjustment failed ({cal_steps[-1]})")
+                if kept is not None:
+                    notes += nts
+                    fa = None
+                    release_free_heap()
+                    pruned_blocks.add(ci)
+                    queue.insert(0, (ci, kept))
+                    continue
             # not even the orientation alone is determined: not an orientation
             why = (f"in block {ci + 1} ({len(images)} images) rejected: its geometry does not determine the "
                    f"orientation ({cal_steps[-1]})")
@@ -236,6 +252,9 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                         "converged": not no_sigma, **({"sigma_refused": no_sigma} if no_sigma else {}),
                         **({"first_termination": list(fa.first_termination)} if getattr(fa, "first_termination", None) else {}),
                         "self_calibration": sorted({n for v in cal_used.values() for n in v}),
+                        **({"focal_prior": {str(meta["camera_ids"][c]): {"f_px": f, "sigma_px": sg}
+                                            for c, (f, sg) in fa.focal_priors_used.items()}}
+                           if getattr(fa, "focal_priors_used", None) else {}),
                         "self_calibration_steps": cal_steps, **({"gnss_offset": gnss_off} if gnss_off else {}),
                         **({"added_at_gnss": [names[i] for i in images[n_own:]]} if len(images) > n_own else {})})
         if extendable:
@@ -290,7 +309,8 @@ def _self_calibration(project: ProjectStore, inp: SurveyInput, opt: SurveyOption
     focal_known = {k: _focal_from_exif(inputs, rec, k) for k in range(len(meta["camera_ids"]))}
     # the guard's reference: the files' (or the camera table's) focal length, not the last adjustment's
     focal_known = FocalKnown({k: v for k, v in focal_known.items()},
-                             {k: _focal_prior(inputs, rec, k) for k in range(len(meta["camera_ids"]))})
+                             {k: _focal_prior(inputs, rec, k) for k in range(len(meta["camera_ids"]))},
+                             {k: _focal_prior_sigma(inputs, rec, k) for k in range(len(meta["camera_ids"]))})
     self_cal, lt_note = _low_texture_self_calibration(project, meta["camera_ids"], self_cal, focal_known)
     notes += [lt_note] if lt_note else []
     return self_cal, focal_known, notes
