@@ -360,6 +360,15 @@ def test_real_m3t_gimbal_attitude_and_a_single_strip(m3t, tmp_path):
     assert abs(cam3["fx"] - 758.33) < 0.01 and abs(cam3["k1"] - cam_ref["k1"]) < 0.05
 
 
+def test_error_messages_print_bracketed_user_values_literally(tmp_path, capsys):
+    # a folder named like rich markup ("[red]...", "[nan, 1]"): printed as it is, not swallowed as a style tag
+    bad = tmp_path / "[nan, 1] [bold]frames"
+    bad.mkdir()
+    assert main(["survey", str(bad), "-o", str(tmp_path / "out"), "--workers", "0"]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "[nan, 1] [bold]frames" in err and err.startswith("error:")
+
+
 def test_float_tiff_without_unit_names_the_flag(tmp_path, capsys):
     import tifffile
 

@@ -109,8 +109,10 @@ def survey(
     console = Console(stderr=True)
 
     def fail(msg, code=2):
-        console.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
-        console.print(f"nothing was written to {out}", highlight=False)
+        # user data (file names, values such as "[nan, 1.0]") printed literally: no markup in them
+        console.print("error:", style="red", end=" ", highlight=False)
+        console.print(str(msg), markup=False, highlight=False, soft_wrap=True)
+        console.print(f"nothing was written to {out}", markup=False, highlight=False)
         raise typer.Exit(code)
 
     try:
@@ -133,15 +135,15 @@ def survey(
     dt = time.perf_counter() - t0
     console.print(f"{s['images_oriented']}/{s['images_total']} images oriented in {len(s['components'])} block(s) "
                   f"{s['components']}, reprojection RMS {s['reprojection_rms_px'] or float('nan'):.3f} px, "
-                  f"CRS {s['crs'] or 'local'} ({dt:.1f} s)", highlight=False)
+                  f"CRS {s['crs'] or 'local'} ({dt:.1f} s)", highlight=False, markup=False)
     for ax in ("checkpoints", "gcps"):
         d = s[ax]
         if d["n"]:
-            console.print(f"{ax}: n={d['n']} RMSE X {d['rmse_x']:.3f} Y {d['rmse_y']:.3f} Z {d['rmse_z']:.3f} m", highlight=False)
+            console.print(f"{ax}: n={d['n']} RMSE X {d['rmse_x']:.3f} Y {d['rmse_y']:.3f} Z {d['rmse_z']:.3f} m", highlight=False, markup=False)
     bad = [im for im in s["images"] if not im["oriented"]]
     for im in bad:
-        console.print(f"  not oriented: {im['name']}: {im['reason']}", highlight=False, soft_wrap=True)
-    console.print(f"outputs in {out}: cameras.json survey.json report.html colmap/ sparse.ply sparse.las", highlight=False)
+        console.print(f"  not oriented: {im['name']}: {im['reason']}", highlight=False, soft_wrap=True, markup=False)
+    console.print(f"outputs in {out}: cameras.json survey.json report.html colmap/ sparse.ply sparse.las", highlight=False, markup=False)
     if s["images_oriented"] == 0:
         raise typer.Exit(1)
 

@@ -321,7 +321,10 @@ def step_inputs(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, pro
         return f" ({'; '.join(notes)})" if notes else ""
 
     if not items:
-        raise DataFileError(f"no input images: the files/folders given hold no image or video files{skipped()}")
+        given = [str(x) for x in list(inp.images or []) + list(inp.rgb or [])]
+        shown = ", ".join(given[:5]) + (f" (+{len(given) - 5} more)" if len(given) > 5 else "")
+        raise DataFileError(f"no input images: {shown} hold(s) no image or video files (expected files ending "
+                            f"in {' '.join(sorted(IMAGE_SUFFIXES | VIDEO_SUFFIXES))}){skipped()}")
     failed: list[dict] = []
     slots: list[list] = [[] for _ in items]  # the decoded frames of each input, in the inputs' order
     used_names: set[str] = set()
