@@ -175,8 +175,11 @@ def check_gnss_offset(rec, xy, images, ctrl, self_cal, focal_known=None, **kw) -
         # with the self-calibration ladder and its focal-length guard (``focal_known``): a focal length run away on a
         # flat block (a projective twin) would move the heights, and the GNSS with them
         fa, _, _ = adjust_block(rec, xy, images, weak, self_cal, focal_known=focal_known, compute_covariance=True, **kw)
-        off = gnss_offset(rec.centers()[images], fa.center_std[images], ctrl.gnss_xyz[images], ctrl.gnss_sigma[images]) \
-            if fa.result.success else None
+        # a focal length that is not a user's calibration (the lens's nominal value, held or self-calibrated against
+        # it) leaves the flying height, hence the Z offset, as uncertain as itself on flat ground
+        fz = _focal_height_std(rec, images, ctrl, focal_known, self_cal)
+        off = gnss_offset(rec.centers()[images], fa.center_std[images], ctrl.gnss_xyz[images], ctrl.gnss_sigma[images],
+                          extra_std_m=(0.0, 0.0, fz)) if fa.result.success else None
     finally:
         restore_to(rec, snap)
     if off is None:
@@ -200,6 +203,25 @@ def check_gnss_offset(rec, xy, images, ctrl, self_cal, focal_known=None, **kw) -
                    f"{fmt(off.std_m)} m (GCP − GNSS): a datum or height-reference difference (ellipsoidal vs geoid or "
                    f"national heights, take-off altitude) or an antenna offset; the GNSS positions are shifted in "
                    f"{axes} by {fmt(shift)} m before the adjustment"]
+
+
+def _focal_height_std(rec, images, ctrl, focal_known, self_cal) -> float:
+    """σ (m) of the flying height from the focal length's prior: the largest relative σ of the block's cameras'
+    lens focal lengths (:class:`~thermogrammetry.sfm.selfcal_ladder.FocalKnown` ``priors()``) whose focal length
+    the survey was asked to self-calibrate (``self_cal``), times the median height of the camera centres above the
+    median GCP height; 0 without such a camera (a camera file held fixed)."""
+    pri = focal_known.priors() if hasattr(focal_known, "priors") else {}
+    cams = {int(c) for c in rec.image_camera[np.asarray(images)]}
+
+    def asked(c):
+        want = self_cal.get(c, ()) if isinstance(self_cal, dict) else (self_cal or ())
+        return "fx" in {str(n).lower() for n in want}
+
+    rel = [sg / f for c, (f, sg) in pri.items() if c in cams and f > 0 and asked(c)]
+    if not rel or not len(ctrl.gcp_xyz):
+        return 0.0
+    h = float(np.median(rec.centers()[images][:, 2]) - np.median(np.asarray(ctrl.gcp_xyz)[:, 2]))
+    return float(max(rel) * abs(h)) if np.isfinite(h) else 0.0
 
 
 def unregister_images(rec, images) -> None:

@@ -50,6 +50,30 @@ class FinalAdjustment:
     manual_ties: list = field(default_factory=list)  # dicts: id index, xyz, n_images, residuals px
     gnss_rejected: list = field(default_factory=list)  # image indices whose GNSS prior was left out (blunders)
     gnss_images: list = field(default_factory=list)  # image indices with a GNSS prior (used or rejected)
+    #: the GCP image measurements' σ (px) given (median) and estimated from their residuals in the last solve
+    #: (``sqrt(sum |v|^2 / (2 n - 3 G))``, n measurements of G GCPs) with its degrees of freedom; None when < 10
+    marker_sigma: dict | None = None
+
+
+#: degrees of freedom below which the GCP measurements' σ is not estimated from their residuals
+MARKER_SIGMA_MIN_DOF = 10
+
+
+def _marker_sigma(res, n_tie: int, gcp_obs: list) -> dict | None:
+    """The GCP image measurements' σ: given (median of the measurements' σ, px) and estimated from their
+    residuals of the last solve, ``sqrt(sum |v|^2 / (2 n - 3 G))`` (n measurements of G GCPs: each GCP's three
+    coordinates counted as unknowns, which their 1-2 cm σ nearly are not: the estimate errs on the large side).
+    None below :data:`MARKER_SIGMA_MIN_DOF` degrees of freedom."""
+    n = len(gcp_obs)
+    ng = len({o[1] for o in gcp_obs})
+    dof = 2 * n - 3 * ng
+    if dof < MARKER_SIGMA_MIN_DOF:
+        return None
+    v = np.asarray(res.image_residuals[n_tie:n_tie + n], float)
+    if len(v) != n or not np.all(np.isfinite(v)):
+        return None
+    given = float(np.median([float(np.max(o[3])) for o in gcp_obs]))
+    return {"given_px": given, "estimated_px": float(np.sqrt(np.sum(v**2) / dof)), "dof": int(dof)}
 
 
 #: Huber's k (in σ of the tie points) of the robust final adjustment (95 % efficiency under Gaussian errors)
@@ -395,6 +419,8 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
                          res.gnss_residuals if res.gnss_residuals is not None else np.zeros((0, 3)),
                          res.covariance, list(res.param_names or []), cstd, rstd, notes, gnss_rejected=gnss_rejected,
                          gnss_images=[int(i) for i in images[have_gnss | np.isin(images, gnss_rejected)]] if georeferenced else [])
+    fa.marker_sigma = _marker_sigma(res, n_tie, [ctrl.gcp_obs[k] for k in use_gcp]) if res.image_residuals is not None \
+        else None
     if tie_pts:
         fa.manual_ties = _manual_tie_results(res, p, tie_pts, n_tie + sum(1 for k in use_gcp), manual_ties, in_block)
     if slaves:

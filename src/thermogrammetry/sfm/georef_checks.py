@@ -37,13 +37,18 @@ def intersect_check_points(rec, fa: FinalAdjustment, ctrl: ControlInputs, *, eps
     Returns
     -------
     list of dict: ``id``, ``xyz`` (3,), ``std`` (3,) m (measurement + pose/camera covariance), ``error`` (3,)
-    (estimate - given), ``n_images``; check points seen in fewer than 2 oriented images are listed with
+    (estimate - given), ``n_images``, ``measurement_sigma_px`` (the measurements' σ used: the given one, or larger
+    when the GCP measurements' residuals show more scatter, ``fa.marker_sigma``); check points seen in fewer than 2 oriented images are listed with
     ``xyz`` None and a ``reason``.
     """
     from .reconstruction import triangulate_tracks
 
     out = []
     block = set(fa.images.tolist())
+    # measured like the GCPs: when the GCPs' residuals show their measurements scatter more than the σ given (or the
+    # default), the check points' measurements are taken to scatter as much (never less than given)
+    ms = getattr(fa, "marker_sigma", None)
+    scale = max(1.0, ms["estimated_px"] / ms["given_px"]) if ms and ms["given_px"] > 0 else 1.0
     names = fa.param_names
     index = {nm: k for k, nm in enumerate(names)}
     for ci, cid in enumerate(ctrl.check_ids):
@@ -54,7 +59,7 @@ def intersect_check_points(rec, fa: FinalAdjustment, ctrl: ControlInputs, *, eps
             continue
         ii = np.array([o[0] for o in obs])
         xy = np.array([o[1] for o in obs])
-        sig = np.array([o[2] for o in obs])
+        sig = np.array([o[2] for o in obs]) * scale
         rays = np.concatenate([rec.cameras[rec.image_camera[i]].unproject(xy[k:k + 1])[:, :2] for k, i in enumerate(ii)])
         X, _ = triangulate_tracks(np.array([0]), np.zeros(len(ii), int), rec.R[ii], rec.t[ii], rays)
         X = X[0]
@@ -141,7 +146,8 @@ def intersect_check_points(rec, fa: FinalAdjustment, ctrl: ControlInputs, *, eps
                 cov = cov + G @ S @ G.T
         std = np.sqrt(np.diag(cov))
         X = X + origin
-        out.append({"id": cid, "xyz": X, "std": std, "cov": cov, "error": X - ctrl.check_xyz[ci], "n_images": len(obs), "reason": ""})
+        out.append({"id": cid, "xyz": X, "std": std, "cov": cov, "error": X - ctrl.check_xyz[ci], "n_images": len(obs),
+                    "reason": "", "measurement_sigma_px": float(np.median(sig))})
     return out
 
 

@@ -48,7 +48,7 @@ class GnssOffset:
 GNSS_OFFSET_MIN_GCPS = 3
 
 
-def gnss_offset(centers_m, center_std_m, gnss_xyz, gnss_sigma) -> GnssOffset | None:
+def gnss_offset(centers_m, center_std_m, gnss_xyz, gnss_sigma, extra_std_m=None) -> GnssOffset | None:
     """Constant offset of the GNSS positions against camera centres adjusted on the GCPs alone.
 
     GNSS heights of drones are ellipsoidal, above the EGM96 geoid or above the take-off point, depending on
@@ -62,9 +62,16 @@ def gnss_offset(centers_m, center_std_m, gnss_xyz, gnss_sigma) -> GnssOffset | N
     height of the ground; that is why it is not estimated from the GNSS-placed block before the adjustment.
     An axis is *significant* when its offset exceeds 5 σ and 3 × the median GNSS σ.
 
+    That separation needs ground of varied height: over a flat field the GCPs fix the ground but not the flying
+    height (f -> s f with every camera at s times its height above the ground leaves every image point in place), so
+    the Z offset is then as uncertain as the focal length. ``extra_std_m`` (3,) is added in quadrature to the σ for
+    that (the survey passes the lens's relative focal-length σ times the flying height when the focal length is not
+    a user's calibration).
+
     Parameters
     ----------
     centers_m, center_std_m, gnss_xyz, gnss_sigma : (n, 3) arrays, metres; NaN rows are skipped
+    extra_std_m : (3,) array, metres, optional
 
     Returns
     -------
@@ -77,6 +84,8 @@ def gnss_offset(centers_m, center_std_m, gnss_xyz, gnss_sigma) -> GnssOffset | N
     d = C[ok] - G[ok]
     med = np.median(d, axis=0)
     std = np.median(S[ok], axis=0)
+    if extra_std_m is not None:
+        std = np.hypot(std, np.asarray(extra_std_m, float))
     g_sig = np.median(GS[ok], axis=0) if np.isfinite(GS[ok]).all() else np.full(3, np.inf)
     significant = (np.abs(med) > 5 * std) & (np.abs(med) > 3 * g_sig)
     return GnssOffset(med, std, int(ok.sum()), significant)

@@ -256,6 +256,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                                             for c, (f, sg) in fa.focal_priors_used.items()}}
                            if getattr(fa, "focal_priors_used", None) else {}),
                         "self_calibration_steps": cal_steps, **({"gnss_offset": gnss_off} if gnss_off else {}),
+                        **({"marker_sigma": fa.marker_sigma} if getattr(fa, "marker_sigma", None) else {}),
                         **({"added_at_gnss": [names[i] for i in images[n_own:]]} if len(images) > n_own else {})})
         if extendable:
             second_pass.append((len(fa_all) - 1, len(results) - 1, adjust_kw, cal_used, cal_steps))
