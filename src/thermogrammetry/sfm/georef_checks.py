@@ -37,18 +37,18 @@ def intersect_check_points(rec, fa: FinalAdjustment, ctrl: ControlInputs, *, eps
     Returns
     -------
     list of dict: ``id``, ``xyz`` (3,), ``std`` (3,) m (measurement + pose/camera covariance), ``error`` (3,)
-    (estimate - given), ``n_images``, ``measurement_sigma_px`` (the measurements' σ used: the given one, or larger
-    when the GCP measurements' residuals show more scatter, ``fa.marker_sigma``); check points seen in fewer than 2 oriented images are listed with
+    (estimate - given), ``n_images``, ``measurement_sigma_px`` (the measurements' σ used: the given one scaled by
+    the GCP measurements' estimated over given σ, ``fa.marker_sigma``); check points seen in fewer than 2 oriented images are listed with
     ``xyz`` None and a ``reason``.
     """
     from .reconstruction import triangulate_tracks
 
     out = []
     block = set(fa.images.tolist())
-    # measured like the GCPs: when the GCPs' residuals show their measurements scatter more than the σ given (or the
-    # default), the check points' measurements are taken to scatter as much (never less than given)
+    # measured like the GCPs: the check points' measurements are taken to scatter as the GCPs' residuals show theirs
+    # to (a variance component of the marker measurements, more or less than the σ given or the default)
     ms = getattr(fa, "marker_sigma", None)
-    scale = max(1.0, ms["estimated_px"] / ms["given_px"]) if ms and ms["given_px"] > 0 else 1.0
+    scale = float(np.clip(ms["estimated_px"] / ms["given_px"], 0.1, 10.0)) if ms and ms["given_px"] > 0 else 1.0
     names = fa.param_names
     index = {nm: k for k, nm in enumerate(names)}
     for ci, cid in enumerate(ctrl.check_ids):
