@@ -142,14 +142,10 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             if pre is not None and ci not in pruned_blocks and rigv is None:
                 # a few wrongly resected images (far from their GNSS after the orientation) can make the solve fail
                 # (their points' normal blocks near-singular): the block without them is adjusted once more
-                kept, nts = prune_gnss_contradicting(rec, pre, images, ctrl, names, ci,
-                                                      f"the final adjustment failed ({cal_steps[-1]})")
-                if kept is not None:
-                    notes += nts
+                if _prune_requeue(rec, pre, images, ctrl, names, ci, f"the final adjustment failed ({cal_steps[-1]})",
+                                  notes, pruned_blocks, queue):
                     fa = None
                     release_free_heap()
-                    pruned_blocks.add(ci)
-                    queue.insert(0, (ci, kept))
                     continue
             # not even the orientation alone is determined: not an orientation
             why = (f"in block {ci + 1} ({len(images)} images) rejected: its geometry does not determine the "
@@ -196,16 +192,12 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
             # the adjustment found no minimum and some centres contradict their GNSS: a few wrongly resected images
             # can be the cause. The block as the orientation left it, without the images that no similarity puts
             # near their GNSS (sfm.georef.gnss_consensus), is adjusted once more
-            kept, nts = prune_gnss_contradicting(rec, pre, images, ctrl, names, ci,
-                                                  f"the final adjustment did not converge ({fa.result.reason}) with "
-                                                  f"{100 * far:.0f} % of the centres > {GNSS_FLAG_SIGMA:g} σ from their "
-                                                  f"GNSS and {len(fa.gnss_rejected)} GNSS position(s) rejected")
-            if kept is not None:
-                notes += nts
+            if _prune_requeue(rec, pre, images, ctrl, names, ci,
+                              f"the final adjustment did not converge ({fa.result.reason}) with {100 * far:.0f} % of "
+                              f"the centres > {GNSS_FLAG_SIGMA:g} σ from their GNSS and {len(fa.gnss_rejected)} GNSS "
+                              "position(s) rejected", notes, pruned_blocks, queue):
                 fa = None
                 release_free_heap()
-                pruned_blocks.add(ci)
-                queue.insert(0, (ci, kept))
                 continue
         rot_sigma = block_rotation_sigma(fa, images) if geo and precise_datum(datum, ctrl, images) else 0.0
         if (rot_sigma > BLOCK_ROTATION_SIGMA_DEG and pre is not None and ci not in attitude_blocks
@@ -274,6 +266,19 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                          extra=extra, rig_only={k: w for k, w in rig_only.items() if oriented[k]})
     out["seconds_georef"] = time.perf_counter() - t0
     return out
+
+
+def _prune_requeue(rec, pre, images, ctrl, names, ci, why, notes, pruned_blocks, queue) -> bool:
+    """Block ``ci`` without its wrongly resected images (:func:`~thermogrammetry.sfm.block_gates.prune_gnss_contradicting`
+    from the orientation's state ``pre``) put first in ``queue`` to be adjusted again, once per block; False (nothing
+    changed) when no such images are found."""
+    kept, nts = prune_gnss_contradicting(rec, pre, images, ctrl, names, ci, why)
+    if kept is None:
+        return False
+    notes += nts
+    pruned_blocks.add(ci)
+    queue.insert(0, (ci, kept))
+    return True
 
 
 def _controls(inp: SurveyInput, opt: SurveyOptions, inputs: dict, names: list):
