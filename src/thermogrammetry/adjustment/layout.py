@@ -168,10 +168,7 @@ class Data:
         self.g_pose, self.g_xyz, self.g_sig, self.g_lever = pb.gnss_observations()
         self.d_a, self.d_b, self.d_len, self.d_sig = pb.distance_observations()
         self.pl_k, self.pl_pt, self.pl_sig = pb.plane_observations()
-        self.q_cam, self.q_k, self.q_val, self.q_sig = (pb.camera_prior_observations()
-                                                        if hasattr(pb, "camera_prior_observations") else
-                                                        (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0),
-                                                         np.zeros(0)))
+        self.q_cam, self.q_k, self.q_val, self.q_sig = pb.camera_prior_observations()
         self.a_pose, self.a_R, self.a_sig = pb.attitude_observations()
         # rows: image observations, control, GNSS, planes, distances, camera priors, attitude (the last)
         self.m = (2 * self.K + 3 * len(self.c_pt) + 3 * len(self.g_pose) + len(self.d_a) + len(self.pl_k)

@@ -112,7 +112,6 @@ def _gauge_basis(pb, lay, st):
     return G, E
 
 
-
 def _eigvalsh(A: np.ndarray) -> np.ndarray:
     """Ascending eigenvalues of the symmetric ``A`` (n, n), of a copy (``A`` is kept). LAPACK's default driver
     (``syevr``) can stop without converging on an ill-conditioned reduced matrix ("Internal Error", seen with

@@ -47,7 +47,7 @@ def intersect_check_points(rec, fa: FinalAdjustment, ctrl: ControlInputs, *, eps
     block = set(fa.images.tolist())
     # measured like the GCPs: the check points' measurements are taken to scatter as the GCPs' residuals show theirs
     # to (a variance component of the marker measurements, more or less than the σ given or the default)
-    ms = getattr(fa, "marker_sigma", None)
+    ms = fa.marker_sigma
     scale = float(np.clip(ms["estimated_px"] / ms["given_px"], 0.1, 10.0)) if ms and ms["given_px"] > 0 else 1.0
     names = fa.param_names
     index = {nm: k for k, nm in enumerate(names)}

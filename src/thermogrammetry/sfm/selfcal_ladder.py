@@ -185,17 +185,23 @@ def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dic
         kw = {**kw, "focal_priors": {c: v for c, v in fp.items() if c in cams_in}}
     ladder = ladder_sets(self_cal, cams_in)
     level = {c: 0 for c in cams_in}
-    snap = snapshot_of(rec)
-    rig0 = (rigv.R.copy(), rigv.t.copy()) if rigv is not None else None
+
+    def keep():  # the block's state (and the rig's) to come back to
+        return snapshot_of(rec), ((rigv.R.copy(), rigv.t.copy()) if rigv is not None else None)
+
+    def back(state):
+        restore_to(rec, state[0])
+        if state[1] is not None:
+            rigv.R, rigv.t = state[1][0].copy(), state[1][1].copy()
+
+    start_state = keep()
     steps: list[str] = []
     first = True
     names = lambda v: ", ".join(v) or "nothing"  # noqa: E731
     while True:
         sets = {c: ladder[c][level[c]] for c in cams_in}
         if not first:
-            restore_to(rec, snap)
-            if rig0 is not None:
-                rigv.R, rigv.t = rig0[0].copy(), rig0[1].copy()
+            back(start_state)
         first = False
         fa = final_adjustment(rec, xy, images, ctrl, self_calibrate=sets, rig=rigv, **kw)
         fa.cameras_after = {c: rec.cameras[c] for c in cams_in}
@@ -206,8 +212,7 @@ def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dic
             # stopped at the iteration limit, not converged: adjusted again once from where it stopped (its
             # state is in ``rec``) with more iterations, and that adjustment checked like the first
             n0, r0 = fa.result.iterations, fa.result.reason
-            snap_limit = snapshot_of(rec)
-            rig_limit = (rigv.R.copy(), rigv.t.copy()) if rigv is not None else None
+            at_limit = keep()
             kw2 = {**kw, "max_iterations": max(MAX_ITERATIONS_RETRY, 4 * int(kw.get("max_iterations", 50)))}
             fa2 = final_adjustment(rec, xy, images, ctrl, self_calibrate=sets, rig=rigv, **kw2)
             fa2.cameras_after = {c: rec.cameras[c] for c in cams_in}
@@ -220,9 +225,7 @@ def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dic
             cam2, why2, check2 = intrinsics_check(fa2, start, sets, focal_known)
             if why2 and cam2 is None:
                 # the second solve failed outright (e.g. its precision step): the first adjustment, as it stopped
-                restore_to(rec, snap_limit)
-                if rig_limit is not None:
-                    rigv.R, rigv.t = rig_limit[0].copy(), rig_limit[1].copy()
+                back(at_limit)
                 fa.notes = fa.notes + [f"the final adjustment stopped without converging ({r0 or n0}); adjusted again "
                                        f"from there with up to {kw2['max_iterations']} iterations: {why2}; the first "
                                        "adjustment kept as it stopped"]

@@ -54,7 +54,7 @@ def _focal_prior(inputs: dict, rec, cam_index: int) -> float | None:
 def _focal_prior_sigma(inputs: dict, rec, cam_index: int) -> float | None:
     """σ (px) of :func:`_focal_prior`: the median ``camera_guess.focal_sigma_px`` of the camera's images (the lens's
     nominal focal length, 5 %; the camera table's field of view with its tolerance), None when unknown."""
-    if _focal_prior(inputs, rec, cam_index) is None:
+    if not _focal_from_exif(inputs, rec, cam_index):
         return None
     s_ = [im["camera_guess"].get("focal_sigma_px") for im, c in zip(inputs["images"], rec.image_camera)
           if int(c) == cam_index]

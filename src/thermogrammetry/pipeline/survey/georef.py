@@ -111,7 +111,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         adjust_kw = dict(focal_known=focal_known, attitude_priors=geo and datum.from_attitude, tie_sigma_px=opt.tie_sigma_px,
                          max_error_px=opt.reconstruction.max_error_px, georeferenced=geo, manual_ties=t_obs or None)
         # a block at its iteration limit whose centres contradict their GNSS is pruned below (wrong resections), not
-        # adjusted on from where it stopped
+        # adjusted on from where it stopped (the same test decides the pruning there)
         prunable = (lambda fa_: pre is not None and ci not in pruned_blocks  # noqa: B023 (called at once)
                     and (gnss_far_share(rec, images, ctrl) > 0 or bool(fa_.gnss_rejected))) if geo else None
         if rigv is not None and not refused:
@@ -188,7 +188,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
         far = gnss_far_share(rec, images, ctrl) if geo else 0.0
         # at its iteration limit, also if a second adjustment from there converged (selfcal_ladder.adjust_block)
         at_limit = fa.result.termination is Termination.MAX_ITERATIONS or bool(getattr(fa, "first_termination", None))
-        if (pre is not None and ci not in pruned_blocks and at_limit and (far > 0 or fa.gnss_rejected)):
+        if at_limit and prunable is not None and prunable(fa):
             # the adjustment found no minimum and some centres contradict their GNSS: a few wrongly resected images
             # can be the cause. The block as the orientation left it, without the images that no similarity puts
             # near their GNSS (sfm.georef.gnss_consensus), is adjusted once more
@@ -248,7 +248,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                                             for c, (f, sg) in fa.focal_priors_used.items()}}
                            if getattr(fa, "focal_priors_used", None) else {}),
                         "self_calibration_steps": cal_steps, **({"gnss_offset": gnss_off} if gnss_off else {}),
-                        **({"marker_sigma": fa.marker_sigma} if getattr(fa, "marker_sigma", None) else {}),
+                        **({"marker_sigma": fa.marker_sigma} if fa.marker_sigma else {}),
                         **({"added_at_gnss": [names[i] for i in images[n_own:]]} if len(images) > n_own else {})})
         if extendable:
             second_pass.append((len(fa_all) - 1, len(results) - 1, adjust_kw, cal_used, cal_steps))

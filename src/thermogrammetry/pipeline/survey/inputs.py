@@ -118,19 +118,23 @@ def _camera_guess(width, height, md) -> dict:
             break
     table = ({"camera_table": {"camera": tab.camera, "native_size": list(tab.native_size), "upscale": tab.upscale,
                                "how": tab.how, "source": tab.source}} if tab is not None else {})
+
+    def guess(f, source, pitch_um, focal_source, sigma_px):
+        return {"f_px": f, "source": source, "pitch_um": pitch_um, "focal_source": focal_source,
+                "focal_sigma_px": sigma_px, **table}
+
+    def exif_pitch(pitch_um):
+        f = focal / (pitch_um * 1e-3)
+        return guess(f, f"EXIF focal {focal:g} mm / pitch {pitch_um:g} µm", pitch_um, "exif", LENS_FOCAL_SIGMA * f)
+
     if focal and pitch:
-        f = focal / (pitch * 1e-3)
-        return {"f_px": f, "source": f"EXIF focal {focal:g} mm / pitch {pitch:g} µm", "pitch_um": pitch,
-                "focal_source": "exif", "focal_sigma_px": LENS_FOCAL_SIGMA * f, **table}
+        return exif_pitch(pitch)
     if focal and tab is not None and tab.f_px and tab.pixel_pitch_um:
-        return {"f_px": tab.f_px, "source": f"EXIF {tab.how}", "pitch_um": tab.pixel_pitch_um,
-                "focal_source": f"camera_table:{tab.camera}", "focal_sigma_px": tab.sigma_px, **table}
+        return guess(tab.f_px, f"EXIF {tab.how}", tab.pixel_pitch_um, f"camera_table:{tab.camera}", tab.sigma_px)
     if pitch is None and str(model).upper() in _PITCH_UM:
         pitch = _PITCH_UM[model.upper()]
         if focal:
-            f = focal / (pitch * 1e-3)
-            return {"f_px": f, "source": f"EXIF focal {focal:g} mm / pitch {pitch:g} µm", "pitch_um": pitch,
-                    "focal_source": "exif", "focal_sigma_px": LENS_FOCAL_SIGMA * f, **table}
+            return exif_pitch(pitch)
     if f35:
         try:
             f35 = float(f35)
@@ -138,17 +142,14 @@ def _camera_guess(width, height, md) -> dict:
             f35 = None
     if f35:
         f = f35 * np.hypot(width, height) / 43.2666
-        return {"f_px": f, "source": f"EXIF 35 mm-equivalent focal {f35:g} mm", "pitch_um": pitch,
-                "focal_source": "exif", "focal_sigma_px": LENS_FOCAL_SIGMA * f, **table}
+        return guess(f, f"EXIF 35 mm-equivalent focal {f35:g} mm", pitch, "exif", LENS_FOCAL_SIGMA * f)
     if tab is not None and tab.f_px:
-        return {"f_px": tab.f_px, "source": f"no focal length in the file: {tab.how}",
-                "pitch_um": tab.pixel_pitch_um, "focal_source": f"camera_table:{tab.camera}",
-                "focal_sigma_px": tab.sigma_px, **table}
+        return guess(tab.f_px, f"no focal length in the file: {tab.how}", tab.pixel_pitch_um,
+                     f"camera_table:{tab.camera}", tab.sigma_px)
     if focal:
-        return {"f_px": focal / 0.017, "source": f"EXIF focal {focal:g} mm, pixel pitch assumed 17 µm", "pitch_um": 17.0,
-                "focal_source": "assumed", "focal_sigma_px": None, **table}
-    return {"f_px": 1.0 * max(width, height), "source": "no focal length in the file: 1.0 x image width assumed (self-calibrated)",
-            "pitch_um": None, "focal_source": "default", "focal_sigma_px": None, **table}
+        return guess(focal / 0.017, f"EXIF focal {focal:g} mm, pixel pitch assumed 17 µm", 17.0, "assumed", None)
+    return guess(1.0 * max(width, height), "no focal length in the file: 1.0 x image width assumed (self-calibrated)",
+                 None, "default", None)
 
 
 def frame_values(im, path, counts_dtype=np.uint16) -> tuple[str, np.ndarray, str]:
