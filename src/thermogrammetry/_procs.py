@@ -19,7 +19,13 @@ _PR_SET_PDEATHSIG = 1
 
 
 def die_with_parent(parent_pid: int | None = None) -> str:
-    """Make this (worker) process end when its parent ends; returns the mechanism used."""
+    """Make this (worker) process end when its parent ends; returns the mechanism used.
+
+    The worker also leaves Ctrl-C and SIGTERM to its parent (:func:`~thermogrammetry._interrupt.worker_ignores_sigint`),
+    which ends it as it unwinds."""
+    from ._interrupt import worker_ignores_sigint
+
+    worker_ignores_sigint()
     parent = os.getppid() if parent_pid is None else int(parent_pid)
     try:
         import ctypes

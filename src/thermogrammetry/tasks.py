@@ -83,8 +83,12 @@ def local_cluster(workers: int, scheduler: str | None = None) -> Iterator[str | 
     check_workers(workers, scheduler)
     from distributed import LocalCluster
 
-    cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=":0",
-                           silence_logs=40)
+    from ._interrupt import children_ignore_sigint
+
+    with children_ignore_sigint():  # a Ctrl-C reaches this process, which closes the cluster (no worker tracebacks)
+        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=":0",
+                               silence_logs=50)  # CRITICAL: task errors reach the caller as exceptions; a closing
+                               # cluster's heartbeat errors are noise
     try:
         yield cluster.scheduler_address
     finally:
@@ -102,7 +106,12 @@ def open_client(workers: int = 1, scheduler: str | None = None):
         check_workers(workers, scheduler)
         from distributed import Client, LocalCluster
 
-        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None)
+        from ._interrupt import children_ignore_sigint
+
+        with children_ignore_sigint():
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None,
+                                   silence_logs=50)  # CRITICAL: task errors reach the caller as exceptions; a closing
+                               # cluster's heartbeat errors are noise
         return Client(cluster)
     return None
 

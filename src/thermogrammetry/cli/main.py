@@ -24,18 +24,25 @@ def _register() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status."""
+    from .._interrupt import Interrupted, install_handlers, restore_handlers
     from .._memory import bound_heap_growth
 
     bound_heap_growth()  # long numeric runs: freed temporaries go back to the system (results unchanged)
     _register()
+    install_handlers()  # Ctrl-C / SIGTERM: one line, exit 130 / 143, OUT as before (see thermogrammetry._interrupt)
     try:
         app(args=argv, prog_name="thermogrammetry", standalone_mode=True)
     except SystemExit as exc:  # typer/click exit
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 1)
+    except Interrupted as exc:
+        print(f"thermogrammetry: {exc}; stopped, nothing written to OUT by this run", file=sys.stderr, flush=True)
+        return exc.exit_status
     except (ThermogrammetryError, MemoryError, OSError, UnicodeError) as exc:
         # last line of defence: a bad input a verb did not catch still ends in one paragraph and exit 2
         return _fail(exc)
+    finally:
+        restore_handlers()
     return 0
 
 
