@@ -92,3 +92,20 @@ def test_plan_cli_bad_input_exit_2(tmp_path, capsys, args, msg):
     assert main(base + args) == 2
     assert msg in " ".join(capsys.readouterr().err.split())
     assert not (tmp_path / "p").exists()
+
+
+def test_an_area_needing_too_many_photos_is_refused_at_once_and_the_cap_can_be_raised(tmp_path):
+    """A 1-degree square (~111 x 111 km) at 5 cm GSD would need ~10^9 photos: refused before any waypoint, naming
+    the area, the estimate and the cap; a small area passes a lowered cap only when it fits under it."""
+    square = [[0, 0], [111_000, 0], [111_000, 111_000], [0, 111_000]]
+    with pytest.raises(ConfigError, match=r"area of 1\.23e\+04 km\^2 at a GSD of 5 cm: about 1\.88e\+08 photos "
+                                          r"\(\d+ lines\), above the cap of 200000 photos.*--max-photos"):
+        plan_flight(1000.0, (640, 512), square, gsd_m=0.05)
+    small = [[0, 0], [200, 0], [200, 100], [0, 100]]
+    p = plan_flight(1000.0, (640, 512), small, gsd_m=0.05)
+    with pytest.raises(ConfigError, match="above the cap of 10 photos"):
+        plan_flight(1000.0, (640, 512), small, gsd_m=0.05, max_photos=10)
+    assert plan_flight(1000.0, (640, 512), small, gsd_m=0.05, max_photos=p.n_photos + 50).n_photos == p.n_photos
+    assert main(["plan", "--focal-px", "1000", "--image-size", "640x512", "--gsd", "0.05", "--corners",
+                 "0,0 111000,0 111000,111000 0,111000", "-o", str(tmp_path / "OUT")]) == 2
+    assert not (tmp_path / "OUT").exists()

@@ -39,6 +39,8 @@ def plan(
     speed: Optional[float] = typer.Option(None, "--speed", help="Ground speed (m/s): flight time and trigger interval."),
     fps: Optional[float] = typer.Option(None, "--fps", help="Video frame rate (Hz): frame-extraction stride and rate."),
     ground_z: float = typer.Option(0.0, "--ground-z", help="Ground elevation (m) added to the height in waypoints.csv."),
+    max_photos: Optional[int] = typer.Option(None, "--max-photos", help="Refuse a plan needing more photos than this "
+                                                                      "(default 200000)."),
 ) -> None:
     """Plan a survey flight: height from the GSD, lines, triggers, video extraction rate (Khodaei et al. 2015)."""
     import numpy as np
@@ -97,7 +99,8 @@ def plan(
             if xy.ndim != 2 or xy.shape[1] != 2:
                 raise ConfigError(f"--corners {corners!r}: expected pairs E,N separated by spaces")
         p = plan_flight(f_px, size, xy, gsd_m=gsd, height_m=height, forward_overlap=forward, sidelap=sidelap,
-                        heading_deg=heading, speed_mps=speed, video_fps=fps, ground_z_m=ground_z, crs=crs)
+                        heading_deg=heading, speed_mps=speed, video_fps=fps, ground_z_m=ground_z, crs=crs,
+                        max_photos=max_photos)
         lonlat = None
         if crs is not None and p.waypoints:
             tr = Transformer.from_crs(CRS.from_user_input(crs), 4326, always_xy=True)

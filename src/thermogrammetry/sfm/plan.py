@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import ConfigError, DataFileError
 
-__all__ = ["FlightPlan", "Waypoint", "plan_flight", "read_area", "waypoints_csv", "waypoints_kml", "utm_epsg"]
+__all__ = ["FlightPlan", "Waypoint", "plan_flight", "read_area", "waypoints_csv", "waypoints_kml", "utm_epsg", "DEFAULT_MAX_PHOTOS"]
 
 
 @dataclass(frozen=True)
@@ -126,10 +126,14 @@ def _line_intervals(poly: np.ndarray, y: float) -> list[tuple[float, float]]:
     return [(xs[k], xs[k + 1]) for k in range(0, len(xs) - 1, 2)]
 
 
+#: photos per plan above which :func:`plan_flight` refuses (a mission of several thousand frames is far below it)
+DEFAULT_MAX_PHOTOS = 200_000
+
+
 def plan_flight(focal_px: float, image_size: tuple[int, int], area_xy, *, gsd_m: float | None = None,
                 height_m: float | None = None, forward_overlap: float = 0.8, sidelap: float = 0.6,
                 heading_deg: float | None = None, speed_mps: float | None = None, video_fps: float | None = None,
-                ground_z_m: float = 0.0, crs: str | None = None) -> FlightPlan:
+                ground_z_m: float = 0.0, crs: str | None = None, max_photos: int | None = None) -> FlightPlan:
     """Plan parallel flight lines over a polygon.
 
     Parameters
@@ -151,6 +155,10 @@ def plan_flight(focal_px: float, image_size: tuple[int, int], area_xy, *, gsd_m:
         Ground speed; with a video frame rate as well, the frame-extraction stride and rate.
     ground_z_m : float
         Ground elevation added to the flight height in the waypoints' z.
+    max_photos : int, optional
+        Refuse an area that needs more photos than this (default :data:`DEFAULT_MAX_PHOTOS`), judged from the
+        area's bounding box in the flight frame before any waypoint is made: a mistyped GSD or a 1-degree square
+        is refused at once instead of planning millions of waypoints.
 
     Returns
     -------
@@ -209,6 +217,14 @@ def plan_flight(focal_px: float, image_size: tuple[int, int], area_xy, *, gsd_m:
     reach = across / 2 - (m - 1) * spacing
     n_lines = max(1, int(np.ceil((vmax - vmin - 2 * reach) / spacing - 1e-9)) + 1)
     v0 = 0.5 * (vmin + vmax) - 0.5 * (n_lines - 1) * spacing
+    cap = DEFAULT_MAX_PHOTOS if max_photos is None else int(max_photos)
+    if cap < 1:
+        raise ConfigError(f"max_photos={max_photos!r}: expected a positive number of photos")
+    bound = n_lines * (np.ceil((uv[:, 0].max() - uv[:, 0].min() + along) / trigger) + 1)
+    if bound > cap:
+        raise ConfigError(f"area of {area / 1e6:.3g} km^2 at a GSD of {gsd * 100:.3g} cm: about {bound:.3g} photos "
+                          f"({n_lines} lines), above the cap of {cap} photos per plan; check the area and the GSD, or "
+                          f"raise the cap (--max-photos N)")
     wps: list[Waypoint] = []
     length = 0.0
     photos = 0
