@@ -374,6 +374,16 @@ def test_cli_texture_bad_input(cli_out, tmp_path, capsys):
     assert "far.obj" in err and "no face of the mesh" in err and "camera centres" in err and "Traceback" not in err
     assert "2600" in err  # the mesh extent in the message
     assert not (tmp_path / "o").exists()
+    # a mesh above the face cap is refused before any work, naming the file, its count and the cap
+    n_faces = len(m.faces)
+    assert main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o"),
+                 "--max-faces", str(n_faces - 1)]) == 2
+    err = capsys.readouterr().err
+    assert "mesh.obj" in err and f"{n_faces} triangles, above the cap of {n_faces - 1}" in err and "--max-faces" in err
+    assert not (tmp_path / "o").exists()
+    assert main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o"),
+                 "--max-faces", "0"]) == 2
+    assert "max_faces=0" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------- browser

@@ -39,6 +39,8 @@ def texture(
     texel_size: Optional[float] = typer.Option(None, "--texel-size", help="Texel size in metres (default: half the surface pixel size)."),
     fit_poses: str = typer.Option("auto", "--fit-poses", help="auto: fit the poses to the mesh, then refine them photometrically "
                                   "(poses only); mesh: the first step; off: as they are (see docs/verbs/texture.md)."),
+    max_faces: Optional[int] = typer.Option(None, "--max-faces", help="Refuse a mesh of more triangles than this "
+                                                                    "(default 2000000)."),
 ) -> None:
     """Texture a mesh with temperatures: best image per face, occlusion by ray casting, source of every texel."""
     from rich.console import Console
@@ -55,7 +57,7 @@ def texture(
         cfg = TextureConfig(texel_size_m=texel_size)
         if out.exists() and not out.is_dir():
             raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
-        d = run_texture(survey_dir, mesh, out, unit=None if u is None else u.value, correct=correct, levelling=lev.value, rig_path=rig, config=cfg,
+        d = run_texture(survey_dir, mesh, out, unit=None if u is None else u.value, correct=correct, levelling=lev.value, rig_path=rig, config=cfg, max_faces=max_faces,
                         fit_poses=fit_poses)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         print_error(console, exc)

@@ -59,7 +59,7 @@ import numpy as np
 
 from ..errors import ConfigError, DataFileError, InvalidInputError, ThermogrammetryError, UnsupportedFormatError
 
-__all__ = ["read_mesh", "frames_unit", "load_views", "check_views_unit", "load_rig_views", "run_texture", "texture_report_html"]
+__all__ = ["DEFAULT_MAX_FACES", "read_mesh", "frames_unit", "load_views", "check_views_unit", "load_rig_views", "run_texture", "texture_report_html"]
 
 #: ``fit_poses`` choices: ``auto`` = tie points onto the mesh, then the photometric refinement; ``mesh`` = the first
 #: only; ``off`` = the poses of cameras.json
@@ -69,10 +69,17 @@ FIT_POSES = ("auto", "mesh", "off")
 TEXTURE_UNITS = ("K", "counts")
 
 
-def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
+#: triangles a mesh may have for ``texture`` (``max_faces``): a building's model has 10^4-10^6; a 5 M-face scan
+#: ran for minutes at 4.5 GB with no progress. Raise it with ``--max-faces N`` (or decimate the mesh).
+DEFAULT_MAX_FACES = 2_000_000
+
+
+def read_mesh(path, *, max_faces: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) and triangles (F, 3) of an OBJ, PLY, STL, glTF/GLB or OFF file (trimesh).
 
-    Scenes are concatenated in their world placement; quads are split into triangles.
+    Scenes are concatenated in their world placement; quads are split into triangles. A mesh of more than
+    ``max_faces`` triangles (default: no cap; the texture verb passes :data:`DEFAULT_MAX_FACES`) is refused,
+    naming the file, its face count and the cap.
     """
     import trimesh
 
@@ -87,6 +94,9 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     F = np.asarray(getattr(m, "faces", np.zeros((0, 3))), np.int64)
     if len(V) < 3 or len(F) < 1:
         raise InvalidInputError(f"{p}: the mesh has {len(V)} vertices and {len(F)} faces; expected a triangle mesh")
+    if max_faces is not None and len(F) > int(max_faces):
+        raise InvalidInputError(f"{p}: the mesh has {len(F)} triangles, above the cap of {int(max_faces)}; decimate it "
+                                f"(a texel grid is finer than the faces anyway) or raise the cap (--max-faces N)")
     return V, F
 
 
@@ -553,7 +563,7 @@ def _link_frame(cameras, im: dict, store) -> str:
 
 
 def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, correct: bool = False, levelling: str = "none",
-                rig_path=None, config=None, progress=None, fit_poses: str = "auto") -> dict:
+                rig_path=None, config=None, progress=None, fit_poses: str = "auto", max_faces: int | None = None) -> dict:
     """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict.
 
     ``unit``: ``"K"`` or ``"C"`` for kelvin frames (default ``"K"``); must stay ``None`` for frames in raw counts
@@ -562,7 +572,8 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     (:func:`fit_views_to_mesh`; kept only when the mesh and the tie points meet and the fit converges without
     bending the block; ``texture.json`` ``pose_fit`` says what happened, ``cameras_fitted.json`` holds the poses
     used), then refines them photometrically (:func:`photometric_fit_views`, ``texture.json`` ``photometric_fit``);
-    ``"mesh"``: the first step only; ``"off"``: the survey's poses as they are.
+    ``"mesh"``: the first step only; ``"off"``: the survey's poses as they are. ``max_faces``: the mesh's triangle cap
+    (default :data:`DEFAULT_MAX_FACES`).
     """
     from dataclasses import replace
 
@@ -575,7 +586,9 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     from ..store import FolderProject
 
     cameras = OrientedCameras.load(survey_dir)
-    V, F = read_mesh(mesh_path)
+    if max_faces is not None and (isinstance(max_faces, bool) or int(max_faces) != max_faces or max_faces < 1):
+        raise ConfigError(f"max_faces={max_faces!r}: expected a positive number of triangles")
+    V, F = read_mesh(mesh_path, max_faces=DEFAULT_MAX_FACES if max_faces is None else int(max_faces))
     if rig_path is not None:
         try:
             rig = json.loads(Path(rig_path).read_text(encoding="utf-8"))
