@@ -1,8 +1,8 @@
 """Ctrl-C and SIGTERM end a verb with exit 130 / 143, one line, no traceback from any process, OUT as before.
 
 The verb is ``dense --workers 2`` (a local cluster of two worker processes) on a 6-frame survey with TRUE poses
-(tests/survey_truth.py). The signal is sent when the first progress line of the matching is printed (the cluster
-has started: a Ctrl-C while its workers start is ignored, see ``thermogrammetry._interrupt``), inside its ~4 s:
+(tests/survey_truth.py). The signal is sent when the first reference image is done (the cluster has started: a
+Ctrl-C while its workers start is ignored, see ``thermogrammetry._interrupt``; the "0/6" line can come before that):
 SIGINT to the whole process group, as a terminal's Ctrl-C does; SIGTERM to the verb's process only, as ``kill`` does.
 """
 
@@ -55,7 +55,7 @@ def test_a_signal_ends_dense_cleanly(survey, sig, to_group, status):
     reader = threading.Thread(target=lambda: lines.extend(p.stderr), daemon=True)
     reader.start()
     t0 = time.monotonic()
-    while time.monotonic() - t0 < 120 and p.poll() is None and not any("reference images" in ln for ln in lines):
+    while time.monotonic() - t0 < 120 and p.poll() is None and not any("reference images 1/" in ln for ln in lines):
         time.sleep(0.02)
     assert p.poll() is None, "dense ended before the signal; the test needs a run that lasts longer"
     (os.killpg if to_group else os.kill)(p.pid, sig)
