@@ -115,3 +115,44 @@ def test_user_files_hold_noisy_gnss_and_the_camera():
     assert all(r[4:] == ["0.03", "0.03", "0.05"] for r in rows)
     cam = Camera.from_dict(proj.read_json("camera.json"))
     assert cam.image_size == sc.thermal.image_size and cam["fx"] == sc.thermal["fx"]
+
+
+def _detail_everywhere(scene, s, z, t):
+    """The facade detail by its definition: every spot and every opening evaluated at every point."""
+    per = 2 * (scene.config.length_m + scene.config.depth_m)
+    for s0, z0, sig, amp in scene.spots:
+        ds = (s - s0 + per / 2) % per - per / 2
+        t = t + amp * np.exp(-0.5 * (ds**2 + (z - z0) ** 2) / sig**2)
+    for s0, s1, z0, z1, glass, dframe in scene.openings:
+        inside = (s >= s0) & (s <= s1) & (z >= z0) & (z <= z1)
+        if dframe > 0:
+            frame = inside & ~((s >= s0 + FRAME_M) & (s <= s1 - FRAME_M) & (z >= z0 + FRAME_M) & (z <= z1 - FRAME_M))
+            t = np.where(frame, t + dframe, t)
+            inside = inside & ~frame
+        t = np.where(inside, glass + 0.15 * (z - z0), t)
+    return t
+
+
+@pytest.mark.parametrize("seed", [0, 5])
+def test_detail_evaluated_near_each_spot_equals_the_definition_bit_for_bit(seed):
+    """The renderer applies each spot only within the distance beyond which its term rounds away, and each opening
+    only to the points inside it (``_detail``): the same floats as the definition, including across the wall's
+    seam at s = 0 and at window edges; and not the same when a spot is moved (the comparison can fail)."""
+    from thermogrammetry.synthetic.building import _detail
+
+    sc = make_building(BuildingConfig(facade_detail=True, seed=seed))
+    c = sc.config
+    per = 2 * (c.length_m + c.depth_m)
+    rng = np.random.default_rng(seed)
+    s = rng.uniform(0, per, 200_000)
+    z = rng.uniform(0, c.height_m, s.size)
+    s[:2000] = rng.choice(np.r_[sc.openings[:, :2].ravel(), 0.0, per], 2000)  # on edges and on the seam
+    s[2000:4000] = rng.uniform(-0.3, 0.3, 2000) % per  # the spots near the seam wrap around it
+    t = 281.0 + 0.25 * z + 0.6 * np.sin(2 * np.pi * s / per)
+    want = _detail_everywhere(sc, s, z, t)
+    assert np.array_equal(_detail(sc, s, z, t), want)
+    moved = sc.spots.copy()
+    moved[0, 0] += 0.01
+    from dataclasses import replace
+
+    assert not np.array_equal(_detail(replace(sc, spots=moved), s, z, t), want)

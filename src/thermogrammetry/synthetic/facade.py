@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ConfigError
-from ._render import sample_offsets, unproject_fast
+from ._render import camera_key, sample_offsets, unproject_fast
 from .radiance import FlirCurve, fresnel_emissivity
 from .sensor import SensorEffects, apply_sensor_effects
 from .._validate import config_keys
@@ -207,7 +207,24 @@ def _cast_mesh(scene: FacadeScene, C, d):
     return tri, t, pts, normals
 
 
+#: rays of the last few (camera, supersample) pairs: a scene's stations share one camera
+_SAMPLE_RAYS: dict = {}
+
+
 def _sample_rays(cam, ss):
+    """(H·W·S², 3) camera-frame rays (z = 1) of the S×S sub-pixel samples of every pixel, row by row (read-only;
+    computed once per camera and supersampling)."""
+    key = (camera_key(cam), int(ss))
+    hit = _SAMPLE_RAYS.get(key)
+    if hit is None:
+        if len(_SAMPLE_RAYS) >= 4:
+            _SAMPLE_RAYS.clear()
+        hit = _SAMPLE_RAYS[key] = _compute_sample_rays(cam, ss)
+        hit.setflags(write=False)
+    return hit
+
+
+def _compute_sample_rays(cam, ss):
     w, h = cam.image_size
     off = sample_offsets(ss)
     oy, ox = np.meshgrid(off, off, indexing="ij")
