@@ -325,21 +325,30 @@ class CodedCircleGridTarget(CircleGridTarget):
         n = self.code_bits
         w = 2 * np.pi / n
         ri, ro, hb = self.ring_inner_mm, self.ring_outer_mm, 0.5 * self.bridge_mm
+        xb, yb = np.broadcast_arrays(x, y)
+        xf, yf = xb.ravel(), yb.ravel()
+        flat = out.reshape(-1)
+        # each ring is evaluated on the points whose x lies within its outer radius (points sorted by x once);
+        # every other point is outside its band
+        order = np.argsort(xf, kind="stable")
+        xs = xf[order]
         with np.errstate(invalid="ignore"):
             for (cx, cy), cid in zip(cen, self.mark_code_ids):
                 bits = code_bits_of(int(cid), n)
-                dx, dy = x - cx, y - cy
+                near = order[np.searchsorted(xs, cx - ro, side="left"):np.searchsorted(xs, cx + ro, side="right")]
+                dx, dy = xf[near] - cx, yf[near] - cy
                 rho = np.hypot(dx, dy)
                 band = (rho >= ri) & (rho <= ro)
                 if not np.any(band):
                     continue
+                near, dx, dy, rho = near[band], dx[band], dy[band], rho[band]
                 phi = np.mod(np.arctan2(dy, dx), 2 * np.pi)
                 k = np.mod(np.rint(phi / w), n).astype(np.intp)  # sector centred on k·w
                 # distance to the nearer sector boundary ray (at (k ± 1/2)·w): bridge where < bridge/2
                 off = np.abs(phi - k * w)
                 off = np.minimum(off, 2 * np.pi - off)  # angle from the sector centre, 0 .. w/2
                 dist = rho * np.sin(np.clip(0.5 * w - off, 0.0, None))
-                out |= band & (bits[k] == 1) & (dist >= hb)
+                flat[near] |= (bits[k] == 1) & (dist >= hb)
         return out
 
     def classify(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
