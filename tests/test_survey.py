@@ -161,6 +161,41 @@ def test_checkpoint_accuracy(block):
                 assert abs(c["d" + a]) < 4.0 * c["s" + a], c
 
 
+def test_every_gcp_measurement_is_reported_with_its_residual(block):
+    """Each of the user's GCP image measurements is in survey.json with its residual at the adjusted state, and the
+    one left out says why; per GCP and per image the counts add up.
+
+    The measurements carry 0.3 px of noise per axis (``write_user_files(marker_sigma_px=0.3)``); the σ estimated
+    from their residuals (``sqrt(Σ|v|² / (2n − 3G))``, 76 degrees of freedom here) has a relative standard error of
+    about 1/sqrt(2·76) = 8 %: 0.22-0.40 px is 0.3 px within about ±3.5 of those (the GCPs' 1-2 cm coordinates are
+    counted as unknowns, so the estimate leans high; measured 0.358 px). The reported residuals are recomputed by
+    projection and must give the adjustment's own estimate (the same state, to rounding)."""
+    s = json.loads((block["out"] / "survey.json").read_text())
+    rows = s["gcp_measurements"]
+    given = (block["root"] / "survey" / "user" / "gcp_measurements.csv").read_text().strip().splitlines()[1:]
+    assert len(rows) == len(given) and {(r["image"], r["id"]) for r in rows} == {tuple(ln.split(",")[:2]) for ln in given}
+    left = [r for r in rows if not r["used"]]
+    assert [(r["image"], r["id"]) for r in left] == [(block["far"], "GCP01")]
+    assert "wrong identification" in left[0]["reason"] and left[0]["residual_px"] > 25.0
+    used = [r for r in rows if r["used"]]
+    # 5 σ (0.3 px per axis) of a residual's length: P(any of the ~47 > 1.5 px) = 47 exp(-12.5) ~ 2e-4 from the noise
+    assert all(r["reason"] == "" and r["residual_px"] < 5.0 * 0.3 for r in used), max(r["residual_px"] for r in used)
+    v = np.array([[r["dx_px"], r["dy_px"]] for r in used])
+    ms = s["blocks"][0]["marker_sigma"]
+    dof = 2 * len(used) - 3 * len({r["id"] for r in used})
+    assert ms["dof"] == dof
+    assert np.sqrt(np.sum(v**2) / dof) == pytest.approx(ms["estimated_px"], rel=1e-6)
+    assert 0.22 <= ms["estimated_px"] <= 0.40, ms
+    for key, table in (("id", s["gcp_measurements_by_gcp"]), ("image", s["gcp_measurements_by_image"])):
+        assert sum(t["measurements"] for t in table) == len(rows) and sum(t["used"] for t in table) == len(used)
+        for t in table:
+            mine = [r["residual_px"] for r in used if r[key] == t[key]]
+            assert t["used"] == len(mine)
+            if mine:
+                assert t["rms_px"] == pytest.approx(float(np.sqrt(np.mean(np.square(mine)))), rel=1e-9)
+    assert "GCP image measurements" in (block["out"] / "report.html").read_text()
+
+
 @pytest.fixture(scope="module")
 def block_geoid(block, scene_cache):
     """The same block with every GNSS height 48.30 m higher (ellipsoidal GNSS heights against GCPs in national

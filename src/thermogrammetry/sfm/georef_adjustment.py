@@ -26,7 +26,8 @@ from .georef_control import ControlInputs
 from .georef_datum import attitude_images
 from .georef_gnss import GNSS_REJECT_SIGMA, gnss_misfit
 
-__all__ = ["FinalAdjustment", "HUBER_K", "final_adjustment", "MIN_FINAL_TRI_ANGLE_DEG", "parallel_ray_points"]
+__all__ = ["FinalAdjustment", "HUBER_K", "final_adjustment", "gcp_measurement_table", "MIN_FINAL_TRI_ANGLE_DEG",
+           "parallel_ray_points"]
 
 
 @dataclass
@@ -53,6 +54,10 @@ class FinalAdjustment:
     #: the GCP image measurements' σ (px) given (median) and estimated from their residuals in the last solve
     #: (``sqrt(sum |v|^2 / (2 n - 3 G))``, n measurements of G GCPs) with its degrees of freedom; None when < 10
     marker_sigma: dict | None = None
+    #: every GCP image measurement of the block's images (:func:`gcp_measurement_table`): image index, GCP id, its
+    #: σ (px), the residual ``projected − measured`` (px) at the adjusted GCP and pose, whether the last solve used
+    #: it and, when not, why
+    gcp_measurements: list = field(default_factory=list)
 
 
 #: degrees of freedom below which the GCP measurements' σ is not estimated from their residuals
@@ -107,6 +112,43 @@ def _set_state(rec, rig, st) -> None:
     rec.cameras[:] = st[4]
     if st[5] is not None:
         rig.R, rig.t = np.copy(st[5][0]), np.copy(st[5][1])
+
+
+def gcp_measurement_table(rec, ctrl: ControlInputs, in_block, adjusted_xyz: dict, used: set, reasons: dict) -> list:
+    """Every GCP image measurement of the images in ``in_block`` with its residual at the adjusted state.
+
+    Parameters
+    ----------
+    rec : Reconstruction with the adjusted poses and cameras
+    ctrl : ControlInputs, ``gcp_obs`` = (image index, GCP index, (x, y) px, σ px) per measurement
+    in_block : (n_images,) bool
+    adjusted_xyz : {GCP index: (3,) adjusted coordinates}; GCPs not in the solve are projected from their given ones
+    used : measurement indices the last solve used
+    reasons : {measurement index: why it was left out}
+
+    Returns
+    -------
+    list of dict: ``image`` (index), ``id``, ``sigma_px``, ``dx_px``, ``dy_px`` (projected − measured; None when the
+    GCP is behind the camera), ``residual_px``, ``used`` and ``reason`` ("" when used)
+    """
+    rows = []
+    for k, (i, gi, xy, s) in enumerate(ctrl.gcp_obs):
+        if not in_block[i]:
+            continue
+        X = np.asarray(adjusted_xyz.get(gi, ctrl.gcp_xyz[gi]), float)
+        Xc = rec.R[i] @ X + rec.t[i]
+        d = None
+        if Xc[2] > 0:
+            with np.errstate(all="ignore"):
+                pr = rec.cameras[rec.image_camera[i]].project(Xc[None, :])[0]
+            if np.all(np.isfinite(pr)):
+                d = pr - np.asarray(xy, float)
+        use = k in used
+        rows.append({"image": int(i), "id": ctrl.gcp_ids[gi], "sigma_px": float(np.max(s)),
+                     "dx_px": None if d is None else float(d[0]), "dy_px": None if d is None else float(d[1]),
+                     "residual_px": None if d is None else float(np.hypot(*d)), "used": bool(use),
+                     "reason": "" if use else reasons.get(k, "its GCP was not in the adjustment")})
+    return rows
 
 
 def final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, robust_ties_on_conflict: bool = True,
@@ -219,6 +261,7 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
     in_block[images] = True
     gcp_active = [True] * len(ctrl.gcp_obs)
     rejected = []
+    reasons: dict[int, str] = {}  # measurement index -> why it was left out
     if georeferenced and ctrl.gcp_obs:
         # gross errors first: a GCP "measured" in an image where it cannot be (wrong identification) is
         # found by projecting its coordinates with the georeferenced start, before it can bend the block
@@ -240,6 +283,8 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
                 i, gi = ctrl.gcp_obs[k][0], ctrl.gcp_obs[k][1]
                 gcp_active[k] = False
                 rejected.append((int(i), ctrl.gcp_ids[gi], float(res_px[k])))
+                reasons[int(k)] = (f"{res_px[k]:.1f} px from the GCP's projection before the adjustment, gate {gate:.1f} px "
+                                   "(a wrong identification?)")
     res = None
     gnss_active = np.ones(len(rec.registered), bool)
     gnss_rejected: list[int] = []
@@ -383,6 +428,9 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
             for gi, (k, e) in worst.items():
                 gcp_active[k] = False
                 rejected.append((int(ctrl.gcp_obs[k][0]), ctrl.gcp_ids[gi], e))
+                reasons[int(k)] = (f"{e:.1f} px in round {round_ + 1}, the largest of its GCP's and above "
+                                   f"{max(gcp_reject_px, 5.0 * float(np.max(ctrl.gcp_obs[k][3]))):.1f} px "
+                                   f"(max of {gcp_reject_px:g} px and 5 σ)")
                 changed = True
             continue  # always a second, non-robust solve
         if not changed:
@@ -421,6 +469,8 @@ def _final_adjustment(rec, xy_by_image, images, ctrl: ControlInputs, *, self_cal
                          gnss_images=[int(i) for i in images[have_gnss | np.isin(images, gnss_rejected)]] if georeferenced else [])
     fa.marker_sigma = _marker_sigma(res, n_tie, [ctrl.gcp_obs[k] for k in use_gcp]) if res.image_residuals is not None \
         else None
+    fa.gcp_measurements = gcp_measurement_table(rec, ctrl, in_block, {gi: p.points[pi] for gi, pi in gcp_point.items()},
+                                                set(use_gcp), reasons)
     if tie_pts:
         fa.manual_ties = _manual_tie_results(res, p, tie_pts, n_tie + sum(1 for k in use_gcp), manual_ties, in_block)
     if slaves:

@@ -24,7 +24,7 @@ from ..geometry.rotations import matrix_from_axis_angle
 from .georef_adjustment import FinalAdjustment
 from .georef_control import ControlInputs
 
-__all__ = ["intersect_check_points", "axis_statistics"]
+__all__ = ["intersect_check_points", "axis_statistics", "gcp_measurement_report"]
 
 
 def _project(cam, R, t, X):
@@ -163,3 +163,59 @@ def axis_statistics(errors) -> dict:
         else:
             d.update({f"rmse_{ax}": None, f"mae_{ax}": None, f"min_{ax}": None, f"max_{ax}": None})
     return d
+
+
+def gcp_measurement_report(rec, fa_all, ctrl: ControlInputs, names) -> dict:
+    """Every one of the user's GCP image measurements with its residual, whether it was used and, if not, why
+    (``gcp_measurements``), and per GCP and per image the measurements, those used and the RMS and largest residual
+    of the used ones (``gcp_measurements_by_gcp``, ``gcp_measurements_by_image``): no measurement is dropped
+    silently. A measurement in an image that no georeferenced block holds is listed with that reason.
+
+    Parameters
+    ----------
+    rec : Reconstruction (``registered``)
+    fa_all : list of (block index, image indices, FinalAdjustment, datum, georeferenced)
+    ctrl : ControlInputs
+    names : list of str, image names by index
+
+    Returns
+    -------
+    dict with the three lists (``survey.json`` keys; residuals ``projected − measured`` in px, see
+    :func:`~thermogrammetry.sfm.georef_adjustment.gcp_measurement_table`)
+    """
+    rows, seen = [], set()
+    for ci, images, fa, datum, geo in fa_all:
+        if not geo:
+            continue
+        for r in getattr(fa, "gcp_measurements", []):
+            key = (r["image"], r["id"])
+            if key not in seen:
+                seen.add(key)
+                rows.append({**r, "image": names[r["image"]], "block": int(ci) + 1})
+    oriented = set()
+    for ci, images, fa, datum, geo in fa_all:
+        oriented |= {int(i) for i in images} if geo else set()
+    for i, gi, xy, sig in ctrl.gcp_obs:
+        if (int(i), ctrl.gcp_ids[gi]) in seen:
+            continue
+        seen.add((int(i), ctrl.gcp_ids[gi]))
+        why = "its image is in a block that is not georeferenced" if rec.registered[i] and int(i) not in oriented \
+            else "its image is not oriented"
+        rows.append({"image": names[i], "id": ctrl.gcp_ids[gi], "sigma_px": float(np.max(sig)), "dx_px": None,
+                     "dy_px": None, "residual_px": None, "used": False, "reason": why, "block": None})
+
+    def summary(key):
+        out = {}
+        for r in rows:
+            e = out.setdefault(r[key], {key: r[key], "measurements": 0, "used": 0, "rms_px": None, "max_px": None, "_v": []})
+            e["measurements"] += 1
+            if r["used"] and r["residual_px"] is not None:
+                e["used"] += 1
+                e["_v"].append(r["residual_px"])
+        for e in out.values():
+            v = np.asarray(e.pop("_v"), float)
+            if len(v):
+                e["rms_px"], e["max_px"] = float(np.sqrt(np.mean(v**2))), float(np.max(v))
+        return sorted(out.values(), key=lambda e: str(e[key]))
+
+    return {"gcp_measurements": rows, "gcp_measurements_by_gcp": summary("id"), "gcp_measurements_by_image": summary("image")}

@@ -262,6 +262,9 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     extra = _survey_extra(project, inp, rec, names, oriented, meta, lt_verdict, notes, t_ids, tie_out,
                           rig=(rig_used, rig_reg, rig_master, rig_unpaired, rig_out, rig_only) if inp.rig is not None else None)
     extra["camera_start"] = _camera_start(inputs, rec, meta, camera)
+    from ...sfm.georef_checks import gcp_measurement_report
+
+    extra.update(gcp_measurement_report(rec, fa_all, ctrl, names))
     out = _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results,
                          extra=extra, rig_only={k: w for k, w in rig_only.items() if oriented[k]})
     out["seconds_georef"] = time.perf_counter() - t0

@@ -30,6 +30,30 @@ def _axis_table(title, d):
             f"<th>MAE (m)</th><th>RMSE (m)</th></tr>{rows}</table>")
 
 
+def _gcp_measurement_tables(s) -> list:
+    """The GCP image measurements per GCP and per image (used, RMS and largest residual of the used ones) and every
+    measurement left out with its reason."""
+    if not s.get("gcp_measurements"):
+        return []
+
+    def table(rows, key, title):
+        body = "".join(f"<tr><td class=l>{html.escape(str(r[key]))}</td><td>{r['measurements']}</td><td>{r['used']}</td>"
+                       f"<td>{_f(r['rms_px'], '{:.2f}')}</td><td>{_f(r['max_px'], '{:.2f}')}</td></tr>" for r in rows)
+        return (f"<table><tr><th>{title}</th><th>measurements</th><th>used</th><th>RMS px</th><th>max px</th></tr>"
+                f"{body}</table>")
+
+    out = ["<h3>GCP image measurements (residual = projected − measured, at the adjusted GCP and camera)</h3>",
+           table(s.get("gcp_measurements_by_gcp", []), "id", "GCP"),
+           table(s.get("gcp_measurements_by_image", []), "image", "image")]
+    left = [r for r in s["gcp_measurements"] if not r["used"]]
+    if left:
+        out.append("<table><tr><th>GCP</th><th>image</th><th>residual px</th><th>left out because</th></tr>" + "".join(
+            f"<tr><td class=l>{html.escape(r['id'])}</td><td class=l>{html.escape(r['image'])}</td>"
+            f"<td>{_f(r['residual_px'], '{:.1f}')}</td><td class=l>{html.escape(r['reason'])}</td></tr>" for r in left)
+                   + "</table>")
+    return out
+
+
 def write_survey_report(project) -> None:
     import matplotlib
 
@@ -143,6 +167,7 @@ def write_survey_report(project) -> None:
     if s.get("gcp_rejected_measurements"):
         parts.append("<p class='bad'>GCP measurements rejected (blunders: not visible or wrongly identified): " + ", ".join(
             f"{html.escape(r['id'])} in {html.escape(r['image'])} ({r['residual_px']:.1f} px)" for r in s["gcp_rejected_measurements"]) + "</p>")
+    parts += _gcp_measurement_tables(s)
     # figures
     try:
         cams = project.read_json("cameras.json")
