@@ -196,6 +196,16 @@ def test_every_gcp_measurement_is_reported_with_its_residual(block):
     assert "GCP image measurements" in (block["out"] / "report.html").read_text()
 
 
+def test_the_block_says_how_well_it_determines_its_camera(block):
+    """The UAV block (relief, GCPs at several heights, 56 frames) self-calibrates fx, fy and the distortion; its
+    covariance determines the focal length to 0.06 % and separates it from the flying height (correlation 0.18,
+    measured): bounds 0.5 % and |r| < 0.6 (a flat field's f and heights correlate near ±1: tests/test_determinability.py)."""
+    s = json.loads((block["out"] / "survey.json").read_text())
+    det = s["blocks"][0]["determinability"]["thermal"]
+    assert 0 < det["focal_sigma_rel"] < 0.005 and abs(det["focal_height_correlation"]) < 0.6, det
+    assert 0 < det["distortion_corner_sigma_px"] < 0.3 and 0 < det["mean_height_sigma_m"] < 0.1, det
+
+
 @pytest.fixture(scope="module")
 def block_geoid(block, scene_cache):
     """The same block with every GNSS height 48.30 m higher (ellipsoidal GNSS heights against GCPs in national

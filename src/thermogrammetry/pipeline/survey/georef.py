@@ -249,10 +249,11 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                            if getattr(fa, "focal_priors_used", None) else {}),
                         "self_calibration_steps": cal_steps, **({"gnss_offset": gnss_off} if gnss_off else {}),
                         **({"marker_sigma": fa.marker_sigma} if fa.marker_sigma else {}),
+                        "determinability": {} if no_sigma else _determinability(rec, fa, images, meta),
                         **({"added_at_gnss": [names[i] for i in images[n_own:]]} if len(images) > n_own else {})})
         if extendable:
             second_pass.append((len(fa_all) - 1, len(results) - 1, adjust_kw, cal_used, cal_steps))
-    notes += _second_pass(rec, xy, ctrl, names, self_cal, opt, oriented, fa_all, results, second_pass, rejected_at)
+    notes += _second_pass(rec, xy, ctrl, names, self_cal, opt, oriented, fa_all, results, second_pass, rejected_at, meta)
     if not fa_all:
         crs = None
     georeferenced = any(g for *_, g in fa_all)
@@ -269,6 +270,14 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                          extra=extra, rig_only={k: w for k, w in rig_only.items() if oriented[k]})
     out["seconds_georef"] = time.perf_counter() - t0
     return out
+
+
+def _determinability(rec, fa, images, meta) -> dict:
+    """:func:`~thermogrammetry.sfm.determinability.block_determinability` of a block's final adjustment."""
+    from ...sfm.determinability import block_determinability
+
+    cams = {f"camera{c}": (meta["camera_ids"][int(c)], rec.cameras[int(c)]) for c in np.unique(rec.image_camera[images])}
+    return block_determinability(fa.covariance, fa.param_names, cams)
 
 
 def _prune_requeue(rec, pre, images, ctrl, names, ci, why, notes, pruned_blocks, queue) -> bool:
@@ -326,7 +335,7 @@ def _self_calibration(project: ProjectStore, inp: SurveyInput, opt: SurveyOption
 
 
 def _second_pass(rec, xy, ctrl, names, self_cal, opt: SurveyOptions, oriented, fa_all, results, second_pass,
-                 rejected_at) -> list:
+                 rejected_at, meta) -> list:
     """Images of rejected blocks and images still unregistered added at their GNSS positions to the accepted GNSS
     blocks (:func:`~thermogrammetry.sfm.block_gates.extend_with_gnss`); updates ``oriented``, ``fa_all`` and
     ``results`` in place. Returns the notes."""
@@ -352,7 +361,8 @@ def _second_pass(rec, xy, ctrl, names, self_cal, opt: SurveyOptions, oriented, f
                       "reason": fa2.result.reason, "self_calibration": sorted({n for v in cal2.values() for n in v}),
                       "self_calibration_steps": steps2,
                       "added_at_gnss": r.get("added_at_gnss", []) + [names[i] for i in images2[n_own:]],
-                      "converged": True})  # (extend_with_gnss keeps only an adjustment that converged)
+                      "converged": True, "determinability": _determinability(rec, fa2, images2, meta)})
+            # (extend_with_gnss keeps only an adjustment that converged)
             r.pop("sigma_refused", None)
             for k_rej, members in rejected_at.items():
                 # the rejected block's entry says where its images went (it still counts them as its own)
