@@ -309,6 +309,35 @@ def test_evaluate_dsm_against_reference_and_checkpoints(ortho_run, tmp_path):
     assert d["rmse"] == pytest.approx(np.hypot(0.05, 0.1), rel=0.05)
     assert d["p95_abs"] > d["mae"]
     c = rep["checkpoints"]
-    assert c["n"] >= 1 and c["rmse_z"] < 0.5 and c["rmse_x"] is None
+    # Check-point bounds from the injected error e = DSM - truth ~ N(b = 0.05, s = 0.1) per cell, i.i.d.  The
+    # scene's 5 points (3 GCPs, 2 checks) lie on cell corners (measured: bilinear weights 1/4 each, sum w^2 = 1/4)
+    # where the true DSM is planar (its own discretisation error < 5e-5 m, measured): dz_i ~ N(b, s^2/4) =
+    # N(0.05, 0.05^2). Per point, two-sided at 4 sigma: 0.05 +- 0.20 m. Their RMSE^2 has mean b^2 + s^2/4 = 0.005 and
+    # sd sqrt((2 (s/2)^4 + 4 b^2 (s/2)^2) / 5) = 0.0027: at 4 sigma RMSE <= sqrt(0.005 + 0.011) = 0.126 m (with 5
+    # points no useful lower bound).
+    assert c["n"] == len(cps) == 5 and c["rmse_x"] is None
+    assert all(-0.15 < r["dz"] < 0.25 for r in c["points"]), c["points"]
+    assert 0.0 < c["rmse_z"] < 0.126, c
     assert (tmp_path / "e" / "evaluate_histogram.png").exists()
+    # 400 seeded cell centres (away from the edge): there bilinear sampling returns the cell itself, so dz is the
+    # injected error of that cell exactly (float32 storage: |dz - e| < 1e-6 m) and dz ~ N(0.05, 0.1^2), i.i.d.  Mean:
+    # 0.05 +- 4 s / sqrt(400) = [0.03, 0.07] (a sign error gives -0.05).  RMSE^2: mean b^2 + s^2 = 0.0125, sd
+    # sqrt((2 s^4 + 4 b^2 s^2) / 400) = 8.7e-4; 4 sigma: RMSE in [sqrt(0.0090), sqrt(0.0160)] = [0.095, 0.126] m
+    # (an "RMSE" that is the MAE gives 0.092 here: the lower bound matters).
+    rows_, cols_ = rng.integers(5, z.shape[0] - 5, 400), rng.integers(5, z.shape[1] - 5, 400)
+    keep = np.unique(rows_ * z.shape[1] + cols_, return_index=True)[1]  # distinct cells: independent errors
+    rows_, cols_ = rows_[keep], cols_[keep]
+    assert rows_.size > 390
+    cx, cy = tr.c + (cols_ + 0.5) * tr.a, tr.f + (rows_ + 0.5) * tr.e
+    (tmp_path / "cc.csv").write_text("id,X,Y,Z\n" + "".join(
+        f"c{k},{float(x)!r},{float(y)!r},{float(z[r, q])!r}\n" for k, (x, y, r, q) in enumerate(zip(cx, cy, rows_, cols_))))
+    assert main(["evaluate", "--dsm", str(tmp_path / "test_dsm.tif"), "--checkpoints", str(tmp_path / "cc.csv"),
+                 "-o", str(tmp_path / "g")]) == 0
+    cc = json.loads((tmp_path / "g" / "evaluate.json").read_text())["checkpoints"]
+    dz = np.array([r["dz"] for r in cc["points"]], float)
+    injected = noisy.astype(np.float32).astype(float)[rows_, cols_] - z[rows_, cols_]
+    assert cc["n"] == rows_.size
+    assert 0.03 < dz.mean() < 0.07, dz.mean()
+    assert 0.095 < cc["rmse_z"] < 0.126, cc["rmse_z"]
+    assert np.max(np.abs(dz - injected)) < 1e-6
     assert main(["evaluate", "--dsm", str(ref), "-o", str(tmp_path / "f")]) == 2
