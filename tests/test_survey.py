@@ -16,6 +16,7 @@ import shutil
 import numpy as np
 import pytest
 
+from conftest import data_missing
 from thermogrammetry.cli.main import main
 from thermogrammetry.io.oriented import OrientedCameras
 from thermogrammetry.pipeline.project import FolderProject
@@ -271,7 +272,7 @@ def m3t(scene_cache, shared_data):
 
     src = shared_data / "uav_m3t_flight" / "Test_image"
     if not src.is_dir():
-        pytest.skip(f"{src} is absent")
+        data_missing(f"{src} is absent")
     code, out = survey_variant(scene_cache, "m3t-survey", {"src": str(src)},
                                lambda folder: main(["survey", str(src), "-o", str(folder / "out"), "--workers", "0"]))
     return src, out, code
@@ -420,7 +421,7 @@ def test_dji_folder_with_visible_photographs(tmp_path, shared_data):
 
     src = sorted((shared_data / "uav_m3t_flight" / "Test_image").glob("*_T.JPG"))[:3]
     if len(src) < 3:
-        pytest.skip("uav_m3t_flight frames are absent")
+        data_missing("uav_m3t_flight frames are absent")
     rng = np.random.default_rng(0)
     for f in src:
         shutil.copy(f, tmp_path / f.name)
