@@ -84,7 +84,7 @@ def seeds(target: str) -> list[bytes]:
     if target in ("testfield_measurements", "closerange_measurements"):
         return [b"image,id,x,y,sx,sy\nimg1,1,10.5,20.25,0.3,0.3\nimg1,2,30,40,0.3,0.3\n"]
     if target == "gnss":
-        return [b"image,lat,lon,alt,sX,sY,sZ\nimg1,51.4,4.43,141.2,0.01,0.01,0.02\n"]
+        return [b"image,X,Y,Z,sX,sY,sZ\nimg1,584512.3,5697001.2,141.2,0.01,0.01,0.02\n"]
     if target == "closerange_planes":
         return [b"name,id1,id2,id3\nfront,1,2,3\n"]
     if target == "cameras_json":
@@ -102,7 +102,9 @@ def _text(data: bytes) -> str:
 
 
 def make_target(target: str):
-    """The one-input function of ``target`` (raises only ThermogrammetryError on bad input)."""
+    """The one-input function of ``target`` (raises only ThermogrammetryError on bad input); it returns what it
+    parsed (the images read, the table, the cameras), so that a test can tell a valid input accepted from one
+    refused or read as nothing."""
     from thermogrammetry.io.thermal import ReadOptions, read_with, registered_readers
 
     if target in _THERMAL_READERS:
@@ -111,8 +113,10 @@ def make_target(target: str):
         path = Path("fuzz" + _SUFFIX.get(target, ".bin"))
 
         def run(data: bytes):
-            for img in read_with(spec, path, data, opts):
+            images = list(read_with(spec, path, data, opts))
+            for img in images:
                 img.signal()
+            return images
         return run
     if target == "npy":
         from thermogrammetry.io.matrix import read_matrix
@@ -123,10 +127,11 @@ def make_target(target: str):
         from thermogrammetry.io.exif import jpeg_segments, parse_xmp, read_exif
 
         def run(data: bytes):
-            read_exif(data)
+            tags = read_exif(data)
             parse_xmp(data)
             if data[:2] == b"\xff\xd8":
                 jpeg_segments(data, "fuzz.jpg")
+            return tags
         return run
     if target == "references":
         import tempfile
@@ -138,7 +143,7 @@ def make_target(target: str):
 
         def run(data: bytes):
             p.write_bytes(data)
-            read_references_csv(p)
+            return read_references_csv(p)
         return run
     if target.startswith("testfield_") or target == "gnss":
         from thermogrammetry.io import testfield_csv as tc
@@ -159,8 +164,8 @@ def make_target(target: str):
             try:
                 d = json.loads(_text(data))
             except (json.JSONDecodeError, RecursionError):
-                return  # the loader reports invalid JSON itself (OrientedCameras.load)
-            OrientedCameras.from_dict(d, source="fuzz.json")
+                return None  # the loader reports invalid JSON itself (OrientedCameras.load)
+            return OrientedCameras.from_dict(d, source="fuzz.json")
         return run
     raise SystemExit(f"unknown target {target!r}; targets: {', '.join(TARGETS)}")
 

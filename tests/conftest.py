@@ -1,8 +1,10 @@
 """Shared test fixtures.
 
 Real data lives in ``../shared/data`` beside the repository (see its INDEX.md);
-tests that need it use the ``shared_data`` fixture and skip, with a clear reason,
-when it is absent. Set ``THERMOGRAMMETRY_DATA`` to point elsewhere.
+tests that need it use the ``shared_data`` fixture (or ``data_path``, or call ``data_missing``) and skip, with a
+clear reason, when it is absent. Set ``THERMOGRAMMETRY_DATA`` to point elsewhere. With
+``THERMOGRAMMETRY_REQUIRE_DATA=1`` (CI, which has the data) a missing folder or file FAILS every test that needs it
+instead: a CI that lost ``../shared/data`` cannot pass by skipping every real-data test.
 
 Synthetic scenes that several tests render and survey are built once per test run through the ``scene_cache``
 fixture (``_cache.py``, ``cached_scenes.py``), shared by the pytest-xdist workers.
@@ -41,19 +43,33 @@ def pytest_configure(config):
     cv2.setNumThreads(share)
 
 
+def data_required() -> bool:
+    """``THERMOGRAMMETRY_REQUIRE_DATA`` is set to anything but empty / ``0``: missing real data is a failure."""
+    return os.environ.get("THERMOGRAMMETRY_REQUIRE_DATA", "").strip() not in ("", "0")
+
+
+def data_missing(reason: str):
+    """The one place a test meets missing real data: skips it with ``reason``, or fails it when
+    ``THERMOGRAMMETRY_REQUIRE_DATA=1``."""
+    if data_required():
+        pytest.fail(f"{reason}; THERMOGRAMMETRY_REQUIRE_DATA is set, so missing real data is a failure", pytrace=False)
+    pytest.skip(reason)
+
+
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
-    """Root of the shared real-data folder; skips the test when it is missing."""
+    """Root of the shared real-data folder; skips the test when it is missing (fails with the variable set)."""
     if not SHARED_DATA.is_dir():
-        pytest.skip(f"real data folder {SHARED_DATA} is absent (set THERMOGRAMMETRY_DATA)")
+        data_missing(f"real data folder {SHARED_DATA} is absent (set THERMOGRAMMETRY_DATA)")
     return SHARED_DATA
 
 
 def data_path(*parts: str) -> Path:
-    """Path under the shared data folder; skips the calling test when it does not exist."""
+    """Path under the shared data folder; skips the calling test when it does not exist (fails with
+    ``THERMOGRAMMETRY_REQUIRE_DATA=1``)."""
     p = SHARED_DATA.joinpath(*parts)
     if not p.exists():
-        pytest.skip(f"real data file {p} is absent")
+        data_missing(f"real data file {p} is absent")
     return p
 
 

@@ -161,21 +161,101 @@ def test_ortho_u16_encoding_inverts_within_half_a_step(ortho_run):
     assert np.nanmax(np.abs(dec - v)) <= rep["scale"] / 2 + 1e-4
 
 
-def test_ortho_gradient_matches_central_differences(ortho_run):
+# the analytic linear field of the gradient tests: T = T0 + GE (E - E0) + GN (N - N0), GE = 0.3 K/m east and
+# GN = -0.4 K/m north, so |grad T| = hypot(0.3, 0.4) = 0.5 K/m exactly and the direction of increase, clockwise from
+# grid north, is atan2(GE, GN) = 180 - atan(0.3 / 0.4) = 143.130 deg (south-east).  No two of the usual convention
+# errors give the same angle: north sign flipped 36.87, east sign flipped 216.87, axes swapped (atan2(GN, GE))
+# 306.87, counter-clockwise from east -53.13 = 306.87, both signs 323.13 deg.
+GRAD_E, GRAD_N = 0.3, -0.4
+GRAD_MAG, GRAD_DIR_DEG = 0.5, 143.13010235415598
+
+
+def test_gradient_of_an_analytic_linear_field():
+    from thermogrammetry.products.ortho import gradient
+    from thermogrammetry.products.raster import Grid
+
+    g = Grid(500000.0, 5600040.0, 0.25, 30, 20)
+    E, N = g.cell_centres(0, 0, 20, 30)  # rows southwards, as every north-up raster of the project
+    v = 300.0 + GRAD_E * (E - 500000.0) + GRAD_N * (N - 5600000.0)
+    v[7, 11] = np.nan  # a missing cell: its four neighbours' gradients are undefined, nothing else
+    mag, direc = gradient(v, g.gsd)
+    ok = np.isfinite(mag)
+    assert ok.sum() == 18 * 28 - 4 and not ok[0].any() and not ok[:, -1].any()
+    # central differences of a linear field are exact: only float64 rounding (1e-13 K over 0.5 m) remains
+    assert np.max(np.abs(mag[ok] - GRAD_MAG)) < 1e-9
+    assert np.max(np.abs(direc[ok] - GRAD_DIR_DEG)) < 1e-6
+    assert np.array_equal(np.isfinite(direc), ok)
+
+
+def _nadir_linear_frame_survey(folder, *, T0=300.0, alpha=0.03, beta=0.04):
+    """One pinhole frame (f = 500 px, 320 x 256) looking straight down from H = 50 m above a flat DSM at 100 m,
+    image x = east, image y = south; its pixels hold the linear image T0 + alpha (u - cx) + beta (v - cy) (K,
+    noise-free).  A pixel (u, v) sees the ground point E = Ec + (u - cx) H / f, N = Nc - (v - cy) H / f, so the
+    ground field is T0 + alpha f/H (E - Ec) - beta f/H (N - Nc): with f/H = 10 px/m, 0.3 K/m east and -0.4 K/m
+    north (GRAD_E, GRAD_N).  Returns (survey folder, DSM path, field(E, N))."""
+    import tifffile
+
+    from thermogrammetry.camera import Camera
+    from thermogrammetry.io.oriented import OrientedCameras, OrientedImage
+    from thermogrammetry.products.raster import Grid, write_cog
+
+    f, w, h, H, zg = 500.0, 320, 256, 50.0, 100.0
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    Ec, Nc = 500016.05, 5600012.85  # not on a cell boundary of the DSM below
+    cam = Camera("pinhole", (w, h), {"fx": f, "fy": f, "cx": cx, "cy": cy})
+    R = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # camera x east, y south, z down
+    t = -R @ np.array([Ec, Nc, zg + H])
+    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    sv = folder / "survey"
+    (sv / "frames").mkdir(parents=True)
+    tifffile.imwrite(sv / "frames" / "N0.tif", (T0 + alpha * (u - cx) + beta * (v - cy)).astype(np.float32))
+    OrientedCameras({"thermal": cam}, [OrientedImage("N0", "thermal", R, t, frame="frames/N0.tif", unit="K")],
+                    crs="EPSG:32633", notes="one exact nadir frame (test)").save(sv / "cameras.json")
+    grid = Grid(500000.0, 5600030.0, 0.1, 330, 300)  # 33 x 30 m, larger than the 32 x 25.6 m footprint
+    write_cog(folder / "flat.tif", grid, "float32", lambda r0, c0, rows, cols: np.full((rows, cols), zg, np.float32),
+              crs="EPSG:32633", nodata=float("nan"), unit="m")
+    k = f / H
+    return sv, folder / "flat.tif", lambda E, N: T0 + alpha * k * (E - Ec) - beta * k * (N - Nc)
+
+
+def test_ortho_gradient_raster_of_an_analytic_linear_field(tmp_path):
+    """The verb's own gradient raster on a ground field known in closed form (see _nadir_linear_frame_survey):
+    magnitude 0.5 K/m, direction 143.13 deg clockwise from grid north, in every cell whose 4 neighbours have a
+    value.  Bilinear sampling reproduces a linear image exactly, so the ortho is the field itself up to float32
+    storage (frame and ortho values near 300 K: ulp 3e-5 K, so 3e-5 K each; bound 1e-3 K) and the central
+    difference over 2 cells (0.2 m) errs by at most 2 x 3e-5 / 0.2 = 3e-4 K/m in each component: bound 1e-3 K/m on
+    the magnitude and 1e-3 / 0.5 rad = 0.12 deg on the direction (bound 0.2 deg)."""
+    sv, dsm, field = _nadir_linear_frame_survey(tmp_path)
+    assert main(["ortho", str(sv), "--dsm", str(dsm), "-o", str(tmp_path / "o"), "--sampling", "bilinear",
+                 "--workers", "0"]) == 0
+    v, s = _read(tmp_path / "o" / "ortho.tif", 1)
+    g, _ = _read(tmp_path / "o" / "ortho_gradient.tif")
+    rr, cc = np.mgrid[0:v.shape[0], 0:v.shape[1]]
+    E, N = s.xy(rr, cc)
+    ok = np.isfinite(v)
+    assert ok.sum() > 0.7 * 320 * 256  # the footprint (~32 x 25.6 m) at 0.1 m, bar its one-pixel rim
+    assert np.max(np.abs(v[ok] - field(E[ok], N[ok]))) < 1e-3
+    gok = np.isfinite(g[0])
+    assert gok.sum() > 0.95 * ok.sum()
+    assert np.max(np.abs(g[0][gok] - GRAD_MAG)) < 1e-3
+    ddir = (g[1][gok] - GRAD_DIR_DEG + 180.0) % 360.0 - 180.0
+    assert np.max(np.abs(ddir)) < 0.2
+
+
+def test_ortho_gradient_raster_is_the_gradient_of_the_whole_mosaic(ortho_run):
+    """Tile by tile with a one-cell halo, the gradient raster equals the gradient of the whole mosaic at once (the
+    formula itself is checked on an analytic field above)."""
+    from thermogrammetry.products.ortho import gradient
+
     sc, sv, root = ortho_run
     v, s = _read(root / "o" / "ortho.tif", 1)
-    g, sg = _read(root / "o" / "ortho_gradient.tif")
-    gsd = s.res[0]
-    v = v.astype(float)
-    ex = (v[1:-1, 2:] - v[1:-1, :-2]) / (2 * gsd)
-    ny = (v[:-2, 1:-1] - v[2:, 1:-1]) / (2 * gsd)
-    mag = np.hypot(ex, ny)
+    g, _ = _read(root / "o" / "ortho_gradient.tif")
+    mag, direc = gradient(v.astype(float), s.res[0])
+    assert np.array_equal(np.isfinite(g[0]), np.isfinite(mag)) and np.isfinite(mag).sum() > 50_000
     ok = np.isfinite(mag)
-    assert np.allclose(g[0, 1:-1, 1:-1][ok], mag[ok], rtol=1e-5, atol=1e-4)
-    d = np.degrees(np.arctan2(ex, ny)) % 360
-    sel = ok & (mag > 1)
-    diff = np.abs((g[1, 1:-1, 1:-1][sel] - d[sel] + 180) % 360 - 180)
-    assert np.max(diff) < 1e-2
+    assert np.allclose(g[0][ok], mag[ok], rtol=1e-6, atol=1e-5)  # float32 storage
+    sel = ok & (mag > 1)  # direction well defined (float32 storage of a >= 1 K/m gradient: < 1e-3 deg)
+    assert np.max(np.abs((g[1][sel] - direc[sel] + 180) % 360 - 180)) < 1e-2
 
 
 def test_ortho_in_celsius_is_labelled_and_dask_gives_identical_rasters(ortho_run, tmp_path):
@@ -309,6 +389,35 @@ def test_evaluate_dsm_against_reference_and_checkpoints(ortho_run, tmp_path):
     assert d["rmse"] == pytest.approx(np.hypot(0.05, 0.1), rel=0.05)
     assert d["p95_abs"] > d["mae"]
     c = rep["checkpoints"]
-    assert c["n"] >= 1 and c["rmse_z"] < 0.5 and c["rmse_x"] is None
+    # Check-point bounds from the injected error e = DSM - truth ~ N(b = 0.05, s = 0.1) per cell, i.i.d.  The
+    # scene's 5 points (3 GCPs, 2 checks) lie on cell corners (measured: bilinear weights 1/4 each, sum w^2 = 1/4)
+    # where the true DSM is planar (its own discretisation error < 5e-5 m, measured): dz_i ~ N(b, s^2/4) =
+    # N(0.05, 0.05^2). Per point, two-sided at 4 sigma: 0.05 +- 0.20 m. Their RMSE^2 has mean b^2 + s^2/4 = 0.005 and
+    # sd sqrt((2 (s/2)^4 + 4 b^2 (s/2)^2) / 5) = 0.0027: at 4 sigma RMSE <= sqrt(0.005 + 0.011) = 0.126 m (with 5
+    # points no useful lower bound).
+    assert c["n"] == len(cps) == 5 and c["rmse_x"] is None
+    assert all(-0.15 < r["dz"] < 0.25 for r in c["points"]), c["points"]
+    assert 0.0 < c["rmse_z"] < 0.126, c
     assert (tmp_path / "e" / "evaluate_histogram.png").exists()
+    # 400 seeded cell centres (away from the edge): there bilinear sampling returns the cell itself, so dz is the
+    # injected error of that cell exactly (float32 storage: |dz - e| < 1e-6 m) and dz ~ N(0.05, 0.1^2), i.i.d.  Mean:
+    # 0.05 +- 4 s / sqrt(400) = [0.03, 0.07] (a sign error gives -0.05).  RMSE^2: mean b^2 + s^2 = 0.0125, sd
+    # sqrt((2 s^4 + 4 b^2 s^2) / 400) = 8.7e-4; 4 sigma: RMSE in [sqrt(0.0090), sqrt(0.0160)] = [0.095, 0.126] m
+    # (an "RMSE" that is the MAE gives 0.092 here: the lower bound matters).
+    rows_, cols_ = rng.integers(5, z.shape[0] - 5, 400), rng.integers(5, z.shape[1] - 5, 400)
+    keep = np.unique(rows_ * z.shape[1] + cols_, return_index=True)[1]  # distinct cells: independent errors
+    rows_, cols_ = rows_[keep], cols_[keep]
+    assert rows_.size > 390
+    cx, cy = tr.c + (cols_ + 0.5) * tr.a, tr.f + (rows_ + 0.5) * tr.e
+    (tmp_path / "cc.csv").write_text("id,X,Y,Z\n" + "".join(
+        f"c{k},{float(x)!r},{float(y)!r},{float(z[r, q])!r}\n" for k, (x, y, r, q) in enumerate(zip(cx, cy, rows_, cols_))))
+    assert main(["evaluate", "--dsm", str(tmp_path / "test_dsm.tif"), "--checkpoints", str(tmp_path / "cc.csv"),
+                 "-o", str(tmp_path / "g")]) == 0
+    cc = json.loads((tmp_path / "g" / "evaluate.json").read_text())["checkpoints"]
+    dz = np.array([r["dz"] for r in cc["points"]], float)
+    injected = noisy.astype(np.float32).astype(float)[rows_, cols_] - z[rows_, cols_]
+    assert cc["n"] == rows_.size
+    assert 0.03 < dz.mean() < 0.07, dz.mean()
+    assert 0.095 < cc["rmse_z"] < 0.126, cc["rmse_z"]
+    assert np.max(np.abs(dz - injected)) < 1e-6
     assert main(["evaluate", "--dsm", str(ref), "-o", str(tmp_path / "f")]) == 2
