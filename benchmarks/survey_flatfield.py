@@ -82,6 +82,7 @@ def _survey(root: Path, out: Path, camera: Path | None) -> dict:
             "errors": e, "sigma": sd, "fx": fx[0] if fx else None,
             "self_calibration": blocks[0].get("self_calibration") if blocks else None,
             "focal_prior": blocks[0].get("focal_prior") if blocks else None,
+            "determinability": blocks[0].get("determinability") if blocks else None,
             "steps": blocks[0].get("self_calibration_steps") if blocks else None}
 
 
@@ -115,7 +116,7 @@ def main() -> int:
             rm = np.sqrt(np.mean(r["errors"] ** 2, axis=0)) if len(r["errors"]) else [np.nan] * 3
             print(f"seed {seed} {label}: exit {r['code']}, {r['oriented']}/{r['images']} oriented, fx {r['fx']}, "
                   f"check RMSE {rm[0]:.3f}/{rm[1]:.3f}/{rm[2]:.3f} m, self-calibration {r['self_calibration']}, "
-                  f"focal prior {r['focal_prior']}, {r['seconds']:.0f} s", flush=True)
+                  f"focal prior {r['focal_prior']}, determinability {r['determinability']}, {r['seconds']:.0f} s", flush=True)
     print(f"\nflat field, relief {a.relief} m, {a.gcps} GCPs, {a.checks} check points, markers {a.marker_sigma} px, "
           f"GSD {gsd:.3f} m, {a.seeds} noise realisations\n")
     print("| row | oriented | check RMSE X / Y / Z (m) | in GSD | RMS(error)/RMS(σ) X / Y / Z | fx (px) |")
