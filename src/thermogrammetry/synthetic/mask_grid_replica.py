@@ -105,8 +105,14 @@ def _scene_temperature(x_mm, y_mm, on_plane, rays, tgt, plate_rim_mm, temps, gra
         (ys <= ymax + plate_rim_mm)
     r2 = (0.5 * tgt.diameter_mm) ** 2
     in_circle = np.zeros(xs.shape, bool)
+    # each circle tested on the samples whose x lies within its radius (samples sorted by x once): the same mask
+    xf, yf, flat = xs.reshape(-1), ys.reshape(-1), in_circle.reshape(-1)
+    order = np.argsort(xf, kind="stable")
+    x_sorted = xf[order]
+    r = float(np.sqrt(r2)) * (1 + 1e-9) + 1e-9  # (a hair wider: the exact test decides)
     for cx, cy in centres_mm:
-        in_circle |= (xs - cx) ** 2 + (ys - cy) ** 2 <= r2
+        near = order[np.searchsorted(x_sorted, cx - r, side="left"):np.searchsorted(x_sorted, cx + r, side="right")]
+        flat[near] |= (xf[near] - cx) ** 2 + (yf[near] - cy) ** 2 <= r2
     in_circle &= in_mask
     # mild non-uniform plate/mask temperature: a linear gradient plus a broad warm patch (target frame)
     gx, gy, bump = gradient
