@@ -4,7 +4,8 @@ final adjustment.
 A self-calibrated focal length is only as good as the block's geometry lets it be. Over flat ground, a focal
 length ``s f`` with every camera at ``s`` times its height above the ground leaves every image point in place
 (Kraus 2007, §4.4): the focal length and the flying height are then one unknown, and their correlation in the
-adjustment's covariance goes to ±1. Relief, oblique views or GCPs at several heights separate them. Radial
+adjustment's covariance goes to ±1. Relief, oblique views, GCPs at several heights or GNSS heights of the cameras
+separate them. Radial
 distortion that the block determines poorly bends a flat block into a dome or a bowl. Three figures per camera say
 this in the units users think in:
 
