@@ -401,8 +401,18 @@ def _ring_point(u, L, D, H, r):
 
 
 def _waves(scene: BuildingScene, a, b) -> np.ndarray:
+    """The sum of the scene's plane waves at (a, b), evaluated in chunks of 8192 points (the (chunk, waves) temporaries
+    stay in cache; each point's sum is the same as in one pass)."""
     w = scene.waves
-    return np.sum(w[:, 3] * np.sin(np.multiply.outer(a, w[:, 0]) + np.multiply.outer(b, w[:, 1]) + w[:, 2]), axis=-1)
+    shape = np.broadcast_shapes(np.shape(a), np.shape(b))
+    af = np.broadcast_to(np.asarray(a, float), shape).reshape(-1)
+    bf = np.broadcast_to(np.asarray(b, float), shape).reshape(-1)
+    out = np.empty(af.size)
+    for i in range(0, af.size, 8192):
+        ac, bc = af[i : i + 8192], bf[i : i + 8192]
+        out[i : i + 8192] = np.sum(w[:, 3] * np.sin(np.multiply.outer(ac, w[:, 0]) + np.multiply.outer(bc, w[:, 1]) + w[:, 2]),
+                                   axis=-1)
+    return out.reshape(shape)
 
 
 def surface_temperature(scene: BuildingScene, points, group) -> np.ndarray:
