@@ -115,3 +115,28 @@ def test_a_worker_killed_mid_run_costs_its_tasks_not_the_run(cluster, survey):
     _same_outputs(local, out)
     if not killed:
         pytest.skip("dense ended before the worker could be killed (outputs checked); the kill was not exercised")
+
+
+def test_ortho_on_an_existing_cluster_equals_the_local_run(cluster, survey):
+    """The ortho of the local run's DSM, its tiles on the cluster: every raster and ortho.json (timings aside) as in
+    this process."""
+    addr, workers = cluster
+    if workers["w1"].poll() is not None and workers["w2"].poll() is not None:
+        pytest.skip("no worker left")
+    root, sv, local = survey
+    outs = {}
+    for name, flags in (("ortho-local", ["--workers", "0"]), ("ortho-cluster", ["--scheduler", addr])):
+        outs[name] = root / name
+        r = subprocess.run([sys.executable, "-m", "thermogrammetry", "ortho", str(sv), "--dsm", str(local / "dsm.tif"),
+                            "-o", str(outs[name]), *flags], capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+    a, b = outs["ortho-local"], outs["ortho-cluster"]
+    tifs = sorted(p.name for p in a.glob("*.tif"))
+    assert tifs and tifs == sorted(p.name for p in b.glob("*.tif"))
+    for f in tifs:
+        assert (a / f).read_bytes() == (b / f).read_bytes(), f
+    ja, jb = (json.loads((d / "ortho.json").read_text()) for d in (a, b))
+    for d in (ja, jb):
+        for k in ("seconds", "workers", "scheduler", "timing", "steps"):
+            d.pop(k, None)
+    assert ja == jb
