@@ -112,9 +112,13 @@ def test_selection_in_chunks_equals_one_call(scene, views):
     one = select_and_sample(inter, V, F, views, surf, sc, tx.points, tx.face, cfg)
     sample = np.zeros(len(tx.points), bool)
     sample[::7] = True
+    done = []
     sel, occ, ak = select_in_chunks(inter, V, F, views, surf, sc, tx.points, tx.face, cfg, sample=sample,
-                                    chunk_point_views=len(views) * 997)
+                                    chunk_point_views=len(views) * 997, on_chunk=lambda d, n: done.append((d, n)))
     assert len(tx.points) > 5 * 997 and sel.occluded_in is None and sel.all_k is None
+    # progress after every chunk: 997, 1994, ... up to every point
+    n = len(tx.points)
+    assert done == [(min(n, 997 * (i + 1)), n) for i in range(-(-n // 997))]
     assert np.array_equal(sel.source, one.source) and np.array_equal(sel.n_usable, one.n_usable)
     assert np.array_equal(sel.temperature_k, one.temperature_k, equal_nan=True)
     assert np.array_equal(occ, one.occluded_in.sum(axis=0)) and occ.sum() > 0

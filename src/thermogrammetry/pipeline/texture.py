@@ -562,6 +562,10 @@ def _link_frame(cameras, im: dict, store) -> str:
     return rel
 
 
+#: the progress stage of the photometric pose fit (:func:`run_texture`)
+STAGE_PHOTOMETRIC_FIT = "photometric pose fit (views)"
+
+
 def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, correct: bool = False, levelling: str = "none",
                 rig_path=None, config=None, progress=None, fit_poses: str = "auto", max_faces: int | None = None) -> dict:
     """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict.
@@ -573,7 +577,9 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     bending the block; ``texture.json`` ``pose_fit`` says what happened, ``cameras_fitted.json`` holds the poses
     used), then refines them photometrically (:func:`photometric_fit_views`, ``texture.json`` ``photometric_fit``);
     ``"mesh"``: the first step only; ``"off"``: the survey's poses as they are. ``max_faces``: the mesh's triangle cap
-    (default :data:`DEFAULT_MAX_FACES`).
+    (default :data:`DEFAULT_MAX_FACES`). ``progress``: optional callable ``progress(stage, done, total)`` called as the
+    work goes: :data:`STAGE_PHOTOMETRIC_FIT` after each view of the photometric pose fit, then the stages of
+    :func:`thermogrammetry.products.texture.texture_mesh` (per view, per chunk of texels and of face corners).
     """
     from dataclasses import replace
 
@@ -627,10 +633,11 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     F, winding_note = orient_mesh_to_views(V, F, views, cfg)
     check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs)
     if fit_poses == "auto":
-        views, photo_fit = photometric_fit_views(cameras, views, V, F, cfg, rig=rig_path is not None, progress=progress)
+        per_view = None if progress is None else (lambda k, n: progress(STAGE_PHOTOMETRIC_FIT, k, n))
+        views, photo_fit = photometric_fit_views(cameras, views, V, F, cfg, rig=rig_path is not None, progress=per_view)
     else:
         photo_fit = {"applied": False, "reason": f"{fit_poses} (fit_poses)"}
-    result = texture_mesh(V, F, views, cfg)
+    result = texture_mesh(V, F, views, cfg, progress=progress)
     if not np.any(result.faces_textured):
         check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs, textured=0)
     with OutputSet(out_dir, "texture") as outputs:  # OUT complete or absent; a user's own files in OUT kept
