@@ -94,6 +94,11 @@ def read_mesh(path, *, max_faces: int | None = None) -> tuple[np.ndarray, np.nda
     F = np.asarray(getattr(m, "faces", np.zeros((0, 3))), np.int64)
     if len(V) < 3 or len(F) < 1:
         raise InvalidInputError(f"{p}: the mesh has {len(V)} vertices and {len(F)} faces; expected a triangle mesh")
+    bad = np.flatnonzero(~np.all(np.isfinite(V), axis=1))
+    if len(bad):
+        k = int(bad[0])
+        raise InvalidInputError(f"{p}: {len(bad)} of its {len(V)} vertices have non-finite coordinates (vertex {k}, "
+                                f"1-based {k + 1}: {V[k].tolist()}); expected finite coordinates in metres")
     if max_faces is not None and len(F) > int(max_faces):
         raise InvalidInputError(f"{p}: the mesh has {len(F)} triangles, above the cap of {int(max_faces)}; decimate it "
                                 f"(a texel grid is finer than the faces anyway) or raise the cap (--max-faces N)")
@@ -587,10 +592,12 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     from ..io.tiff import encode_temperature_tiff
     from ..products import texture_export as tx
     from ..products.texture import TextureConfig, texture_mesh
+    from ..products.texture_atlas import check_texel_size
     from ..radiometry.encoding import TemperatureUnit, from_kelvin
-    from .._atomic import OutputSet, sync_folder
+    from .._atomic import OutputSet, check_output_apart, sync_folder
     from ..store import FolderProject
 
+    check_output_apart(out_dir, [("survey folder", survey_dir)])
     cameras = OrientedCameras.load(survey_dir)
     if max_faces is not None and (isinstance(max_faces, bool) or int(max_faces) != max_faces or max_faces < 1):
         raise ConfigError(f"max_faces={max_faces!r}: expected a positive number of triangles")
@@ -618,6 +625,8 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     u = None if counts else TemperatureUnit(unit or "K")
     unit_out = "counts" if counts else u.value
     cfg = config or TextureConfig()
+    if cfg.texel_size_m is not None:
+        check_texel_size(V, F, cfg.texel_size_m, cfg.max_texture_px, str(mesh_path))
     cfg = replace(cfg, correct=bool(correct), levelling=levelling)
     cfg, clean_note = clean_radius_from_poses(cfg, cameras, views)  # only ever widens the configured radius
     if cfg.min_clean_radius_px is None:
