@@ -362,7 +362,8 @@ def test_cli_texture_bad_input(cli_out, tmp_path, capsys):
     assert main(["texture", str(survey), "--mesh", str(tmp_path / "nope.obj"), "-o", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "nope.obj" in err and "Traceback" not in err
-    assert main(["texture", str(tmp_path), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o")]) == 2
+    (tmp_path / "empty").mkdir()  # a folder without cameras.json (OUT beside it: an OUT inside it is refused first)
+    assert main(["texture", str(tmp_path / "empty"), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o")]) == 2
     assert "cameras.json" in capsys.readouterr().err
     assert main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o"), "--levelling", "blend"]) == 2
     capsys.readouterr()

@@ -287,8 +287,9 @@ def check_output_apart(out: str | os.PathLike, inputs, what: str = "-o") -> None
     Parameters
     ----------
     out : the output folder the user named (a symlink is followed: its target is what is compared)
-    inputs : iterable of ``(label, path)``: the input folders (a file stands for the folder holding it), ``label``
-        naming them in the message (``"survey folder"``, ``"input images"``)
+    inputs : iterable of ``(label, path)``: the input folders, ``label`` naming them in the message (``"survey
+        folder"``); an input file refuses only an OUT that is its own folder (``survey flight.mp4 -o out`` beside the
+        video is usual)
     what : how the message names OUT
 
     Raises
@@ -305,9 +306,9 @@ def check_output_apart(out: str | os.PathLike, inputs, what: str = "-o") -> None
         f = folder.resolve()
         if o == f:
             how = "is"
-        elif o.is_relative_to(f):
+        elif p.is_dir() and o.is_relative_to(f):
             how = "lies inside"
-        elif f.is_relative_to(o):
+        elif p.is_dir() and f.is_relative_to(o):
             how = "contains"
         else:
             continue
