@@ -65,13 +65,15 @@ def monte_carlo(root, runs: int, *, frames, netd=0.05, center_std=0.005, rotatio
             im.center_std = np.full(3, center_std)
             im.rotation_std_deg = np.full(3, rotation_std_deg)
         oc.save(run / "cameras.json")
-        rep = run_ortho(run, root / "dsm.tif", run / "o", workers=0, config=cfg, sigma=sig)
-        with rasterio.open(run / "o" / "ortho.tif") as s:
+        o = root / f"o{k}"  # beside the survey folder, not inside it (an OUT inside an input folder is refused)
+        rep = run_ortho(run, root / "dsm.tif", o, workers=0, config=cfg, sigma=sig)
+        with rasterio.open(o / "ortho.tif") as s:
             vals.append(s.read(1))
-        with rasterio.open(run / "o" / "ortho_sigma.tif") as s:
+        with rasterio.open(o / "ortho_sigma.tif") as s:
             sigs.append(s.read())
         netds.append(rep["sigma"]["netd"])
         shutil.rmtree(run)
+        shutil.rmtree(o)
         for im in oc.images:  # back to the truth for the next draw
             im.R, im.t = oc_R[im.name], oc_t[im.name]
     return {"truth": truth, "values": np.array(vals), "sigma": np.array(sigs), "netd": np.array(netds)}

@@ -1,6 +1,7 @@
 """Regression corpus of bad inputs (issue 14): every case is built here from a few bytes, run through the CLI
 as a user would, and must end in exit 2 with a one-paragraph message naming the file/value -- never a
-traceback, never exit 0, never a partial output set.
+traceback, never exit 0, never a partial output set, never a hang (:data:`HANG_S`), and every file the case
+made (the user's inputs, a folder given as OUT) still there byte for byte.
 
 ``CASES`` is the corpus; ``python -m pytest tests/test_bad_inputs.py -q`` runs it (CI too).  Each case
 returns ``(argv, expected_substrings, out_dir_that_must_not_exist_or_None)``.
@@ -8,9 +9,12 @@ returns ``(argv, expected_substrings, out_dir_that_must_not_exist_or_None)``.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import io
 import json
 import os
+import signal
 import struct
 import zlib
 from pathlib import Path
@@ -472,16 +476,54 @@ def _(t):
             "--plane", "0,0,1,-5", "-o", str(t / "OUT")], ["cameras.json", "cam_from_world.R", "expected a list of 9 numbers"], t / "OUT"
 
 
-# the verbs that read a survey folder and rasters (dense, ortho, evaluate): cases built in their own module
+# the verbs that read a survey folder and rasters (dense, ortho, evaluate), and survey, texture, facade, plan and the
+# output folders of all of them: cases built in their own modules
 from bad_inputs_products import CASES as _PRODUCT_CASES  # noqa: E402
+from bad_inputs_verbs import CASES as _VERB_CASES  # noqa: E402
 
 CASES.update(_PRODUCT_CASES)
+CASES.update(_VERB_CASES)
+
+#: a case running longer than this (s) is a hang (each takes well under a second)
+HANG_S = 60
+
+
+class CaseHung(Exception):
+    """A case ran past :data:`HANG_S`."""
+
+
+@contextlib.contextmanager
+def deadline(seconds: int = HANG_S):
+    """Raise :class:`CaseHung` in the main thread when the block runs longer than ``seconds``."""
+    def on_alarm(signum, frame):
+        raise CaseHung(f"still running after {seconds} s")
+    old = signal.signal(signal.SIGALRM, on_alarm)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def file_digests(folder: Path) -> dict[str, str]:
+    """Relative path -> sha256 of every file under ``folder`` (symlinks not followed)."""
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file() and not p.is_symlink()}
+
+
+def files_lost(folder: Path, before: dict[str, str]) -> list[str]:
+    """The files of ``before`` that are no longer under ``folder`` with the same bytes."""
+    now = file_digests(folder)
+    return [f for f, h in before.items() if now.get(f) != h]
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_bad_input_is_refused_with_a_message(name, tmp_path, capsys):
     argv, expected, must_not_exist = CASES[name](tmp_path)
-    code = main(argv)  # an escaping exception (a traceback) fails the test here
+    before = file_digests(tmp_path)
+    with deadline():
+        code = main(argv)  # an escaping exception (a traceback, a hang) fails the test here
     cap = capsys.readouterr()
     text = " ".join((cap.out + cap.err).replace("│", " ").split())  # rich boxes wrap long lines
     assert code == 2, f"{name}: exit {code}\n{text}"
@@ -491,3 +533,4 @@ def test_bad_input_is_refused_with_a_message(name, tmp_path, capsys):
     if must_not_exist is not None:  # nothing half-written
         assert not Path(must_not_exist).exists(), f"{name}: {must_not_exist} was created"
     assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name], "staging folder left behind"
+    assert files_lost(tmp_path, before) == [], f"{name}: a file the user gave was changed or removed"

@@ -213,3 +213,25 @@ def test_a_set_published_while_another_run_created_out_goes_over_it(tmp_path, mo
     assert (out / "a.txt").read_text() == "from A" and (out / "b_only.txt").read_text() == "B"
     assert json.loads((out / "t-manifest.json").read_text())["run"] == "A"
     assert [p.name for p in tmp_path.iterdir()] == ["OUT"]
+
+
+def test_output_apart_from_the_inputs(tmp_path):
+    """An input folder refuses an OUT that is it, lies inside it or contains it (also through a symlink); an input
+    file refuses only an OUT that is its own folder (an OUT beside a video or a frame is usual)."""
+    from thermogrammetry._atomic import check_output_apart
+    from thermogrammetry.errors import DataFileError
+
+    sv = tmp_path / "survey"
+    (sv / "frames").mkdir(parents=True)
+    video = write(tmp_path / "flight.mp4", b"x")
+    (tmp_path / "link").symlink_to(sv, target_is_directory=True)
+    for out, how in ((sv, "is"), (sv / "frames", "lies inside"), (sv / "new" / "OUT", "lies inside"),
+                     (tmp_path, "contains"), (tmp_path / "link", "is"), (tmp_path / "link" / "o", "lies inside")):
+        with pytest.raises(DataFileError, match=f": {how} the survey folder {sv}; expected an output folder apart"):
+            check_output_apart(out, [("survey folder", sv)])
+    for out in (tmp_path / "OUT", tmp_path / "survey2", tmp_path / "surv"):
+        check_output_apart(out, [("survey folder", sv)])  # beside it, or a name it begins with: accepted
+    check_output_apart(tmp_path / "OUT", [("input images' folder", video)])
+    check_output_apart(tmp_path.parent, [("input images' folder", video)])
+    with pytest.raises(DataFileError, match=r"-o .*: is the input images' folder"):
+        check_output_apart(tmp_path, [("input images' folder", video)])

@@ -395,7 +395,8 @@ def test_cloud_las_extra_bytes_ranges_cover_every_chunk(tmp_path):
 def test_dense_refuses_a_folder_without_cameras(tmp_path):
     from thermogrammetry.cli.main import main
 
-    assert main(["dense", str(tmp_path), "-o", str(tmp_path / "o"), "--workers", "0"]) == 2
+    (tmp_path / "empty").mkdir()  # OUT beside the folder (an OUT inside the survey folder is refused first)
+    assert main(["dense", str(tmp_path / "empty"), "-o", str(tmp_path / "o"), "--workers", "0"]) == 2
 
 
 def test_disparity_on_the_middlebury_motorcycle_pair():

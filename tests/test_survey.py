@@ -449,7 +449,8 @@ def test_float_tiff_without_unit_names_the_flag(tmp_path, capsys):
 def test_bad_flags_exit_2_with_the_value(tmp_path, capsys, args, msg):
     from thermogrammetry.cli.main import main
 
-    assert main(["survey", str(tmp_path), "-o", str(tmp_path / "out")] + args) == 2
+    (tmp_path / "in").mkdir()  # OUT beside the input folder (an OUT inside it is refused first)
+    assert main(["survey", str(tmp_path / "in"), "-o", str(tmp_path / "out")] + args) == 2
     assert msg in " ".join(capsys.readouterr().err.split())
     assert not (tmp_path / "out").exists()
 

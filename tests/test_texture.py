@@ -112,9 +112,13 @@ def test_selection_in_chunks_equals_one_call(scene, views):
     one = select_and_sample(inter, V, F, views, surf, sc, tx.points, tx.face, cfg)
     sample = np.zeros(len(tx.points), bool)
     sample[::7] = True
+    done = []
     sel, occ, ak = select_in_chunks(inter, V, F, views, surf, sc, tx.points, tx.face, cfg, sample=sample,
-                                    chunk_point_views=len(views) * 997)
+                                    chunk_point_views=len(views) * 997, on_chunk=lambda d, n: done.append((d, n)))
     assert len(tx.points) > 5 * 997 and sel.occluded_in is None and sel.all_k is None
+    # progress after every chunk: 997, 1994, ... up to every point
+    n = len(tx.points)
+    assert done == [(min(n, 997 * (i + 1)), n) for i in range(-(-n // 997))]
     assert np.array_equal(sel.source, one.source) and np.array_equal(sel.n_usable, one.n_usable)
     assert np.array_equal(sel.temperature_k, one.temperature_k, equal_nan=True)
     assert np.array_equal(occ, one.occluded_in.sum(axis=0)) and occ.sum() > 0
@@ -358,7 +362,8 @@ def test_cli_texture_bad_input(cli_out, tmp_path, capsys):
     assert main(["texture", str(survey), "--mesh", str(tmp_path / "nope.obj"), "-o", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "nope.obj" in err and "Traceback" not in err
-    assert main(["texture", str(tmp_path), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o")]) == 2
+    (tmp_path / "empty").mkdir()  # a folder without cameras.json (OUT beside it: an OUT inside it is refused first)
+    assert main(["texture", str(tmp_path / "empty"), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o")]) == 2
     assert "cameras.json" in capsys.readouterr().err
     assert main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(tmp_path / "o"), "--levelling", "blend"]) == 2
     capsys.readouterr()

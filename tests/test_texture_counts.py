@@ -117,6 +117,28 @@ def cli_out(survey, tmp_path_factory):
     return out
 
 
+def test_cli_prints_a_progress_line_for_each_texturing_stage(survey, tmp_path, capsys):
+    """Every stage that grows with the mesh or the images reports as it goes (plain lines in a log), each ending at its
+    total: the photometric fit and the ray casting per view (3), the texels (texture.json's texels_total) and the
+    face corners of the per-vertex values (3 per face)."""
+    from thermogrammetry.cli.main import main
+
+    out = tmp_path / "out"
+    capsys.readouterr()
+    assert main(["texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o", str(out), "--texel-size", "0.02"]) == 0
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("texture: ")]
+    d = json.loads((out / "texture.json").read_text())
+    last = {}
+    for ln in lines:
+        stage, frac = ln[len("texture: "):].rsplit(" ", 1)
+        last.setdefault(stage, []).append(tuple(int(x) for x in frac.split("/")))
+    assert list(last) == ["photometric pose fit (views)", "visibility (views)", "texels", "vertex corners"], lines
+    assert last["visibility (views)"] == [(0, 3), (1, 3), (2, 3), (3, 3)]
+    assert last["photometric pose fit (views)"][-1] == (3, 3)
+    assert last["texels"][-1] == (d["texels_total"], d["texels_total"]) and d["texels_total"] > 10_000
+    assert last["vertex corners"][-1] == (3 * d["faces_total"], 3 * d["faces_total"]) and d["faces_total"] == 96
+
+
 @pytest.fixture(scope="module")
 def library_result(survey):
     from thermogrammetry.io.oriented import OrientedCameras

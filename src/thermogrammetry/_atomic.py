@@ -31,7 +31,7 @@ from pathlib import Path
 from ._libc import libc_function
 from .errors import DataFileError
 
-__all__ = ["write_atomic", "write_atomic_text", "sync_folder", "file_mode", "dir_mode", "check_output_folder", "clean_stale_temporaries", "make_temp", "spill_folder", "OutputSet"]
+__all__ = ["write_atomic", "write_atomic_text", "sync_folder", "file_mode", "dir_mode", "check_output_folder", "check_output_apart", "clean_stale_temporaries", "make_temp", "spill_folder", "OutputSet"]
 
 _LOCK = threading.Lock()
 
@@ -279,6 +279,41 @@ def check_output_folder(out: str | os.PathLike, what: str = "output folder") -> 
     if not os.access(probe, os.W_OK | os.X_OK):
         raise DataFileError(f"{what} {out}: {probe} is not writable (permission denied)")
     return out
+
+
+def check_output_apart(out: str | os.PathLike, inputs, what: str = "-o") -> None:
+    """Refuse an OUT that is an input folder, lies inside one or contains one, before anything is read.
+
+    Parameters
+    ----------
+    out : the output folder the user named (a symlink is followed: its target is what is compared)
+    inputs : iterable of ``(label, path)``: the input folders, ``label`` naming them in the message (``"survey
+        folder"``); an input file refuses only an OUT that is its own folder (``survey flight.mp4 -o out`` beside the
+        video is usual)
+    what : how the message names OUT
+
+    Raises
+    ------
+    DataFileError
+        OUT and an input folder are one, or one holds the other: the outputs would mix with the user's input files
+        (and a rerun would read its own outputs as inputs).
+    """
+    o = Path(out).resolve()
+    via = f" (a link to {o})" if Path(out).is_symlink() else ""
+    for label, p in inputs:
+        p = Path(p)
+        folder = p if p.is_dir() else p.parent
+        f = folder.resolve()
+        if o == f:
+            how = "is"
+        elif p.is_dir() and o.is_relative_to(f):
+            how = "lies inside"
+        elif p.is_dir() and f.is_relative_to(o):
+            how = "contains"
+        else:
+            continue
+        raise DataFileError(f"{what} {out}{via}: {how} the {label} {folder}; expected an output folder apart from the "
+                            "inputs (neither one of their folders, nor inside or around one)")
 
 
 class OutputSet:

@@ -50,6 +50,8 @@ def texture(
     from ..products.texture import Levelling, TextureConfig
     from ..radiometry.encoding import TemperatureUnit
 
+    from .progress import progress
+
     console = Console(stderr=True)
     try:
         u = None if unit is None else TemperatureUnit(unit.upper() if unit.lower() in ("k", "c") else unit)
@@ -57,8 +59,9 @@ def texture(
         cfg = TextureConfig(texel_size_m=texel_size)
         if out.exists() and not out.is_dir():
             raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
-        d = run_texture(survey_dir, mesh, out, unit=None if u is None else u.value, correct=correct, levelling=lev.value, rig_path=rig, config=cfg, max_faces=max_faces,
-                        fit_poses=fit_poses)
+        with progress(console, "texture") as prog:
+            d = run_texture(survey_dir, mesh, out, unit=None if u is None else u.value, correct=correct, levelling=lev.value, rig_path=rig, config=cfg, max_faces=max_faces,
+                            fit_poses=fit_poses, progress=_stage_lines(prog))
     except (ThermogrammetryError, ValueError, OSError) as exc:
         print_error(console, exc)
         raise typer.Exit(2)
@@ -80,3 +83,15 @@ def texture(
     if d["skipped"]:
         print_plain(console, f"skipped {len(d['skipped'])} image(s): "
                     + "; ".join(f"{s['image']}: {s['reason']}" for s in d["skipped"][:5]))
+
+
+def _stage_lines(prog):
+    """``progress(stage, done, total)`` for :func:`run_texture`: one task of ``prog`` per stage, added when the stage
+    first reports (a refusal before the work prints no progress line)."""
+    tasks: dict[str, int] = {}
+
+    def on_step(stage: str, done: int, total: int) -> None:
+        if stage not in tasks:
+            tasks[stage] = prog.add_task(stage, total=total)
+        prog.update(tasks[stage], completed=done, total=total)
+    return on_step

@@ -85,10 +85,12 @@ def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseCon
     (:func:`~thermogrammetry.io.limits.max_cells`) as far as the cameras' extent tells it; the DSM grid is checked
     again once the points give its extent.
     """
+    from .._atomic import check_output_apart
     from ..io.limits import check_cells
     from ..tasks import check_workers
 
     t0 = time.perf_counter()
+    check_output_apart(out_dir, [("survey folder", survey_dir)])
     cfg = config or DenseConfig()
     check_workers(workers, scheduler)
     sv = SurveyFrames(survey_dir, dji_sdk=dji_sdk, need=3, verb="dense")

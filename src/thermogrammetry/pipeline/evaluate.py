@@ -22,6 +22,7 @@ def run_evaluate(dsm, out, *, reference=None, checkpoints=None, ortho=None, max_
     from .._atomic import OutputSet, write_atomic, write_atomic_text
     from ..errors import ConfigError, DataFileError
     from ..products.evaluate import checkpoint_errors, difference_stats, dsm_difference, read_checkpoints
+    from ..io.testfield_csv import read_text
     from ..products.raster import read_raster
 
     checkpoints = None if checkpoints is None else Path(checkpoints)
@@ -39,6 +40,9 @@ def run_evaluate(dsm, out, *, reference=None, checkpoints=None, ortho=None, max_
         raise DataFileError(f"{reference}: CRS {info_r.crs} differs from the DSM's {info.crs}; expected the same CRS")
     if ortho is not None:
         inspect_raster(ortho, "ortho", max_cells=max_cells)
+    if checkpoints is not None:  # the one reader of the user's CSV files: UTF-8 (a BOM allowed), the file named
+        text, source = read_text(checkpoints)
+        pts = read_checkpoints(text, source)
     z, g, crs, _ = read_raster(dsm, max_cells=max_cells)
     rep: dict = {"dsm": str(dsm), "crs": crs, "dsm_vs_reference": None, "checkpoints": None}
     if reference is not None:
@@ -51,11 +55,6 @@ def run_evaluate(dsm, out, *, reference=None, checkpoints=None, ortho=None, max_
                                 f"covers X {gr.x0:.2f}..{gr.x0 + gr.width * gr.gsd:.2f}, the DSM X {g.x0:.2f}.."
                                 f"{g.x0 + g.width * g.gsd:.2f} m); expected overlapping rasters of the same area")
     if checkpoints is not None:
-        try:
-            text = checkpoints.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise DataFileError(f"{checkpoints}: cannot read ({exc.strerror or exc})") from None
-        pts = read_checkpoints(text, str(checkpoints))
         o = og = None
         if ortho is not None:
             o, og, _, _ = read_raster(ortho)

@@ -181,6 +181,9 @@ def run_facade(survey_dir, out_dir, *, plane: str = "auto", cell_m: float | None
     from ..radiometry.encoding import TemperatureUnit
     from .texture import check_views_unit, frames_unit, load_views, read_mesh
 
+    from .._atomic import check_output_apart
+
+    check_output_apart(out_dir, [("survey folder", survey_dir)])
     levelling = _check_common(cell_m, tile_m, levelling)
     cameras = OrientedCameras.load(survey_dir)
     frame_unit = frames_unit(cameras)

@@ -227,9 +227,11 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
     from ..io.limits import check_cells
     from ..products.correction import as_correction_config
     from ..products.raster import inspect_raster
+    from .._atomic import check_output_apart
     from ..tasks import check_workers
 
     t0 = time.perf_counter()
+    check_output_apart(out_dir, [("survey folder", survey_dir)])
     check_workers(workers, scheduler)
     sv = SurveyFrames(survey_dir, dji_sdk=dji_sdk, need=1, verb="ortho")
     if not Path(dsm_path).exists():
@@ -269,6 +271,10 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
         raise ConfigError(f"--gsd {gsd!r}: expected a positive cell size in metres")
     dg = meta["grid"]
     gw, gh = int(np.ceil(dg.width * dg.gsd / g)), int(np.ceil(dg.height * dg.gsd / g))
+    if min(gw, gh) < 2:  # a cell larger than the DSM: no mosaic (and its one-cell pad would read a window of that size)
+        raise ConfigError(f"--gsd {float(g):g} m: the DSM {dsm_path} covers {dg.width * dg.gsd:.4g} x "
+                          f"{dg.height * dg.gsd:.4g} m, an ortho grid of {gw} x {gh} cell(s) at that size; expected a "
+                          f"cell size giving at least 2 x 2 cells (at most {min(dg.width, dg.height) * dg.gsd / 2:.4g} m)")
     check_cells(gw, gh, f"ortho grid of {dsm_path} at {float(g):g} m" + (" (--gsd)" if gsd is not None else ""),
                 cap=max_cells, what="mosaic")
     grid = Grid(dg.x0, dg.y0, float(g), gw, gh, tile)

@@ -94,6 +94,11 @@ def read_mesh(path, *, max_faces: int | None = None) -> tuple[np.ndarray, np.nda
     F = np.asarray(getattr(m, "faces", np.zeros((0, 3))), np.int64)
     if len(V) < 3 or len(F) < 1:
         raise InvalidInputError(f"{p}: the mesh has {len(V)} vertices and {len(F)} faces; expected a triangle mesh")
+    bad = np.flatnonzero(~np.all(np.isfinite(V), axis=1))
+    if len(bad):
+        k = int(bad[0])
+        raise InvalidInputError(f"{p}: {len(bad)} of its {len(V)} vertices have non-finite coordinates (vertex {k}, "
+                                f"1-based {k + 1}: {V[k].tolist()}); expected finite coordinates in metres")
     if max_faces is not None and len(F) > int(max_faces):
         raise InvalidInputError(f"{p}: the mesh has {len(F)} triangles, above the cap of {int(max_faces)}; decimate it "
                                 f"(a texel grid is finer than the faces anyway) or raise the cap (--max-faces N)")
@@ -562,6 +567,10 @@ def _link_frame(cameras, im: dict, store) -> str:
     return rel
 
 
+#: the progress stage of the photometric pose fit (:func:`run_texture`)
+STAGE_PHOTOMETRIC_FIT = "photometric pose fit (views)"
+
+
 def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, correct: bool = False, levelling: str = "none",
                 rig_path=None, config=None, progress=None, fit_poses: str = "auto", max_faces: int | None = None) -> dict:
     """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict.
@@ -573,7 +582,9 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     bending the block; ``texture.json`` ``pose_fit`` says what happened, ``cameras_fitted.json`` holds the poses
     used), then refines them photometrically (:func:`photometric_fit_views`, ``texture.json`` ``photometric_fit``);
     ``"mesh"``: the first step only; ``"off"``: the survey's poses as they are. ``max_faces``: the mesh's triangle cap
-    (default :data:`DEFAULT_MAX_FACES`).
+    (default :data:`DEFAULT_MAX_FACES`). ``progress``: optional callable ``progress(stage, done, total)`` called as the
+    work goes: :data:`STAGE_PHOTOMETRIC_FIT` after each view of the photometric pose fit, then the stages of
+    :func:`thermogrammetry.products.texture.texture_mesh` (per view, per chunk of texels and of face corners).
     """
     from dataclasses import replace
 
@@ -581,10 +592,12 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     from ..io.tiff import encode_temperature_tiff
     from ..products import texture_export as tx
     from ..products.texture import TextureConfig, texture_mesh
+    from ..products.texture_atlas import check_texel_size
     from ..radiometry.encoding import TemperatureUnit, from_kelvin
-    from .._atomic import OutputSet, sync_folder
+    from .._atomic import OutputSet, check_output_apart, sync_folder
     from ..store import FolderProject
 
+    check_output_apart(out_dir, [("survey folder", survey_dir)])
     cameras = OrientedCameras.load(survey_dir)
     if max_faces is not None and (isinstance(max_faces, bool) or int(max_faces) != max_faces or max_faces < 1):
         raise ConfigError(f"max_faces={max_faces!r}: expected a positive number of triangles")
@@ -612,6 +625,8 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     u = None if counts else TemperatureUnit(unit or "K")
     unit_out = "counts" if counts else u.value
     cfg = config or TextureConfig()
+    if cfg.texel_size_m is not None:
+        check_texel_size(V, F, cfg.texel_size_m, cfg.max_texture_px, str(mesh_path))
     cfg = replace(cfg, correct=bool(correct), levelling=levelling)
     cfg, clean_note = clean_radius_from_poses(cfg, cameras, views)  # only ever widens the configured radius
     if cfg.min_clean_radius_px is None:
@@ -627,10 +642,11 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     F, winding_note = orient_mesh_to_views(V, F, views, cfg)
     check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs)
     if fit_poses == "auto":
-        views, photo_fit = photometric_fit_views(cameras, views, V, F, cfg, rig=rig_path is not None, progress=progress)
+        per_view = None if progress is None else (lambda k, n: progress(STAGE_PHOTOMETRIC_FIT, k, n))
+        views, photo_fit = photometric_fit_views(cameras, views, V, F, cfg, rig=rig_path is not None, progress=per_view)
     else:
         photo_fit = {"applied": False, "reason": f"{fit_poses} (fit_poses)"}
-    result = texture_mesh(V, F, views, cfg)
+    result = texture_mesh(V, F, views, cfg, progress=progress)
     if not np.any(result.faces_textured):
         check_mesh_meets_cameras(V, F, views, cfg, mesh_path, survey_dir, cameras.crs, textured=0)
     with OutputSet(out_dir, "texture") as outputs:  # OUT complete or absent; a user's own files in OUT kept

@@ -77,6 +77,10 @@ def read_checkpoints(text: str, source: str) -> list[tuple[str, float, float, fl
             out.append((r[col["id"]].strip(), float(r[col["x"]]), float(r[col["y"]]), float(r[col["z"]])))
         except (ValueError, IndexError):
             raise DataFileError(f"{source}: line {ln}: {r!r}; expected id and three numbers X,Y,Z (m)") from None
+        bad = [(k, r[col[k]].strip()) for k in ("x", "y", "z") if not np.isfinite(out[-1][1 + "xyz".index(k)])]
+        if bad:
+            raise DataFileError(f"{source}: line {ln}: {bad[0][0].upper()} = {bad[0][1]!r} is not finite; expected "
+                                "finite coordinates X,Y,Z (m)")
     return out
 
 

@@ -214,14 +214,14 @@ def majority_source(face, source, n_faces: int) -> np.ndarray:
 
 
 
-def _vertex_temperatures(intersector, V, F, views, surfaces, scores, cfg):
+def _vertex_temperatures(intersector, V, F, views, surfaces, scores, cfg, on_chunk=None):
     """Per-vertex temperature: every face corner (pulled 1e-3 of the way to the centroid so that the ray
     test belongs to that face) is selected and sampled like a texel; a vertex averages its corners."""
     cen = V[F].mean(axis=1)
     corners = V[F] * (1 - 1e-3) + 1e-3 * cen[:, None, :]
     pts = corners.reshape(-1, 3)
     fi = np.repeat(np.arange(len(F)), 3)
-    sel, _, _ = select_in_chunks(intersector, V, F, views, surfaces, scores, pts, fi, cfg)
+    sel, _, _ = select_in_chunks(intersector, V, F, views, surfaces, scores, pts, fi, cfg, on_chunk=on_chunk)
     vid = F.reshape(-1)
     ok = np.isfinite(sel.temperature_k)
     s = np.bincount(vid[ok], weights=sel.temperature_k[ok], minlength=len(V))
@@ -232,7 +232,23 @@ def _vertex_temperatures(intersector, V, F, views, surfaces, scores, cfg):
 
 
 
-def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureConfig | None = None) -> TextureResult:
+#: stage names of :func:`texture_mesh`'s ``progress`` (what a progress line prints)
+STAGE_VISIBILITY = "visibility (views)"
+STAGE_TEXELS = "texels"
+STAGE_CORNERS = "vertex corners"
+
+
+def _stage_callback(progress):
+    """``stage -> callable(done, total)`` forwarding to ``progress(stage, done, total)`` (a no-op without one)."""
+    def for_stage(stage):
+        if progress is None:
+            return lambda done, total: None
+        return lambda done, total: progress(stage, int(done), int(total))
+    return for_stage
+
+
+def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureConfig | None = None, *,
+                 progress=None) -> TextureResult:
     """Texture a mesh with temperatures from oriented thermal images (:mod:`thermogrammetry.products.texture`).
 
     Parameters
@@ -242,6 +258,10 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     views : K :class:`TextureView`, images in kelvin (or all in raw counts: values, offsets and the levelling RMS
         are then counts; ``correct`` needs kelvin)
     config : :class:`TextureConfig`
+    progress : optional callable ``progress(stage, done, total)`` for the steps that grow with the mesh and the
+        images: :data:`STAGE_VISIBILITY` after each view's ray casting (``done`` of K views), :data:`STAGE_TEXELS`
+        after each chunk of texels and :data:`STAGE_CORNERS` after each chunk of face corners (the per-vertex
+        values; ``done`` of 3 F)
 
     Returns
     -------
@@ -277,13 +297,17 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
     texels = rasterize_atlas(atlas, V, F)
     inter = ray_intersector(V, F)
     planes = plane_ids(V, F)
-    surfaces = [pixel_surfaces(inter, V, F, v, planes) for v in views]
+    step = _stage_callback(progress)
+    surfaces = []
+    for k, v in enumerate(views):
+        surfaces.append(pixel_surfaces(inter, V, F, v, planes))
+        step(STAGE_VISIBILITY)(k + 1, len(views))
     K = len(views)
     levelling = cfg.levelling is Levelling.OFFSETS
     # levelling needs every usable view's value: kept for a seeded sample of texels only (2 per wanted pair)
     sample = levelling_sample(len(texels.points), 2 * int(cfg.offsets_max_pairs)) if levelling else None
     sel, occluded, sample_k = select_in_chunks(inter, V, F, views, surfaces, scores, texels.points, texels.face, cfg,
-                                               sample=sample)
+                                               sample=sample, on_chunk=step(STAGE_TEXELS))
     faces_min_radius = np.zeros(len(F), bool)
     if cfg.min_clean_radius_px is not None and cfg.min_clean_radius_px < cfg.clean_radius_px:
         # a face that no image sees cleanly at the wide radius (small faces along a silhouette) takes the texels
@@ -298,7 +322,7 @@ def texture_mesh(vertices, faces, views: Sequence[TextureView], config: TextureC
             sel.source[redo], sel.temperature_k[redo], sel.angle_deg[redo] = s2.source, s2.temperature_k, s2.angle_deg
             sel.distance_m[redo], sel.n_usable[redo] = s2.distance_m, s2.n_usable
             faces_min_radius[texels.face[redo[s2.source >= 0]]] = True
-    vtemp, vsel = _vertex_temperatures(inter, V, F, views, surfaces, scores, cfg)
+    vtemp, vsel = _vertex_temperatures(inter, V, F, views, surfaces, scores, cfg, on_chunk=step(STAGE_CORNERS))
     del surfaces
     offsets = np.zeros(K)
     fixed = None

@@ -31,13 +31,40 @@ class Atlas:
 
 
 
+def smallest_texel_m(vertices, faces, max_texture_px: int) -> float:
+    """The smallest texel size (m) at which the mesh's area fits one ``max_texture_px`` square atlas (a lower bound:
+    charts and padding need more)."""
+    V = np.asarray(vertices, np.float64)
+    F = np.asarray(faces, np.int64)
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum()
+    return float(np.sqrt(area) / int(max_texture_px))
+
+
+def check_texel_size(vertices, faces, texel_size_m: float, max_texture_px: int, source: str) -> None:
+    """Refuse a texel size at which the mesh's area alone needs more texels than one ``max_texture_px`` square atlas.
+
+    Raises
+    ------
+    InvalidInputError
+        naming ``source`` (the mesh file), the texel size, the texels it needs and the smallest size that fits.
+    """
+    lo = smallest_texel_m(vertices, faces, max_texture_px)
+    if float(texel_size_m) < lo:
+        need = (lo * int(max_texture_px) / float(texel_size_m)) ** 2
+        raise InvalidInputError(f"--texel-size {texel_size_m:g} m: the {lo ** 2 * int(max_texture_px) ** 2:.4g} m^2 of "
+                                f"{source} would need {need:.3g} texels, above one {max_texture_px} x {max_texture_px} "
+                                f"atlas; expected a texel size of at least {lo:.3g} m")
+
+
 def build_atlas(vertices, faces, texel_size_m: float, *, max_texture_px: int = 4096, padding: int = 2) -> Atlas:
-    """Charts and packing with xatlas at ``texel_size_m``; coarsened until the atlas fits ``max_texture_px``."""
+    """Charts and packing with xatlas at ``texel_size_m``; coarsened until the atlas fits ``max_texture_px`` (from at
+    least :func:`smallest_texel_m`: xatlas is never asked for an atlas that the mesh's area alone makes too large --
+    it crashes the process on a texel size far below that)."""
     import xatlas
 
     V, F = check_mesh(vertices, faces)
     V32 = (V - local_origin(V)).astype(np.float32)  # xatlas works in float32: charts from local coordinates
-    ts = float(texel_size_m)
+    ts = max(float(texel_size_m), smallest_texel_m(V, F, max_texture_px))
     for _ in range(12):
         atlas = xatlas.Atlas()
         atlas.add_mesh(V32, F.astype(np.uint32))

@@ -81,17 +81,21 @@ def select_and_sample(intersector, vertices, faces, views, surfaces, scores, poi
 #: points × images per chunk of :func:`select_in_chunks` (the chunk's (N, K) float32 values and bool occlusion
 #: flags: ~250 MB at this size)
 CHUNK_POINT_VIEWS = 50_000_000
+#: at most this many points per chunk, whatever the number of images: a mesh seen by few images still reports
+#: progress (``on_chunk``) every million texels rather than once at the end
+CHUNK_MAX_POINTS = 1_000_000
 
 
 
 def select_in_chunks(intersector, vertices, faces, views, surfaces, scores, points, face_index, cfg: TextureConfig, *,
-                     sample=None, chunk_point_views: int = CHUNK_POINT_VIEWS):
+                     sample=None, chunk_point_views: int = CHUNK_POINT_VIEWS, on_chunk=None):
     """:func:`select_and_sample` over chunks of points, so that memory does not grow with points × images.
 
     Parameters
     ----------
     sample : optional (N,) bool, the points whose values in every usable view are kept (for levelling)
     chunk_point_views : points per chunk × number of views
+    on_chunk : optional callable ``on_chunk(done, N)``, called after each chunk with the points done so far (progress)
 
     Returns
     -------
@@ -100,7 +104,7 @@ def select_in_chunks(intersector, vertices, faces, views, surfaces, scores, poin
     sample_all_k : (S, K) float32 values of the ``sample`` points (in point order), or None
     """
     N, K = len(points), len(views)
-    step = max(1, int(chunk_point_views) // max(K, 1))
+    step = max(1, min(int(chunk_point_views) // max(K, 1), CHUNK_MAX_POINTS))
     src = np.full(N, -1, np.int64)
     T = np.full(N, np.nan)
     ang = np.full(N, np.nan)
@@ -119,5 +123,7 @@ def select_in_chunks(intersector, vertices, faces, views, surfaces, scores, poin
         if sample is not None:
             kept.append(s.all_k[np.asarray(sample[sl], bool)])
         del s
+        if on_chunk is not None:
+            on_chunk(sl.stop, N)
     all_k = (np.concatenate(kept) if kept else np.zeros((0, K), np.float32)) if sample is not None else None
     return Selection(src, T, ang, dist, n_ok, None, None, n_vis), occluded, all_k

@@ -81,6 +81,11 @@ class FlightPlan:
         return d
 
 
+#: the highest flight a plan is made for (m above ground): above any survey aircraft; a GSD or a height in the wrong
+#: unit (cm for m) is refused rather than planned 1000 km up
+MAX_HEIGHT_M = 20_000.0
+
+
 def _check_positive(name, v):
     try:
         v = float(v)
@@ -180,7 +185,8 @@ def plan_flight(focal_px: float, image_size: tuple[int, int], area_xy, *, gsd_m:
     if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3:
         raise ConfigError(f"area: expected at least 3 (x, y) vertices, got an array of shape {poly.shape}")
     if not np.isfinite(poly).all():
-        raise ConfigError("area: vertices must be finite numbers")
+        k = int(np.flatnonzero(~np.isfinite(poly).all(axis=1))[0])
+        raise ConfigError(f"area: vertex {k + 1} of {len(poly)} is {poly[k].tolist()}; expected finite coordinates in metres")
     if np.allclose(poly[0], poly[-1]) and len(poly) > 3:
         poly = poly[:-1]
     area = _polygon_area(poly)
@@ -192,6 +198,10 @@ def plan_flight(focal_px: float, image_size: tuple[int, int], area_xy, *, gsd_m:
     else:
         height = _check_positive("height_m", height_m)
         gsd = height / f
+    if height > MAX_HEIGHT_M:
+        given = f"gsd_m={gsd:g} m with focal_px={f:g}" if gsd_m is not None else f"height_m={height:g}"
+        raise ConfigError(f"{given}: a flight {height:.4g} m above ground, above {MAX_HEIGHT_M:g} m (no survey flies "
+                          "there); expected the GSD in metres per pixel (e.g. 0.05) or the height in metres")
     along, across = gsd * h, gsd * w
     trigger = (1 - forward_overlap) * along
     spacing = (1 - sidelap) * across
