@@ -109,7 +109,7 @@ def open_client(workers: int = 1, scheduler: str | None = None):
         from ._interrupt import children_ignore_sigint
 
         with children_ignore_sigint():
-            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None,
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=":0",
                                    silence_logs=50)  # CRITICAL: task errors reach the caller as exceptions; a closing
                                # cluster's heartbeat errors are noise
         return Client(cluster)
