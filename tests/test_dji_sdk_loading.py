@@ -130,11 +130,13 @@ def test_a_bad_sdk_path_exits_2_and_writes_nothing(verb, tmp_path, capsys):
     bad.write_text("not a library\n")
     out = tmp_path / "out"
     src = str(data_path(*M3T))
-    args = {"convert": [src], "survey": [src], "run": [src], "dense": [str(tmp_path)],
-            "ortho": [str(tmp_path), "--dsm", str(tmp_path / "dsm.tif")]}[verb]
+    sv = tmp_path / "survey"  # (beside OUT: an OUT inside the survey folder is refused before anything else)
+    args = {"convert": [src], "survey": [src], "run": [src], "dense": [str(sv)],
+            "ortho": [str(sv), "--dsm", str(sv / "dsm.tif")]}[verb]
     if verb in ("dense", "ortho"):  # a survey folder of counts from the M3T file (the SDK is checked first)
         pytest.importorskip("rasterio")
-        _counts_survey(tmp_path)
+        sv.mkdir()
+        _counts_survey(sv)
     assert main([verb, *args, "-o", str(out), "--dji-sdk", str(bad)]) == 2
     cap = capsys.readouterr()
     assert not out.exists()
