@@ -313,6 +313,24 @@ def test_float_tiff_without_unit_needs_input_unit(tmp_path, capsys):
     assert "--input-unit" in capsys.readouterr().err and not out.exists()
 
 
+@pytest.mark.parametrize("where", ["frames", "s", "frames-link"])
+def test_out_in_or_around_the_image_folder_is_refused_first(tmp_path, capsys, where):
+    """OUT inside the frames' folder, holding it, or a link to it: exit 2 before anything is read; the user's
+    frames and files untouched."""
+    s = _plane_inputs(tmp_path / "s", _poses()[:1], unit="K", offsets=[0], noise=0.0, point_noise_px=0.0)
+    before = sorted((p.relative_to(s), p.stat().st_size) for p in s.rglob("*"))
+    if where == "frames-link":
+        out = tmp_path / "link"
+        out.symlink_to(s / "frames")
+    else:
+        out = (s / "frames" / "out") if where == "frames" else s
+    assert main(["facade", "--images", str(s / "frames"), "--plane-points", str(s / "points.csv"),
+                 "--plane-measurements", str(s / "m.csv"), "--input-unit", "K", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.replace("\n", " ")
+    assert "image folder" in err and str(s / "frames") in err, err
+    assert sorted((p.relative_to(s), p.stat().st_size) for p in s.rglob("*")) == before
+
+
 # ------------------------------------------------------------------------------------------ level_offsets itself
 def test_level_offsets_sigma_matches_the_spread_and_unlinked_images_are_left_alone():
     """Rows with exactly two images (independent pairs, the case where the formal sigma is exact): over 300

@@ -441,7 +441,10 @@ def run_facade_homography(images, points_csv, measurements_csv, out_dir, *, cell
     from ..io.testfield_csv import read_measurements_csv
     from ..products.facade import FacadeGrid, fit_facade_homography, homography_mosaic
     from ..radiometry.encoding import TemperatureUnit
+    from .._atomic import check_output_apart
 
+    check_output_apart(out_dir, [("image folder" if Path(p).is_dir() else "image", p) for p in images]
+                       + [("plane points", points_csv), ("measurements", measurements_csv)])
     levelling = _check_common(cell_m, tile_m, levelling)
     if input_unit is not None and str(input_unit).upper() not in ("K", "C"):
         raise InvalidInputError(f"--input-unit {input_unit!r}: expected K or C")
