@@ -53,14 +53,11 @@ def cluster(tmp_path_factory):
     with Client(addr, timeout=60) as c:
         c.wait_for_workers(2, timeout=60)
     yield addr, {"w1": procs[1], "w2": procs[2]}
-    for p in procs[::-1]:
+    for p in procs[::-1]:  # (SIGKILL: a SIGTERMed dask worker takes up to 30 s to close; nothing of theirs is kept)
         if p.poll() is None:
-            os.killpg(p.pid, signal.SIGTERM)
-    for p in procs:
-        try:
-            p.wait(timeout=30)
-        except subprocess.TimeoutExpired:
             os.killpg(p.pid, signal.SIGKILL)
+    for p in procs:
+        p.wait(timeout=30)
 
 
 @pytest.fixture(scope="module")
