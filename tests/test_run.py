@@ -9,6 +9,7 @@ import logging
 import os
 import re
 import time
+from pathlib import Path
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -250,6 +251,13 @@ def test_refused_arguments_exit_2_and_write_nothing(project, tmp_path, capsys):
     before = _snapshot(project["proj"])
     assert main(["run", *args, "-o", str(project["proj"]), "--rerun-from", "mosaic"]) == 2
     assert _snapshot(project["proj"]) == before
+    # PROJECT in or as the images' folder: refused before run.log or anything else is written there
+    images = Path(args[0])
+    listing = sorted(images.rglob("*"))
+    for proj in (images, images / "P"):
+        assert main(["run", *args, "-o", str(proj), "--workers", "0"]) == 2
+        assert "input images' folder" in " ".join(capsys.readouterr().err.split())
+        assert sorted(images.rglob("*")) == listing
 
 
 def test_a_step_without_progress_reports_that_it_is_still_running(tmp_path):

@@ -116,10 +116,6 @@ def survey(
         raise typer.Exit(code)
 
     try:
-        from .._atomic import check_output_apart
-
-        check_output_apart(out, [("input images' folder", p) for p in args["images"] or []]
-                           + [("RGB images' folder", p) for p in args["rgb"] or []])
         inp, opt = survey_inputs(**args)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         fail(str(exc))

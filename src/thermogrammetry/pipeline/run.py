@@ -248,7 +248,10 @@ def run_project(project, inp, opt, *, products: Sequence[str] = tuple(PRODUCTS),
     -------
     ProjectRun; a failed step stops the run (the steps before it stay finished).
     """
+    from .survey.workflow import check_survey_output
+
     project = check_output_folder(project, "project folder")
+    check_survey_output(project, inp, "project folder")  # before run.log is written into it
     products = parse_products(list(products))
     rerun_from = check_rerun_from(rerun_from, products)
     project.mkdir(parents=True, exist_ok=True)

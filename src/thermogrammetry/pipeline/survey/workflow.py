@@ -109,15 +109,26 @@ class SurveyRun:
     survey: dict = field(default_factory=dict)
 
 
+def check_survey_output(out, inp: SurveyInput, what: str = "-o") -> None:
+    """Refuse an output folder that is one of the survey's input folders (thermal or RGB), or lies inside or around
+    one (:func:`~thermogrammetry._atomic.check_output_apart`)."""
+    from ..._atomic import check_output_apart
+
+    check_output_apart(out, [("input images' folder", p) for p in inp.images or []]
+                       + [("RGB images' folder", p) for p in inp.rgb or []], what)
+
+
 def survey_to_folder(out, inp: SurveyInput, opt: SurveyOptions | None = None, *, progress: Callable | None = None,
                      on_step: Callable | None = None) -> SurveyRun:
     """The ``survey`` verb: run every step in a staging folder beside ``out`` and publish it as one output set
     (:class:`~thermogrammetry._atomic.OutputSet`: OUT appears complete or not at all; files of the user's own in OUT
     are kept). A run whose steps all ran is published even when it oriented nothing (``survey.json`` says why); a
-    failed step leaves OUT as it was."""
+    failed step leaves OUT as it was. An OUT that is an input folder, or lies inside or around one, is refused first
+    (:func:`check_survey_output`)."""
     from ..._atomic import OutputSet, sync_folder
     from ...store import FolderProject
 
+    check_survey_output(out, inp)
     with OutputSet(out, "survey") as outputs:
         # files are flushed once before the staging folder is published, not one by one (several hundred)
         project = FolderProject(outputs.stage, durable=False)
