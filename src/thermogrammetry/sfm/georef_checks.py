@@ -183,23 +183,21 @@ def gcp_measurement_report(rec, fa_all, ctrl: ControlInputs, names) -> dict:
     dict with the three lists (``survey.json`` keys; residuals ``projected − measured`` in px, see
     :func:`~thermogrammetry.sfm.georef_adjustment.gcp_measurement_table`)
     """
-    rows, seen = [], set()
+    rows, seen, georeferenced = [], set(), set()
     for ci, images, fa, datum, geo in fa_all:
         if not geo:
             continue
-        for r in getattr(fa, "gcp_measurements", []):
+        georeferenced.update(int(i) for i in images)
+        for r in fa.gcp_measurements:
             key = (r["image"], r["id"])
             if key not in seen:
                 seen.add(key)
                 rows.append({**r, "image": names[r["image"]], "block": int(ci) + 1})
-    oriented = set()
-    for ci, images, fa, datum, geo in fa_all:
-        oriented |= {int(i) for i in images} if geo else set()
     for i, gi, xy, sig in ctrl.gcp_obs:
         if (int(i), ctrl.gcp_ids[gi]) in seen:
             continue
         seen.add((int(i), ctrl.gcp_ids[gi]))
-        why = "its image is in a block that is not georeferenced" if rec.registered[i] and int(i) not in oriented \
+        why = "its image is in a block that is not georeferenced" if rec.registered[i] and int(i) not in georeferenced \
             else "its image is not oriented"
         rows.append({"image": names[i], "id": ctrl.gcp_ids[gi], "sigma_px": float(np.max(sig)), "dx_px": None,
                      "dy_px": None, "residual_px": None, "used": False, "reason": why, "block": None})

@@ -46,8 +46,9 @@ def _gcp_measurement_tables(s) -> list:
            table(s.get("gcp_measurements_by_gcp", []), "id", "GCP"),
            table(s.get("gcp_measurements_by_image", []), "image", "image")]
     left = [r for r in s["gcp_measurements"] if not r["used"]]
-    if left:
-        out.append("<table><tr><th>GCP</th><th>image</th><th>residual px</th><th>left out because</th></tr>" + "".join(
+    if left:  # (the blunders of gcp_rejected_measurements among them, with the reason each was found)
+        out.append(f"<p class='bad'>{len(left)} GCP measurement(s) left out:</p>"
+                   "<table><tr><th>GCP</th><th>image</th><th>residual px</th><th>left out because</th></tr>" + "".join(
             f"<tr><td class=l>{html.escape(r['id'])}</td><td class=l>{html.escape(r['image'])}</td>"
             f"<td>{_f(r['residual_px'], '{:.1f}')}</td><td class=l>{html.escape(r['reason'])}</td></tr>" for r in left)
                    + "</table>")
@@ -164,9 +165,6 @@ def write_survey_report(project) -> None:
             parts.append("<p class='bad'>Images far from their camera attitude (orientation or attitude tag wrong): "
                          + ", ".join(f"{html.escape(f['image'])} ({f['from_common_deg']:.1f}° beyond the block's common difference)"
                                    for f in a["flagged"]) + "</p>")
-    if s.get("gcp_rejected_measurements"):
-        parts.append("<p class='bad'>GCP measurements rejected (blunders: not visible or wrongly identified): " + ", ".join(
-            f"{html.escape(r['id'])} in {html.escape(r['image'])} ({r['residual_px']:.1f} px)" for r in s["gcp_rejected_measurements"]) + "</p>")
     parts += _gcp_measurement_tables(s)
     # figures
     try:
