@@ -117,25 +117,26 @@ def _(t):
     return texture_argv(t, tiny_survey(t), flat_mesh(t, nan_vertex=True)), ["mesh.obj", "1 of its 4 vertices", "[nan, 5000000.0, 100.0]"], t / "OUT"
 
 
+def _bad_mesh(t, name, text):
+    """``texture`` on a mesh file ``name`` holding ``text``: refused, naming the file."""
+    p = t / name
+    p.write_text(text)
+    return texture_argv(t, tiny_survey(t), p), [name], t / "OUT"
+
+
 @_c("texture: empty mesh file")
 def _(t):
-    p = t / "mesh.obj"
-    p.write_text("")
-    return texture_argv(t, tiny_survey(t), p), ["mesh.obj"], t / "OUT"
+    return _bad_mesh(t, "mesh.obj", "")
 
 
 @_c("texture: mesh file of text, not a mesh")
 def _(t):
-    p = t / "mesh.ply"
-    p.write_text("this is a shopping list\nmilk\n")
-    return texture_argv(t, tiny_survey(t), p), ["mesh.ply"], t / "OUT"
+    return _bad_mesh(t, "mesh.ply", "this is a shopping list\nmilk\n")
 
 
 @_c("texture: face index beyond the vertices")
 def _(t):
-    p = t / "mesh.obj"
-    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
-    return texture_argv(t, tiny_survey(t), p), ["mesh.obj"], t / "OUT"
+    return _bad_mesh(t, "mesh.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
 
 
 @_c("texture: empty cameras.json")
