@@ -14,14 +14,13 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 from survey_truth import write_true_survey  # noqa: E402
+from verb_process import VerbProcess  # noqa: E402
 
 pytest.importorskip("distributed")
 DASK = Path(sys.executable).with_name("dask")
@@ -99,20 +98,12 @@ def test_a_worker_killed_mid_run_costs_its_tasks_not_the_run(cluster, survey):
     addr, workers = cluster
     root, sv, local = survey
     out = root / "worker-killed"
-    p = subprocess.Popen([sys.executable, "-m", "thermogrammetry", "dense", str(sv), "-o", str(out), "--scheduler", addr],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(p.stderr), daemon=True)
-    reader.start()
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < 300 and p.poll() is None and not any("reference images 1/" in ln for ln in lines):
-        time.sleep(0.02)
-    killed = p.poll() is None
+    v = VerbProcess(["dense", sv, "-o", out, "--scheduler", addr])
+    killed = v.wait_for_line("reference images 1/", 300)
     os.killpg(workers["w1"].pid, signal.SIGKILL)  # as a machine that goes away
     workers["w1"].wait(timeout=30)
-    p.wait(timeout=600)
-    reader.join(timeout=30)
-    assert p.returncode == 0, "".join(lines)
+    err = v.finish(600)
+    assert v.p.returncode == 0, err
     _same_outputs(local, out)
     if not killed:
         pytest.skip("dense ended before the worker could be killed (outputs checked); the kill was not exercised")

@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -20,6 +18,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 from survey_truth import write_true_survey  # noqa: E402
+from verb_process import VerbProcess  # noqa: E402
 
 psutil = pytest.importorskip("psutil")
 
@@ -49,19 +48,11 @@ def test_a_signal_ends_dense_cleanly(survey, sig, to_group, status):
     out = root / f"OUT-{sig.name}"
     out.mkdir()
     (out / "notes.txt").write_text("mine")  # a user's file in OUT: kept, and OUT otherwise as before
-    p = subprocess.Popen([sys.executable, "-m", "thermogrammetry", "dense", str(sv), "-o", str(out), "--workers", "2"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(p.stderr), daemon=True)
-    reader.start()
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < 120 and p.poll() is None and not any("reference images 1/" in ln for ln in lines):
-        time.sleep(0.02)
-    assert p.poll() is None, "dense ended before the signal; the test needs a run that lasts longer"
+    v = VerbProcess(["dense", sv, "-o", out, "--workers", "2"], new_session=True)
+    p = v.p
+    assert v.wait_for_line("reference images 1/", 120), "dense ended before the signal; the test needs a run that lasts longer"
     (os.killpg if to_group else os.kill)(p.pid, sig)
-    p.wait(timeout=120)
-    reader.join(timeout=30)
-    err = "".join(lines)
+    err = v.finish(120)
     time.sleep(1.0)
     if p.returncode == 0 and sig == signal.SIGINT:
         # seen once on a loaded CI host (20-33 % CPU steal): the group's SIGINT did not stop the run, which ended
