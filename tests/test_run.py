@@ -241,6 +241,7 @@ def test_refused_arguments_exit_2_and_write_nothing(project, tmp_path, capsys):
     args = project["args"]
     new = tmp_path / "new"
     for extra, msg in ((["--rerun-from", "mosaic"], "unknown step"), (["--products", "ortho,mesh"], "no mesh verb"),
+                       (["--products", "[bold]x"], "[bold]x"),  # a bracketed value printed literally, not as markup
                        (["--products", "texture"], "texture"), (["--products", "dsm", "--rerun-from", "ortho"], "not a step")):
         assert main(["run", *args, "-o", str(new), *extra]) == 2
         assert msg in " ".join(capsys.readouterr().err.split())

@@ -45,8 +45,10 @@ def run(**kw) -> None:
     err = Console(stderr=True)
 
     def refuse(msg):
-        err.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
-        err.print(f"nothing was written to {out}", highlight=False)
+        # user data (file names, values such as "[nan, 1.0]") printed literally: no markup in them
+        err.print("error:", style="red", end=" ", highlight=False)
+        err.print(str(msg), markup=False, highlight=False, soft_wrap=True)
+        err.print(f"nothing was written to {out}", markup=False, highlight=False)
         raise typer.Exit(2)
 
     try:
