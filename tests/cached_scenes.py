@@ -36,6 +36,13 @@ def building_ring_input(cache: SceneCache, config) -> Path:
     return cache.folder("building-ring-input", _params(config), build)[0]
 
 
+def tie_cache(cache: SceneCache) -> list:
+    """``["--cache", <the run's tie-point cache>]``: the surveys of a test run share one cache of features and
+    verified matches (``survey --cache``), so the surveys of the same frames detect and match them once; a survey
+    that reads the cache gives the same outputs as one that computes (tests/test_survey_cache.py)."""
+    return ["--cache", str(cache.root / "tie-cache")]
+
+
 def building_ring_survey(cache: SceneCache, config, extra=(), *, copy_to: Path | None = None) -> tuple[Path, Path, int]:
     """``survey`` on the ring of ``config`` as the tests run it (``--input-unit K``, the ring's camera file and GNSS,
     ``--workers 0``, then ``extra``): ``(input folder, output folder, exit code)``.
@@ -47,7 +54,7 @@ def building_ring_survey(cache: SceneCache, config, extra=(), *, copy_to: Path |
 
         inp = building_ring_input(cache, config)
         return main(["survey", str(inp / "frames"), "-o", str(folder / "out"), "--input-unit", "K", "--camera",
-                     str(inp / "camera.json"), "--gnss", str(inp / "gnss.csv"), "--workers", "0", *extra])
+                     str(inp / "camera.json"), "--gnss", str(inp / "gnss.csv"), "--workers", "0", *extra, *tie_cache(cache)])
 
     folder, code = cache.folder("building-ring-survey", {"config": _params(config), "extra": list(extra)}, build)
     out = folder / "out"
@@ -128,7 +135,7 @@ def uav_block(cache: SceneCache) -> dict:
                      "--crs", f"EPSG:{scene.terrain.epsg}", "--gcps", str(user / "gcps.csv"),
                      "--gcp-measurements", str(user / "gcp_measurements.csv"),
                      "--checkpoints", str(user / "checkpoints.csv"),
-                     "--check-measurements", str(user / "check_measurements.csv")])
+                     "--check-measurements", str(user / "check_measurements.csv"), *tie_cache(cache)])
         return {"scene": scene, "code": code, "far": far.name, "dropped": dropped}
 
     folder, value = cache.folder("uav-block-seed0", {"version": 1}, build)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from _cache import copy_entry
-from cached_scenes import lowtexture_walk_folder
+from cached_scenes import lowtexture_walk_folder, tie_cache
 from thermogrammetry.synthetic.lowtexture_facade import (LowTextureFacadeConfig, make_lowtexture_facade, pose_errors,
                                                          render_lowtexture_frame)
 
@@ -167,7 +167,7 @@ def test_survey_orients_the_walk_in_one_block(tmp_path, scene_cache):
     copy_entry(lowtexture_walk_folder(scene_cache, sc), tmp_path / "scene")  # write_lowtexture_facade, once per run
     project = FolderProject(tmp_path / "out")
     run_survey(project, SurveyInput(images=[str(tmp_path / "scene" / "frames")]),
-               SurveyOptions(gnss="none"))
+               SurveyOptions(gnss="none", cache=tie_cache(scene_cache)[1]))
     s = project.read_json("survey.json")
     assert s["components"] and s["components"][0] >= 0.8 * s["images_total"], s["components"]
     assert project.read_json("work/pairs.json")["features"]["low_texture"]["sequence"] is True
@@ -254,7 +254,7 @@ def test_walk_with_gnss_is_tracked_as_a_sequence(tmp_path, scene_cache):
     (tmp_path / "gnss.csv").write_text("\n".join(rows) + "\n")
     out = tmp_path / "out"
     code = main(["survey", str(tmp_path / "scene" / "frames"), "-o", str(out), "--gnss", str(tmp_path / "gnss.csv"),
-                 "--crs", "EPSG:2056", "--workers", "0"])
+                 "--crs", "EPSG:2056", "--workers", "0", *tie_cache(scene_cache)])
     assert code == 0
     project = FolderProject(out)
     lt = project.read_json("work/pairs.json")["features"]["low_texture"]

@@ -81,7 +81,7 @@ def test_contract_colmap_model_reads_in_pycolmap(block):
 @pytest.fixture(scope="module")
 def block_gnss_blunder(block, scene_cache):
     """The same frames with one wrong GNSS tag: T0020 0.60 m off in X (20 σ of the RTK σ 3 cm); no GCPs."""
-    from cached_scenes import survey_variant
+    from cached_scenes import survey_variant, tie_cache
 
     def build(folder):
         lines = (block["root"] / "survey" / "user" / "gnss.csv").read_text().splitlines()
@@ -93,7 +93,8 @@ def block_gnss_blunder(block, scene_cache):
                 lines[k] = ",".join(v)
         (folder / "gnss_blunder.csv").write_text("\n".join(lines) + "\n")
         return main(["survey", str(block["root"] / "survey" / "images"), "-o", str(folder / "out"), "--workers", "0",
-                     "--gnss", str(folder / "gnss_blunder.csv"), "--crs", f"EPSG:{block['scene'].terrain.epsg}"])
+                     "--gnss", str(folder / "gnss_blunder.csv"), "--crs", f"EPSG:{block['scene'].terrain.epsg}",
+                     *tie_cache(scene_cache)])
 
     return survey_variant(scene_cache, "uav-block-seed0-gnss-blunder", {"image": GNSS_BLUNDER, "dx": 0.60}, build)
 
@@ -219,7 +220,7 @@ def test_the_block_says_how_well_it_determines_its_camera(block):
 def block_geoid(block, scene_cache):
     """The same block with every GNSS height 48.30 m higher (ellipsoidal GNSS heights against GCPs in national
     heights: the geoid is ~48-50 m above the ellipsoid in Switzerland, EPSG:2056) and X 1.50 m off."""
-    from cached_scenes import survey_variant
+    from cached_scenes import survey_variant, tie_cache
 
     def build(folder):
         scene = block["scene"]
@@ -237,7 +238,7 @@ def block_geoid(block, scene_cache):
                      "--gnss", str(folder / "gnss_geoid.csv"), "--crs", f"EPSG:{scene.terrain.epsg}",
                      "--gcps", str(user / "gcps.csv"), "--gcp-measurements", str(user / "gcp_measurements.csv"),
                      "--checkpoints", str(user / "checkpoints.csv"),
-                     "--check-measurements", str(user / "check_measurements.csv")])
+                     "--check-measurements", str(user / "check_measurements.csv"), *tie_cache(scene_cache)])
 
     return survey_variant(scene_cache, "uav-block-seed0-gnss-geoid", {"dx": 1.50, "dz": 48.30}, build)
 
@@ -314,20 +315,21 @@ def test_workers_give_identical_results(tmp_path, block):
 @pytest.fixture(scope="module")
 def m3t(scene_cache, shared_data):
     """``survey`` on the shared M3T flight with its defaults, once per test run (shared by the xdist workers)."""
-    from cached_scenes import survey_variant
+    from cached_scenes import survey_variant, tie_cache
 
     src = shared_data / "uav_m3t_flight" / "Test_image"
     if not src.is_dir():
         data_missing(f"{src} is absent")
     code, out = survey_variant(scene_cache, "m3t-survey", {"src": str(src)},
-                               lambda folder: main(["survey", str(src), "-o", str(folder / "out"), "--workers", "0"]))
-    return src, out, code
+                               lambda folder: main(["survey", str(src), "-o", str(folder / "out"), "--workers", "0",
+                                                    *tie_cache(scene_cache)]))
+    return src, out, code, tie_cache(scene_cache)
 
 
 @pytest.mark.realdata
 def test_real_m3t_flight(m3t):
     """The shared DJI M3T flight: 32/32 frames oriented from raw counts, centres within a few cm of RTK but one."""
-    src, out, code = m3t
+    src, out, code, cache = m3t
     assert code == 0
     s = json.loads((out / "survey.json").read_text())
     assert s["images_oriented"] == 32 and s["components"] == [32]
@@ -362,7 +364,7 @@ def test_real_m3t_gimbal_attitude_and_a_single_strip(m3t, tmp_path):
     from thermogrammetry.io.oriented import OrientedCameras
     from thermogrammetry.pipeline.survey import _attitudes
 
-    src, out, code = m3t
+    src, out, code, cache = m3t
     assert code == 0
     ref = OrientedCameras.load(out / "cameras.json")
     inputs = json.loads((out / "work" / "inputs.json").read_text())
@@ -387,7 +389,8 @@ def test_real_m3t_gimbal_attitude_and_a_single_strip(m3t, tmp_path):
         (strip / f.name).symlink_to(f)
     (tmp_path / "camera.json").write_text(json.dumps(json.loads((out / "cameras.json").read_text())["cameras"]["thermal"]))
     o2 = tmp_path / "strip_out"
-    assert main(["survey", str(strip), "-o", str(o2), "--workers", "0", "--camera", str(tmp_path / "camera.json")]) == 0
+    assert main(["survey", str(strip), "-o", str(o2), "--workers", "0", "--camera", str(tmp_path / "camera.json"),
+                 *cache]) == 0
     s = json.loads((o2 / "survey.json").read_text())
     assert s["crs"] == "EPSG:32631" and s["images_oriented"] == 16
     assert "attitude" in s["blocks"][0]["datum"]
@@ -405,7 +408,7 @@ def test_real_m3t_gimbal_attitude_and_a_single_strip(m3t, tmp_path):
     # (rotations 2.33° RMS off REF). Now focal length and principal point stay at EXIF's (758.3 px) and only the
     # distortion is self-calibrated: measured 0.28° RMS (max 0.38°), k1 -0.340 (REF -0.360)
     o3 = tmp_path / "strip_selfcal"
-    assert main(["survey", str(strip), "-o", str(o3), "--workers", "0"]) == 0
+    assert main(["survey", str(strip), "-o", str(o3), "--workers", "0", *cache]) == 0
     s3 = json.loads((o3 / "survey.json").read_text())
     assert s3["images_oriented"] == 16 and set(s3["blocks"][0]["self_calibration"]) == {"k1", "k2", "p1", "p2"}
     assert "held at their start" in s3["blocks"][0]["self_calibration_steps"][0]

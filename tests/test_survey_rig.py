@@ -46,7 +46,8 @@ def _run(block, name, rig_json, *extra, thermal="thermal"):
     out = root / name
     code = main(["survey", str(root / thermal), "--rgb", str(root / "rgb"), "--rig", str(rig_json), "-o", str(out),
                  "--workers", "0", "--gnss", str(root / "gnss.csv"), "--crs", f"EPSG:{block['epsg']}",
-                 "--gcps", str(root / "gcps.csv"), "--gcp-measurements", str(root / "measurements.csv"), *extra])
+                 "--gcps", str(root / "gcps.csv"), "--gcp-measurements", str(root / "measurements.csv"), *extra,
+                 "--cache", str(root / "tie-cache")])
     return code, out
 
 

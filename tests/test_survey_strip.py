@@ -33,7 +33,7 @@ def strip(tmp_path_factory):
 def _run(sc, root, name, *extra, images=None):
     out = root / name
     code = main(["survey", *(images or [str(root / "survey" / "images")]), "-o", str(out), "--workers", "0",
-                 "--crs", f"EPSG:{sc.terrain.epsg}", *extra])
+                 "--crs", f"EPSG:{sc.terrain.epsg}", *extra, "--cache", str(root / "tie-cache")])
     s = json.loads((out / "survey.json").read_text())
     truth = {f.name: f.pose for f in sc.frames}
     cams = json.loads((out / "cameras.json").read_text())["images"] if (out / "cameras.json").exists() else []

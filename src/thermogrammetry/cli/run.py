@@ -55,7 +55,7 @@ def run(**kw) -> None:
         products = parse_products(kw["products"])
         rerun_from = check_rerun_from(kw["rerun_from"], products)
         inp, opt = _survey_cli.survey_inputs(**{k: kw[k] for k in _survey_cli.SURVEY_ARGS})
-        check_survey_output(out, inp)  # (as run_project does: checked here because run.log is opened first)
+        check_survey_output(out, inp, opt=opt)  # (as run_project does: checked here because run.log is opened first)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         refuse(str(exc))
     created = not out.exists()

@@ -95,6 +95,9 @@ def survey(
                                "incremental's largest block holds < 80 % of the images; see docs/verbs/survey.md)."),
     dji_sdk: Optional[Path] = typer.Option(None, "--dji-sdk", help="DJI Thermal SDK library (libdirp.so) for DJI R-JPEGs: "
                                            "frames in kelvin instead of raw counts (also $THERMOGRAMMETRY_DJI_TSDK; docs/dji.md)."),
+    cache: Optional[Path] = typer.Option(None, "--cache", help="Folder of features and verified matches kept by content: "
+                                         "a later survey of the same frames reads them instead of computing them again "
+                                         "(same outputs; see docs/verbs/survey.md)."),
 ) -> None:
     """Orient thermal frames (and RGB images) into one georeferenced block, with an accuracy report.
 
@@ -152,12 +155,12 @@ def survey(
 #: the parameters of :func:`survey` that :func:`survey_inputs` reads (``run`` shares them)
 SURVEY_ARGS = ("images", "out", "input_unit", "camera", "rgb", "rig", "gnss", "crs", "gcps", "gcp_measurements", "checkpoints",
                "check_measurements", "workers", "scheduler", "lever_arm", "gnss_sigma", "low_texture", "refine_ties", "detector",
-               "video_overlap", "mapper", "dji_sdk")
+               "video_overlap", "mapper", "dji_sdk", "cache")
 
 
 def survey_inputs(*, images, out, input_unit, camera, rgb, rig, gnss, crs, gcps, gcp_measurements, checkpoints,
                   check_measurements, workers, scheduler, lever_arm, gnss_sigma, low_texture, refine_ties, detector,
-                  video_overlap, mapper, dji_sdk):
+                  video_overlap, mapper, dji_sdk, cache=None):
     """The survey's :class:`SurveyInput` and :class:`SurveyOptions` from its command-line arguments (also ``run``'s),
     every user file checked (and its CSV rows read) before any frame is decoded.
 
@@ -237,7 +240,8 @@ def survey_inputs(*, images, out, input_unit, camera, rgb, rig, gnss, crs, gcps,
         raise ThermogrammetryError(f"--video-overlap {video_overlap!r}: expected a fraction in [0, 1), e.g. 0.8")
     opt = SurveyOptions(input_unit=input_unit, gnss=gnss, crs=crs, low_texture=low_texture, mapper=mapper,
                         video_overlap=video_overlap, **extra, workers=workers if scheduler is None else 0,
-                        scheduler=scheduler, dji_sdk=None if dji_sdk is None else str(dji_sdk))
+                        scheduler=scheduler, dji_sdk=None if dji_sdk is None else str(dji_sdk),
+                        cache=None if cache is None else str(cache))
     inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,
                       str(gcp_measurements) if gcp_measurements else None, str(checkpoints) if checkpoints else None,
                       str(check_measurements) if check_measurements else None, rig=rig_file)

@@ -251,7 +251,7 @@ def run_project(project, inp, opt, *, products: Sequence[str] = tuple(PRODUCTS),
     from .survey.workflow import check_survey_output
 
     project = check_output_folder(project, "project folder")
-    check_survey_output(project, inp, "project folder")  # before run.log is written into it
+    check_survey_output(project, inp, "project folder", opt)  # before run.log is written into it
     products = parse_products(list(products))
     rerun_from = check_rerun_from(rerun_from, products)
     project.mkdir(parents=True, exist_ok=True)

@@ -70,9 +70,9 @@ def stat_digest(path) -> list | None:
     return [str(p.resolve()), st.st_size, st.st_mtime_ns]
 
 
-def options_digest(opt, leave_out=("workers", "scheduler")) -> str:
+def options_digest(opt, leave_out=("workers", "scheduler", "cache")) -> str:
     """sha256 of a typed options object's fields without those that do not change the outputs (how the work
-    is spread: ``workers``, ``scheduler``)."""
+    is spread: ``workers``, ``scheduler``; the survey's tie-point ``cache``)."""
     d = {f.name: getattr(opt, f.name) for f in fields(opt) if f.name not in leave_out}
     return digest(d)
 

@@ -66,13 +66,36 @@ def ray_intersector(V, F):
 
 
 
+#: the camera rays of every pixel centre, per camera (:func:`_pixel_grid_rays`): a few cameras, frames up to this size
+_GRID_RAYS: dict = {}
+_GRID_RAYS_CAMERAS = 4
+_GRID_RAYS_MAX_PIXELS = 2**21
+
+
+def _pixel_grid_rays(camera) -> np.ndarray:
+    """``camera.unproject`` of every pixel centre, row-major, (h * w, 3): computed once per camera (its model, size,
+    parameters and pitch) and shared by its views (read-only). Each row is computed from its pixel alone, so the
+    shared array holds the same values as a new call."""
+    w, h = camera.image_size
+    key = (str(camera.model), (w, h), np.asarray(camera.params, np.float64).tobytes(), repr(camera.pixel_pitch_um))
+    rays = _GRID_RAYS.get(key)
+    if rays is None:
+        gy, gx = np.mgrid[0:h, 0:w].astype(float)
+        rays = np.asarray(camera.unproject(np.stack([gx.ravel(), gy.ravel()], axis=1)))
+        if w * h <= _GRID_RAYS_MAX_PIXELS:
+            rays.setflags(write=False)
+            while len(_GRID_RAYS) >= _GRID_RAYS_CAMERAS:
+                _GRID_RAYS.pop(next(iter(_GRID_RAYS)))
+            _GRID_RAYS[key] = rays
+    return rays
+
+
 def pixel_surfaces(intersector, vertices, faces, view: TextureView, plane_of_face: np.ndarray | None = None) -> PixelSurface:
     """Cast the ray of every pixel centre of ``view`` against the whole mesh (``plane_of_face``: see
     :class:`PixelSurface`)."""
     V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
     w, h = view.camera.image_size
-    gy, gx = np.mgrid[0:h, 0:w].astype(float)
-    rays_c = view.camera.unproject(np.stack([gx.ravel(), gy.ravel()], axis=1))
+    rays_c = _pixel_grid_rays(view.camera)
     d = rays_c @ view.pose.R
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     o = np.broadcast_to(view.pose.center, d.shape).copy()

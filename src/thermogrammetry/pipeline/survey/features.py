@@ -3,21 +3,27 @@ pattern, the starting cameras."""
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 
 from ...errors import ConfigError
 from ...store import FolderProject, ProjectStore
+from .cache import open_cache
 from .options import SurveyOptions
 from .store import LOW_TEXTURE_PATTERN_KEY, OVERLAY_MASK_KEY, SurveyStore, _load_npz_cached, _read_frame, _save_npz
 from .tasks import _run_tasks
 
 
-def feature_task(args) -> tuple[str, int]:
-    """Unit of work: features of one frame, written to ``<folder>/<name>.npz`` (``features/`` by default)."""
+def feature_task(args) -> tuple[str, int, bool]:
+    """Unit of work: features of one frame, written to ``<folder>/<name>.npz`` (``features/`` by default); read from
+    the tie-point cache (:class:`~.cache.TieCache`, the task's last argument) when it holds them. Returns
+    ``(name, number of features, read from the cache)``."""
     project, name, fopt, *rest = args
     folder = rest[0] if rest else "features"
     pattern_key = rest[1] if len(rest) > 1 else None
     overlay_key = rest[2] if len(rest) > 2 else None
+    cache = rest[3] if len(rest) > 3 else None
     from ...sfm.features import extract_features
     from ...sfm.keypoints import to_pixel_centre_convention
 
@@ -27,10 +33,18 @@ def feature_task(args) -> tuple[str, int]:
         if pat.shape == frame.shape:  # the sensor's fixed pattern, estimated from the sequence
             frame = frame.astype(np.float32) - pat
     frame = _masked_overlay(project, frame, overlay_key)
+    key = cache.features_key(frame, fopt) if cache is not None else None
+    data = cache.get_features(key) if key is not None else None
+    if data is not None:
+        project.write_bytes(f"{folder}/{name}.npz", data)
+        with np.load(io.BytesIO(data)) as z:
+            return name, len(z["xy"]), True
     # (0, 0) = centre of the top-left pixel, like the camera model, GCP and manual-tie measurements
     f = to_pixel_centre_convention(extract_features(frame, fopt), fopt)
     _save_npz(project, f"{folder}/{name}.npz", **f.to_npz_dict())
-    return name, len(f)
+    if key is not None:
+        cache.put_features(key, project.read_bytes(f"{folder}/{name}.npz"))
+    return name, len(f), False
 
 
 def _masked_overlay(project: ProjectStore, frame: np.ndarray, overlay_key: str | None) -> np.ndarray:
@@ -132,11 +146,14 @@ def step_features(project: ProjectStore, opt: SurveyOptions, progress=None) -> d
     ov = _overlay_mask(project, inputs)
     SurveyStore(project).save_overlay({"found": False} if ov is None else {"found": True, **ov})
     keys = _overlay_keys(project, inputs)
-    res = _run_tasks(feature_task, [(store, im["name"], opt.features, "features", None, keys.get(im["name"]))
+    cache = open_cache(opt.cache)
+    res = _run_tasks(feature_task, [(store, im["name"], opt.features, "features", None, keys.get(im["name"]), cache)
                                     for im in inputs["images"]], opt, progress, "features")
-    counts = {name: n for name, n in res}
+    counts = {name: n for name, n, _ in res}
     SurveyStore(project).save_feature_counts(counts)
     out = {"images": len(counts), "median_features": float(np.median(list(counts.values()))) if counts else 0.0}
+    if cache is not None:
+        out["from_cache"] = sum(hit for _, _, hit in res)
     if ov is not None:
         out["overlay_share"] = ov["share"]
     return out

@@ -9,20 +9,39 @@ import numpy as np
 from ...store import FolderProject, ProjectStore
 from .controls import _gnss_xyz
 from .features import _fixed_pattern, _initial_cameras, _masked_overlay, _overlay_keys, feature_task
+from .cache import open_cache
 from .options import LOW_TEXTURE_GUIDED_RADIUS_PX, LOW_TEXTURE_PATTERN_SIGMA_PX, LOW_TEXTURE_SHARE, SurveyOptions
 from .store import (FEATURE_COUNTS_KEY, LOW_TEXTURE_PATTERN_FINE_KEY, LOW_TEXTURE_PREFIX, PAIRS_KEY, SurveyStore,
                     _load_npz, _load_npz_cached, _read_frame, features_key, matches_key, primary_key)
 from .tasks import _run_tasks
 
 
-def match_task(args) -> tuple[int, int, int, int, str]:
-    """Unit of work: match and verify one pair, written to ``matches/<i>_<j>.npz`` (or ``<prefix>matches/``)."""
+def match_task(args) -> tuple[int, int, int, int, str, bool]:
+    """Unit of work: match and verify one pair, written to ``matches/<i>_<j>.npz`` (or ``<prefix>matches/``); read
+    from the tie-point cache (:class:`~.cache.TieCache`, the task's last argument) when it holds the pair. Returns
+    ``(i, j, putative, verified, reason, read from the cache)``."""
     project, i, j, ni, nj, cam_i, cam_j, mopt, *rest = args
     pre = rest[0] if rest else ""
-    from ...sfm.matching import guided_matches, homography_prior, match_descriptors, verify_pair
-
+    cache = rest[1] if len(rest) > 1 else None
     fi = _load_npz_cached(project, features_key(ni, pre))
     fj = _load_npz_cached(project, features_key(nj, pre))
+    key = cache.matches_key(fi, fj, cam_i, cam_j, mopt) if cache is not None else None
+    hit = cache.get_matches(key) if key is not None else None
+    if hit is not None:
+        inl, n_putative, n_verified, reason = hit
+        if not reason:
+            SurveyStore(project).save_matches(i, j, inl, pre)
+        return i, j, n_putative, n_verified, reason, True
+    i, j, n_putative, n_verified, reason, inl = _match_pair(project, i, j, fi, fj, cam_i, cam_j, mopt, pre)
+    if key is not None:
+        cache.put_matches(key, inl, n_putative, n_verified, reason)
+    return i, j, n_putative, n_verified, reason, False
+
+
+def _match_pair(project, i, j, fi, fj, cam_i, cam_j, mopt, pre):
+    """Match and verify one pair (its verified matches saved): ``(i, j, putative, verified, reason, inliers)``."""
+    from ...sfm.matching import guided_matches, homography_prior, match_descriptors, verify_pair
+
     m = match_descriptors(fi["descriptors"], fj["descriptors"], ratio=mopt.ratio)
     if mopt.guided_radius_px > 0 and fi["descriptors"].dtype != np.uint8:
         H = homography_prior(fi["xy"], fj["xy"], m, seed=mopt.seed)
@@ -42,7 +61,7 @@ def match_task(args) -> tuple[int, int, int, int, str]:
         inl, model, reason = verify_pair(fi["xy"], fj["xy"], m, options=mopt)
     if not reason:
         SurveyStore(project).save_matches(i, j, inl, pre)
-    return i, j, len(m), len(inl), reason
+    return i, j, len(m), len(inl), reason, inl
 
 
 #: the low-texture fallback tracks frames with positions as a sequence when the median distance between consecutive
@@ -145,11 +164,16 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
         pairs = sorted(set(pairs) | rig_pairs)
     store = project if not isinstance(project, FolderProject) else FolderProject(project.root, durable=project.durable)
 
+    cache = open_cache(opt.cache)
+    from_cache = {"features": 0, "pairs": 0}
+
     def match(pre, mopt=None, pair_list=None):
         mopt = mopt or opt.matching
-        tasks = [(store, i, j, names[i], names[j], cams[cam_ids[i]], cams[cam_ids[j]], mopt, pre)
+        tasks = [(store, i, j, names[i], names[j], cams[cam_ids[i]], cams[cam_ids[j]], mopt, pre, cache)
                  for i, j in (pairs if pair_list is None else pair_list)]
-        return _run_tasks(match_task, tasks, opt, progress, "matching")
+        res = _run_tasks(match_task, tasks, opt, progress, "matching")
+        from_cache["pairs"] += sum(r[5] for r in res)
+        return [r[:5] for r in res]
 
     def connected(res):
         return len({k for i, j, npu, nv, reason in res if not reason for k in (i, j)})
@@ -189,9 +213,10 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
             lt = replace(opt.features, detector="sift", enhancement="clahe", contrast_threshold=0.005,
                          max_features=max(opt.features.max_features, 4000))
             overlay = _overlay_keys(project, inputs)
-            counts_lt = dict(_run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key,
-                                                        overlay.get(nm)) for nm in th_names],
-                                        opt, None, "features"))
+            res_f = _run_tasks(feature_task, [(store, nm, lt, "lowtexture/features", pattern_key, overlay.get(nm), cache)
+                                              for nm in th_names], opt, None, "features")
+            counts_lt = {nm: n for nm, n, _ in res_f}
+            from_cache["features"] += sum(hit for _, _, hit in res_f)
             res_lt = match(LOW_TEXTURE_PREFIX, mopt_lt, pairs_lt)
             how = "sift/clahe on pattern-corrected thermal frames, guided matching"
         else:
@@ -237,5 +262,8 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
                             "sequence, consecutive pairs verified)")
     kept = [(i, j, nv) for i, j, npu, nv, reason in res if not reason]
     SurveyStore(project).save_pairs({"pairs": [[i, j, npu, nv, reason] for i, j, npu, nv, reason in res], "features": info})
-    return {"pairs_tried": len(pairs), "pairs_verified": len(kept), "images_connected": connected(res), "features": info,
-            "median_verified_matches": float(np.median([k[2] for k in kept])) if kept else 0.0}
+    out = {"pairs_tried": len(pairs), "pairs_verified": len(kept), "images_connected": connected(res), "features": info,
+           "median_verified_matches": float(np.median([k[2] for k in kept])) if kept else 0.0}
+    if cache is not None:
+        out["from_cache"] = from_cache
+    return out

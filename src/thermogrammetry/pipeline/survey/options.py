@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -135,6 +136,10 @@ class SurveyOptions:
         0 or 1 = in this process; N >= 2 = a local dask cluster of N worker processes (:mod:`thermogrammetry.tasks`).
     scheduler : str or None
         Address of an existing dask scheduler (overrides ``workers``).
+    cache : str or None
+        A folder of features and verified matches kept by content (:mod:`~thermogrammetry.pipeline.survey.cache`;
+        created when absent): a later survey of the same frames with the same feature and matching options reads
+        them from there instead of computing them again (same outputs, less time). None (default): no cache.
     """
 
     input_unit: str | None = None
@@ -157,6 +162,7 @@ class SurveyOptions:
     tie_refinement: LsmOptions | None = None
     workers: int = 0
     scheduler: str | None = None
+    cache: str | None = None
 
     def __post_init__(self):
         if self.input_unit is not None and str(self.input_unit).upper() not in ("K", "C"):
@@ -169,6 +175,8 @@ class SurveyOptions:
                 CRS.from_user_input(self.crs)
             except CRSError:
                 raise ConfigError(f"crs={self.crs!r}: not a coordinate reference system pyproj knows; expected e.g. EPSG:2056") from None
+        if self.cache is not None and not isinstance(self.cache, (str, os.PathLike)):
+            raise ConfigError(f"cache={self.cache!r}: expected a folder path or None")
         if not (isinstance(self.workers, (int, np.integer)) and self.workers >= 0):
             raise ConfigError(f"workers={self.workers!r}: expected an integer >= 0")
         for name in ("tie_sigma_px", "gcp_sigma_m", "marker_sigma_px"):

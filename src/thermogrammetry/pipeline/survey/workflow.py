@@ -109,13 +109,17 @@ class SurveyRun:
     survey: dict = field(default_factory=dict)
 
 
-def check_survey_output(out, inp: SurveyInput, what: str = "-o") -> None:
+def check_survey_output(out, inp: SurveyInput, what: str = "-o", opt: SurveyOptions | None = None) -> None:
     """Refuse an output folder that is one of the survey's input folders (thermal or RGB), or lies inside or around
-    one (:func:`~thermogrammetry._atomic.check_output_apart`)."""
+    one (:func:`~thermogrammetry._atomic.check_output_apart`); with ``opt``, a tie-point cache path that is a file
+    (:func:`~.cache.check_cache_path`)."""
     from ..._atomic import check_output_apart
+    from .cache import check_cache_path
 
     check_output_apart(out, [("input images' folder", p) for p in inp.images or []]
                        + [("RGB images' folder", p) for p in inp.rgb or []], what)
+    if opt is not None:
+        check_cache_path(opt.cache)
 
 
 def survey_to_folder(out, inp: SurveyInput, opt: SurveyOptions | None = None, *, progress: Callable | None = None,
@@ -128,7 +132,7 @@ def survey_to_folder(out, inp: SurveyInput, opt: SurveyOptions | None = None, *,
     from ..._atomic import OutputSet, sync_folder
     from ...store import FolderProject
 
-    check_survey_output(out, inp)
+    check_survey_output(out, inp, opt=opt)
     with OutputSet(out, "survey") as outputs:
         # files are flushed once before the staging folder is published, not one by one (several hundred)
         project = FolderProject(outputs.stage, durable=False)
