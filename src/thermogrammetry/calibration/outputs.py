@@ -245,7 +245,13 @@ def _distortion_opencv(cc: CameraCalibration, plt):
     p = cc.param_dict
     w, h = cc.image_size
     f = p["fx"]
-    rn_max = float(np.hypot(max(p["cx"], w - 1 - p["cx"]) / p["fx"], max(p["cy"], h - 1 - p["cy"]) / p["fy"]))
+    from ..camera.models import opencv_unproject
+
+    # the ideal radius of the frame's corners (their rays), else the distorted one
+    rays = opencv_unproject(cc.params, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]))
+    rn = np.hypot(rays[:, 0], rays[:, 1])
+    rn_max = float(np.nanmax(rn)) if np.isfinite(rn).any() else \
+        float(np.hypot(max(p["cx"], w - 1 - p["cx"]) / p["fx"], max(p["cy"], h - 1 - p["cy"]) / p["fy"]))
     rn = np.linspace(0, rn_max, 200)
     r2 = rn * rn
     num = 1 + r2 * (p["k1"] + r2 * (p["k2"] + r2 * p["k3"]))
