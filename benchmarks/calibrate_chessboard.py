@@ -14,6 +14,8 @@ OpenCV's plain detector), then the RMS reprojection error sqrt(mean(vx²+vy²)) 
 * OpenCV: cv2.calibrateCamera with the same number of intrinsics (CALIB_FIX_ASPECT_RATIO, fx = fy;
   k1 k2 p1 p2 k3) on exactly the same observations;
 * the same with a free aspect ratio (ours + B1 affinity vs OpenCV with fx, fy free);
+* ours in OpenCV's own (forward) model, ``calibrate --model opencv``: fx fy cx cy k1 k2 p1 p2 k3 against
+  cv2.calibrateCamera with flags = 0, and both with k3 held (``fixed=("k3",)`` / CALIB_FIX_K3);
 
 and the relative orientation of the thermal + RGB pair from the 15 measured pairs (rig adjustment).
 """
@@ -42,7 +44,7 @@ def plain_opencv(img) -> bool:
     return bool(ok)
 
 
-def ours(dets, size, *, snooping, affinity=False, keep=None):
+def ours(dets, size, *, snooping, affinity=False, keep=None, model="photogrammetric", fixed=()):
     obj = SPEC.object_points() * 1e-3
     ims = []
     for k, d in enumerate(dets):
@@ -52,20 +54,20 @@ def ours(dets, size, *, snooping, affinity=False, keep=None):
             m = keep[k]
             ids, xy = ids[m], xy[m]
         ims.append(ImageMeasurements(d.image_id, 0, ids, xy))
-    opt = SelfCalibrationOptions(snooping=snooping, affinity=affinity)
+    opt = SelfCalibrationOptions(snooping=snooping, affinity=affinity, model=model, fixed=fixed)
     t0 = time.perf_counter()
     r = calibrate([CameraSetup("thermal", size, PITCH_UM)], obj, ims, options=opt)
     return r, time.perf_counter() - t0
 
 
-def opencv(dets, size, *, fix_aspect, keep=None):
+def opencv(dets, size, *, fix_aspect, keep=None, extra_flags=0):
     obj = (SPEC.object_points()).astype(np.float32) * 1e-3
     op, ip = [], []
     for k, d in enumerate(dets):
         m = np.ones(len(d.object_ids), bool) if keep is None else keep[k]
         op.append(obj[np.asarray(d.object_ids)[m]])
         ip.append(np.asarray(d.points_px, np.float32)[m].reshape(-1, 1, 2))
-    flags = cv2.CALIB_FIX_ASPECT_RATIO if fix_aspect else 0
+    flags = (cv2.CALIB_FIX_ASPECT_RATIO if fix_aspect else 0) | extra_flags
     K0 = cv2.initCameraMatrix2D(op, ip, size, 1.0)
     if fix_aspect:
         f = 0.5 * (K0[0, 0] + K0[1, 1])
@@ -74,7 +76,16 @@ def opencv(dets, size, *, fix_aspect, keep=None):
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     rms, K, dist, rv, tv = cv2.calibrateCamera(op, ip, size, K0.copy(), None, flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS,
                                                criteria=crit)
-    return rms, K, dist.ravel(), time.perf_counter() - t0
+    dt = time.perf_counter() - t0
+    # its estimate's RMS on the points ours takes (float64 board and image points; cv2 fits their float32 rounding)
+    obj64 = SPEC.object_points() * 1e-3
+    err = []
+    for k, (d, a, b) in enumerate(zip(dets, rv, tv)):
+        m = np.ones(len(d.object_ids), bool) if keep is None else keep[k]
+        err.append(cv2.projectPoints(obj64[np.asarray(d.object_ids)[m]], a, b, K, dist)[0].reshape(-1, 2)
+                   - np.asarray(d.points_px, float)[m])
+    err = np.concatenate(err)
+    return float(np.sqrt(np.mean(np.sum(err**2, axis=1)))), K, dist.ravel(), dt
 
 
 def keep_mask(dets, result):
@@ -108,12 +119,29 @@ def run_set(folder: Path, label: str) -> list:
     rms_cv2, _, _, t_cv2 = opencv(found, size, fix_aspect=True, keep=keep)
     rows.append(("after our data snooping (same obs both)", r_sn.rms_px, t_sn, rms_cv2, t_cv2, int(sum(k.sum() for k in keep))))
     r_b1, t_b1 = ours(found, size, snooping=False, affinity=True)
-    rms_cv3, _, _, t_cv3 = opencv(found, size, fix_aspect=False)
+    rms_cv3, K3, d3, t_cv3 = opencv(found, size, fix_aspect=False)
     rows.append(("all detections, + affinity / fx,fy free", r_b1.rms_px, t_b1, rms_cv3, t_cv3, sum(d.n_points for d in found)))
-    print(f"{'case':42s} {'points':>6s} {'ours RMS px':>12s} {'ours s':>7s} {'cv2 RMS px':>11s} {'cv2 s':>6s}  verdict")
+    r_o, t_o = ours(found, size, snooping=False, model="opencv")
+    rows.append(("opencv model, all detections, flags=0", r_o.rms_px, t_o, rms_cv3, t_cv3, sum(d.n_points for d in found)))
+    r_o3, t_o3 = ours(found, size, snooping=False, model="opencv", fixed=("k3",))
+    rms_cv4, K4, d4, t_cv4 = opencv(found, size, fix_aspect=False, extra_flags=cv2.CALIB_FIX_K3)
+    rows.append(("opencv model, k3 held (CALIB_FIX_K3)", r_o3.rms_px, t_o3, rms_cv4, t_cv4, sum(d.n_points for d in found)))
+    r_os, t_os = ours(found, size, snooping=True, model="opencv")
+    keep_o = keep_mask(found, r_os)
+    rms_cv5, K5, d5, t_cv5 = opencv(found, size, fix_aspect=False, keep=keep_o)
+    rows.append(("opencv model, after our data snooping", r_os.rms_px, t_os, rms_cv5, t_cv5, int(sum(k.sum() for k in keep_o))))
+    cmp_o = [("flags=0", r_o, K3, d3), ("CALIB_FIX_K3", r_o3, K4, d4), ("after snooping", r_os, K5, d5)]
+    print("(cv2's RMS: its estimate evaluated on the float64 points ours takes; cv2 fits their float32 rounding)")
+    print(f"{'case':42s} {'points':>6s} {'ours RMS px':>14s} {'ours s':>7s} {'cv2 RMS px':>14s} {'cv2 s':>6s}  verdict")
     for name, a, ta, b, tb, n in rows:
-        verdict = "ours <= cv2" if a <= b + 1e-6 else f"ours WORSE by {a - b:.4f} px"
-        print(f"{name:42s} {n:6d} {a:12.4f} {ta:7.2f} {b:11.4f} {tb:6.2f}  {verdict}")
+        verdict = "ours <= cv2" if a <= b + 1e-9 else f"ours WORSE by {a - b:.2g} px"
+        print(f"{name:42s} {n:6d} {a:14.10f} {ta:7.2f} {b:14.10f} {tb:6.2f}  {verdict}")
+    for name, r, Ko, do in cmp_o:
+        c = r.cameras[0]
+        cv = dict(fx=Ko[0, 0], fy=Ko[1, 1], cx=Ko[0, 2], cy=Ko[1, 2], k1=do[0], k2=do[1], p1=do[2], p2=do[3], k3=do[4])
+        z = max(abs(c.param_dict[k] - v) / c.std_dict[k] for k, v in cv.items() if c.free[c.param_names.index(k)])
+        print(f"opencv model, {name}: max |ours - cv2| / σ over the estimated parameters {z:.1e}; "
+              + ", ".join(f"{k} {c.param_dict[k]:.6g} ± {c.std_dict[k]:.2g}" for k in cv if c.free[c.param_names.index(k)]))
     c = r_sn.cameras[0]
     fx = c.parameters_px()
     print(f"ours (snooped): fx {fx['fx'][0]:.2f} ± {fx['fx'][1]:.2f} px, cx {fx['cx'][0]:.2f} ± {fx['cx'][1]:.2f}, "

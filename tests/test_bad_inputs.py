@@ -420,6 +420,13 @@ def _(t):
             "--spacing-mm", "100"], ["a.png", "size cap"], t / "OUT"
 
 
+@_c("calibrate: unknown --model")
+def _(t):
+    write(t / "imgs" / "a.png", png_header(64, 48))
+    return ["calibrate", str(t / "imgs"), "-o", str(t / "OUT"), "--target", "chessboard", "--corners", "6x5",
+            "--spacing-mm", "100", "--model", "fisheye"], ["--model 'fisheye'", "photogrammetric, opencv"], t / "OUT"
+
+
 @_c("demo: OUT is a file")
 def _(t):
     return ["demo", str(write(t / "afile", "x")), "--sections", "closerange"], ["afile", "is an existing file"], None

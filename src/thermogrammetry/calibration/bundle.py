@@ -5,14 +5,14 @@ It has two back ends that solve the same least-squares problem:
 
 * ``engine="adjustment"`` (default): the project's adjustment engine
   (:func:`thermogrammetry.adjustment.solve`, sparse LM + Schur with precision); the problem below is
-  translated into its ``BundleProblem`` (cameras as :class:`thermogrammetry.Camera` model
-  ``photogrammetric``, poses, rig blocks, fixed or weighted points) and the result translated back;
+  translated into its ``BundleProblem`` (cameras as :class:`thermogrammetry.Camera` in their block's
+  model, poses, rig blocks, fixed or weighted points) and the result translated back;
 * ``engine="dense"``: the same problem as one dense weighted least-squares problem for
   :func:`thermogrammetry.adjustment.dense.solve_dense` (Gauss–Newton/LM with covariance, σ0 and
   redundancy numbers); the Jacobian is assembled here from the camera model's analytic Jacobians.
   It is an independent cross-check of the engine's Schur route and of the translation to its
   problem (``tests/test_calibration_selfcal.py`` compares both), and finishes the job when the
-  engine stops away from a minimum (see :func:`_verify_engine`).
+  engine stops away from a minimum (:func:`thermogrammetry.calibration.bundle_engine.verify_engine`).
 
 Model
 -----
@@ -20,7 +20,13 @@ Observations are measured pixel coordinates (OpenCV convention) of object points
 in a pose (``cam_from_world``), optionally through a rig offset (``cam_from_reference``)::
 
     Xc = R_rig (R_pose X + t_pose) + t_rig
-    xy = project_correction_form(Xc; camera parameters)   (thermogrammetry.camera.models, see :func:`project`)
+    xy = project(Xc; camera parameters)   (thermogrammetry.camera.models, see :func:`project`)
+
+Each camera block is in one of two models (:attr:`CameraBlock.model`): the correction
+(photogrammetric) form of Brown (1971) and Fraser (1997), ``c x0 y0 K1..K5 P1 P2 B1 B2`` (the
+default), or OpenCV's forward Brown form, ``fx fy cx cy skew k1 k2 p1 p2 k3 k4 k5 k6`` (the model
+of ``cv2.calibrateCamera``, Bradski 2000; Zhang 2000). The parameter vector of a block has the
+model's layout (:func:`param_names`).
 
 Unknowns: the free intrinsic parameters of every camera, 6 per free pose (rotation increment δ with
 ``R ← exp([δ]×) R``, translation t), 6 per free rig offset, 3 per free object point (with an optional
@@ -37,6 +43,8 @@ Baarda, W., 1968. A testing procedure for use in geodetic networks. Netherlands 
 Brown, D.C., 1971. Close-range camera calibration. Photogramm. Eng. 37(8), 855–866.
 Fraser, C.S., 1997. Digital camera self-calibration. ISPRS J. Photogramm. Remote Sens. 52, 149–159.
 Triggs, B., McLauchlan, P., Hartley, R., Fitzgibbon, A., 2000. Bundle adjustment — a modern synthesis.
+Zhang, Z., 2000. A flexible new technique for camera calibration. IEEE TPAMI 22(11), 1330–1334.
+Bradski, G., 2000. The OpenCV library. Dr. Dobb's Journal of Software Tools (``calib3d`` camera model).
 """
 
 from __future__ import annotations
@@ -48,14 +56,29 @@ import numpy as np
 from ..camera import models as _cm
 from ..results import Outcome, Termination
 
-__all__ = ["PARAM_NAMES", "PARAM_UNITS", "N_PARAMS", "project", "CameraBlock", "BundleProblem", "BundleSolution",
-           "solve_bundle", "residuals", "rotation_exp"]
+__all__ = ["PARAM_NAMES", "PARAM_UNITS", "N_PARAMS", "CALIBRATION_MODELS", "param_names", "param_units", "project",
+           "CameraBlock", "BundleProblem", "BundleSolution", "solve_bundle", "residuals", "rotation_exp"]
 
-# The calibration uses the camera package's correction-form model as is (same parameter order).
+# The calibration uses the camera package's models as they are (same parameter order).
 _PHOTO = _cm.CameraModel.PHOTOGRAMMETRIC
+_OPENCV = _cm.CameraModel.OPENCV
+#: the models a calibration can estimate (the first is the default)
+CALIBRATION_MODELS: tuple[_cm.CameraModel, ...] = (_PHOTO, _OPENCV)
+#: parameter layout of the default (photogrammetric) model
 PARAM_NAMES: tuple[str, ...] = _cm.PARAM_NAMES[_PHOTO]
 PARAM_UNITS: tuple[str, ...] = tuple(_cm.PARAM_UNITS[_PHOTO][n] for n in PARAM_NAMES)
 N_PARAMS = len(PARAM_NAMES)
+
+
+def param_names(model=_PHOTO) -> tuple[str, ...]:
+    """Parameter layout of a calibration model (``thermogrammetry.camera.models.PARAM_NAMES``)."""
+    return _cm.PARAM_NAMES[_cm.CameraModel(model)]
+
+
+def param_units(model=_PHOTO) -> tuple[str, ...]:
+    """Units of :func:`param_names` (``"1"`` = unitless)."""
+    m = _cm.CameraModel(model)
+    return tuple(_cm.PARAM_UNITS[m][n] for n in _cm.PARAM_NAMES[m])
 
 try:  # small dense problems run much faster on one BLAS thread than on contended cores
     from threadpoolctl import threadpool_limits as _threadpool_limits
@@ -63,25 +86,28 @@ except ImportError:  # pragma: no cover - optional
     _threadpool_limits = None
 
 
-def project(points_cam: np.ndarray, params: np.ndarray, image_size, pitch_mm, *, jacobians: bool = True):
-    """Measured pixel coordinates of camera-frame points with the correction-form model, with Jacobians.
+def project(points_cam: np.ndarray, params: np.ndarray, image_size, pitch_mm, *, jacobians: bool = True,
+            model=_PHOTO):
+    """Measured pixel coordinates of camera-frame points with a block's model, with Jacobians.
 
     A thin adapter over :func:`thermogrammetry.camera.models.photogrammetric_project_jacobian`
-    (the model of ``docs/conventions.md``; Brown 1971, Fraser 1997): it takes the pixel pitch in mm
-    as stored in :class:`CameraBlock` and adds the validity mask the bundle needs.
+    (the model of ``docs/conventions.md``; Brown 1971, Fraser 1997) or, with ``model="opencv"``,
+    :func:`thermogrammetry.camera.models.opencv_project_jacobian` (forward form): it takes the pixel
+    pitch in mm as stored in :class:`CameraBlock` and adds the validity mask the bundle needs.
 
     Parameters
     ----------
     points_cam : (N, 3) float
         Points in the camera frame (x right, y down, z forward), metres.
-    params : (12,) float
-        Layout :data:`PARAM_NAMES` (``thermogrammetry.camera.models.PARAM_NAMES["photogrammetric"]``).
+    params : (P,) float
+        Layout :func:`param_names` of ``model`` (12 photogrammetric, 13 opencv parameters).
     image_size : (w, h)
         Pixels.
     pitch_mm : (px, py)
         Pixel pitch in mm.
     jacobians : bool
         Also return the Jacobians.
+    model : ``"photogrammetric"`` (default) or ``"opencv"``.
 
     Returns
     -------
@@ -89,10 +115,10 @@ def project(points_cam: np.ndarray, params: np.ndarray, image_size, pitch_mm, *,
         OpenCV pixel coordinates of the measured (distorted) image points; NaN where not ``ok``.
     J_point : (N, 2, 3) or None
         d xy_px / d points_cam (zero where not ``ok``).
-    J_params : (N, 2, 12) or None
+    J_params : (N, 2, P) or None
         d xy_px / d params.
     ok : (N,) bool
-        In front of the camera and the model's Newton solve converged (main sheet).
+        In front of the camera and (photogrammetric) the model's Newton solve converged (main sheet).
 
     References
     ----------
@@ -101,13 +127,19 @@ def project(points_cam: np.ndarray, params: np.ndarray, image_size, pitch_mm, *,
     """
     X = np.asarray(points_cam, dtype=float)
     n = X.shape[0]
+    model = _cm.CameraModel(model)
     pitch_um = (float(pitch_mm[0]) * 1e3, float(pitch_mm[1]) * 1e3)
     front = X[:, 2] > 1e-12
     xy = np.full((n, 2), np.nan)
     J_point = np.zeros((n, 2, 3)) if jacobians else None
-    J_params = np.zeros((n, 2, N_PARAMS)) if jacobians else None
+    J_params = np.zeros((n, 2, len(params))) if jacobians else None
     if np.any(front):
-        if jacobians:
+        if model is _OPENCV:
+            if jacobians:
+                xy[front], J_point[front], J_params[front] = _cm.opencv_project_jacobian(params, X[front])
+            else:
+                xy[front] = _cm.opencv_project(params, X[front])
+        elif jacobians:
             xy[front], J_point[front], J_params[front] = _cm.photogrammetric_project_jacobian(
                 params, X[front], image_size, pitch_um)
         else:
@@ -145,13 +177,25 @@ def rotation_exp(w: np.ndarray) -> np.ndarray:
 
 @dataclass
 class CameraBlock:
-    """One camera (intrinsics) in a bundle: correction-form parameters and which of them are free."""
+    """One camera (intrinsics) in a bundle: its model's parameters and which of them are free."""
 
-    params: np.ndarray  # (12,) layout PARAM_NAMES
-    free: np.ndarray  # (12,) bool
+    params: np.ndarray  # (P,) layout param_names(model)
+    free: np.ndarray  # (P,) bool
     image_size: tuple[int, int]
     pitch_mm: tuple[float, float]
     name: str = ""
+    model: _cm.CameraModel = _PHOTO
+
+    def __post_init__(self):
+        self.model = _cm.CameraModel(self.model)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return param_names(self.model)
+
+    def like(self, params) -> "CameraBlock":
+        """The same block with other parameter values."""
+        return CameraBlock(params, self.free, self.image_size, self.pitch_mm, self.name, self.model)
 
 
 @dataclass
@@ -203,8 +247,8 @@ class BundleSolution:
     iterations: int
     cofactor: np.ndarray  # N^-1 (unknowns x unknowns)
     layout: dict = field(default_factory=dict)  # block name -> slice / index arrays
-    camera_std: list = field(default_factory=list)  # per camera (12,) std (NaN where fixed)
-    camera_cov: list = field(default_factory=list)  # per camera (12,12) covariance (0 where fixed)
+    camera_std: list = field(default_factory=list)  # per camera (P,) std (NaN where fixed)
+    camera_cov: list = field(default_factory=list)  # per camera (P,P) covariance (0 where fixed)
     pose_std: np.ndarray | None = None  # (F,6) rot (rad), t (m)
     rig_std: np.ndarray | None = None  # (G,6)
     rig_cov: list = field(default_factory=list)  # (G) (6,6)
@@ -269,7 +313,7 @@ def _evaluate(problem, cams, R, t, rigR, rigt, pts, lay, want_jac=True):
         sel = np.nonzero(problem.obs_camera == ci)[0]
         if sel.size == 0:
             continue
-        xyc, Jp3, Jpar, okc = project(Xc[sel], cb.params, cb.image_size, cb.pitch_mm, jacobians=want_jac)
+        xyc, Jp3, Jpar, okc = project(Xc[sel], cb.params, cb.image_size, cb.pitch_mm, jacobians=want_jac, model=cb.model)
         xy[sel] = xyc
         ok[sel] = okc
         if want_jac:
@@ -320,7 +364,7 @@ def _apply(problem, cams, R, t, rigR, rigt, pts, lay, dx):
         p = cb.params.copy()
         cols = lay["cameras"][ci]
         p[cb.free] += dx[cols]
-        cams2.append(CameraBlock(p, cb.free, cb.image_size, cb.pitch_mm, cb.name))
+        cams2.append(cb.like(p))
     R2 = R.copy()
     t2 = t.copy()
     fr = np.nonzero(lay["pose"] >= 0)[0]
@@ -359,8 +403,10 @@ def solve_bundle(problem: BundleProblem, *, max_iterations: int = 200, tolerance
     (:class:`~thermogrammetry.results.Termination`), never raised.
     """
     if engine == "adjustment":
-        sol = _solve_engine(problem, max_iterations)
-        return _verify_engine(problem, sol, max_iterations, tolerance)
+        from .bundle_engine import solve_engine, verify_engine
+
+        sol = solve_engine(problem, max_iterations)
+        return verify_engine(problem, sol, max_iterations, tolerance)
     if engine != "dense":
         from ..errors import ConfigError
 
@@ -376,7 +422,7 @@ def _param_names(problem: BundleProblem, lay: dict) -> list[str]:
     names = [""] * lay["n"]
     for ci, cb in enumerate(problem.cameras):
         for j, k in zip(lay["cameras"][ci], np.nonzero(cb.free)[0]):
-            names[j] = f"cam{ci}.{PARAM_NAMES[k]}"
+            names[j] = f"cam{ci}.{cb.param_names[k]}"
     comp = ("wx", "wy", "wz", "tx", "ty", "tz")
     for f in np.nonzero(lay["pose"] >= 0)[0]:
         for k, c in enumerate(comp):
@@ -432,7 +478,7 @@ def _solve_bundle(problem: BundleProblem, max_iterations: int, tolerance: float)
     from ..geometry.rotations import axis_angle_from_matrix
 
     cams0 = [CameraBlock(np.asarray(c.params, float).copy(), np.asarray(c.free, bool).copy(), tuple(c.image_size),
-                         tuple(c.pitch_mm), c.name) for c in problem.cameras]
+                         tuple(c.pitch_mm), c.name, c.model) for c in problem.cameras]
     R0 = np.asarray(problem.R, float).copy()
     t0 = np.asarray(problem.t, float).copy()
     rigR0 = np.asarray(problem.rig_R, float).copy()
@@ -496,8 +542,9 @@ def _fill_std(sol: BundleSolution, cov: np.ndarray) -> None:
     sol.camera_std = []
     sol.camera_cov = []
     for ci, cb in enumerate(sol.cameras):
-        std = np.full(N_PARAMS, np.nan)
-        C = np.zeros((N_PARAMS, N_PARAMS))
+        P = len(cb.params)
+        std = np.full(P, np.nan)
+        C = np.zeros((P, P))
         cols = lay["cameras"][ci]
         fi = np.nonzero(cb.free)[0]
         if cols.size:
@@ -525,156 +572,9 @@ def _fail(problem, cams, R, t, rigR, rigt, pts, res, term, reason, lay):
     N = problem.obs_xy.shape[0]
     sol = BundleSolution(Outcome(term, reason), cams, R, t, rigR, rigt, pts, res, np.full((N, 2), np.nan), float("nan"), 0, 0,
                          np.zeros((0, 0)), lay)
-    sol.camera_std = [np.full(N_PARAMS, np.nan) for _ in cams]
-    sol.camera_cov = [np.zeros((N_PARAMS, N_PARAMS)) for _ in cams]
+    sol.camera_std = [np.full(len(c.params), np.nan) for c in cams]
+    sol.camera_cov = [np.zeros((len(c.params), len(c.params))) for c in cams]
     sol.pose_std = np.full((R.shape[0], 6), np.nan)
     sol.rig_std = np.full((rigR.shape[0], 6), np.nan)
     sol._w = np.full((N, 2), np.nan)
     return sol
-
-
-def _solve_engine(problem: BundleProblem, max_iterations: int) -> BundleSolution:
-    """Translate to :mod:`thermogrammetry.adjustment`, solve, translate back."""
-    from ..adjustment import BundleProblem as EngineProblem
-    from ..adjustment import SolverOptions, solve
-    from ..camera import Camera, CameraModel
-
-    lay = _layout(problem)
-    pb = EngineProblem()
-    for ci, cb in enumerate(problem.cameras):
-        cam = Camera(CameraModel.PHOTOGRAMMETRIC, cb.image_size, dict(zip(PARAM_NAMES, map(float, cb.params))),
-                     pixel_pitch_um=(cb.pitch_mm[0] * 1e3, cb.pitch_mm[1] * 1e3), name=cb.name)
-        fixed = [n for n, f in zip(PARAM_NAMES, cb.free) if not f]
-        pb.add_camera(cam, fixed=fixed if len(fixed) < N_PARAMS else True, name=f"cam{ci}")
-    free_pts = lay["point"] >= 0
-    pb.add_points(problem.points, fixed=False)
-    pb.set_points_fixed(np.nonzero(~free_pts)[0], True) if np.any(~free_pts) else None
-    if np.any(free_pts):
-        idx = np.nonzero(free_pts)[0]
-        pb.add_control(idx, problem.points[idx], np.asarray(problem.point_prior_std, float)[idx])
-    views = [pb.add_pose((problem.R[f], problem.t[f]), fixed=not bool(problem.pose_free[f]), name=f"pose{f}")
-             for f in range(problem.R.shape[0])]
-    rigs = [pb.add_rig((problem.rig_R[g], problem.rig_t[g])) for g in range(problem.rig_R.shape[0])]
-    rig_views: dict[tuple[int, int], int] = {}
-    order = []
-    keys = np.stack([problem.obs_camera, problem.obs_pose, problem.obs_rig], axis=1)
-    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
-    inv = inv.ravel()
-    for u, (ci, f, g) in enumerate(uniq):
-        sel = np.nonzero(inv == u)[0]
-        if g >= 0:
-            v = rig_views.get((f, g))
-            if v is None:
-                v = rig_views[(f, g)] = pb.add_rig_view(rigs[g], views[f])
-        else:
-            v = views[f]
-        pb.add_image_points(int(ci), v, problem.obs_point[sel], problem.obs_xy[sel], problem.obs_sigma[sel])
-        order.append(sel)
-    order = np.concatenate(order)
-    res = solve(pb, SolverOptions(max_iterations=max_iterations, data_snooping=False, compute_redundancy=True,
-                                  function_tolerance=1e-15, parameter_tolerance=1e-15))
-    N = problem.obs_xy.shape[0]
-    cams = []
-    for ci, cb in enumerate(problem.cameras):
-        cams.append(CameraBlock(np.array(res.problem.cameras[ci].params, float), cb.free.copy(), cb.image_size, cb.pitch_mm, cb.name))
-    R = np.array(res.problem.pose_R, float).reshape(-1, 3, 3)
-    t = np.array(res.problem.pose_t, float).reshape(-1, 3)
-    rigR = np.array(res.problem.rig_R, float).reshape(-1, 3, 3)
-    rigt = np.array(res.problem.rig_t, float).reshape(-1, 3)
-    pts = np.array(res.problem.points, float)
-    resid = np.full((N, 2), np.nan)
-    if res.image_residuals is not None:
-        resid[order] = res.image_residuals
-    if not res.success or res.covariance is None:
-        return _fail(problem, cams, R, t, rigR, rigt, pts, resid, res.termination, res.reason or "adjustment failed", lay)
-    red = np.full((N, 2), np.nan)
-    red[order] = res.image_redundancy
-    w = np.full((N, 2), np.nan)
-    w[order] = res.image_w
-    s0 = float(res.sigma0)
-    cov = np.asarray(res.covariance)
-    names = list(res.param_names)
-    sol = BundleSolution(Outcome(res.termination, res.reason), cams, R, t, rigR, rigt, pts, resid, red, s0,
-                         int(res.redundancy), res.iterations, cov / max(s0**2, 1e-300), {"engine": "adjustment", "names": names})
-    pos = {n: i for i, n in enumerate(names)}
-    sol.camera_std, sol.camera_cov = [], []
-    for ci, cb in enumerate(cams):
-        std = np.full(N_PARAMS, np.nan)
-        C = np.zeros((N_PARAMS, N_PARAMS))
-        ix = [(k, pos.get(f"cam{ci}.{n}")) for k, n in enumerate(PARAM_NAMES)]
-        ix = [(k, j) for k, j in ix if j is not None]
-        if ix:
-            ks = np.array([k for k, _ in ix])
-            js = np.array([j for _, j in ix])
-            C[np.ix_(ks, ks)] = cov[np.ix_(js, js)]
-            std[ks] = np.sqrt(np.diag(cov)[js])
-        sol.camera_std.append(std)
-        sol.camera_cov.append(C)
-    sol.pose_std = np.asarray(res.pose_std, float) if res.pose_std is not None else np.full((R.shape[0], 6), np.nan)
-    sol.rig_std = np.full((rigR.shape[0], 6), np.nan)
-    sol.rig_cov = []
-    comp = ("wx", "wy", "wz", "tx", "ty", "tz")
-    for g in range(rigR.shape[0]):
-        js = [pos.get(f"rig{g}.{c}") for c in comp]
-        if all(j is not None for j in js):
-            js = np.array(js)
-            sol.rig_std[g] = np.sqrt(np.diag(cov)[js])
-            sol.rig_cov.append(cov[np.ix_(js, js)])
-        else:
-            sol.rig_cov.append(np.full((6, 6), np.nan))
-    sol._w = w
-    return sol
-
-
-def _gn_step_sigma(problem: BundleProblem) -> float:
-    """Largest Gauss-Newton step at the problem's current values, in units of each parameter's
-    conditional standard deviation (1/sqrt(N_ii)); ~0 at a minimum."""
-    lay = _layout(problem)
-    v, J, ok = _system(problem, lay, problem.cameras, problem.R, problem.t, problem.rig_R, problem.rig_t, problem.points)
-    if not np.all(ok):
-        return float("inf")
-    sw = np.sqrt(_weights(problem, lay))
-    e = sw * v
-    J = sw[:, None] * J
-    Nm = J.T @ J
-    d = np.sqrt(np.maximum(np.diag(Nm), 1e-300))
-    try:
-        step = np.linalg.solve(Nm / d[:, None] / d[None, :], (J.T @ e) / d)
-    except np.linalg.LinAlgError:
-        return float("inf")
-    return float(np.max(np.abs(step)))
-
-
-def _verify_engine(problem: BundleProblem, sol: BundleSolution, max_iterations: int, tolerance: float) -> BundleSolution:
-    """Check the engine's estimate is a minimum of this module's objective (one Gauss-Newton step
-    below 1e-3 conditional σ); otherwise continue with the dense LM (``solve_dense``) from there and say so.
-
-    A safety net that costs one Jacobian: if the engine stopped away from a stationary point of the
-    objective (e.g. on a step-size tolerance in a flat valley), the dense LM finishes the job and the
-    outcome says so. (On 15 near-parallel chessboard views both solvers stop at *different local
-    minima*, 1.13 px and 0.87 px RMS: both are stationary, so this check cannot catch it; such
-    geometry is flagged by the large σ of the principal point and the correlation warnings.)
-    """
-    if not sol.outcome.success:
-        return sol
-    prior = problem.points if problem.point_prior is None else problem.point_prior
-    at_start = BundleProblem([CameraBlock(c.params, c.free, c.image_size, c.pitch_mm, c.name) for c in sol.cameras],
-                             sol.R, sol.t, sol.points, problem.obs_camera, problem.obs_pose, problem.obs_point, problem.obs_xy,
-                             problem.obs_sigma, obs_rig=problem.obs_rig, rig_R=sol.rig_R, rig_t=sol.rig_t,
-                             pose_free=problem.pose_free, point_prior_std=problem.point_prior_std, point_prior=prior)
-    step = _gn_step_sigma(at_start)
-    sol.layout["gn_step_sigma_at_engine_solution"] = step
-    if step < 1e-3:
-        return sol
-    dense = _solve_bundle(at_start, max_iterations, tolerance) if _threadpool_limits is None else None
-    if dense is None:
-        with _threadpool_limits(limits=1, user_api="blas"):
-            dense = _solve_bundle(at_start, max_iterations, tolerance)
-    if not dense.outcome.success:
-        return sol
-    dense.layout["engine"] = "adjustment+dense"
-    dense.layout["gn_step_sigma_at_engine_solution"] = step
-    dense.outcome = Outcome(dense.outcome.termination,
-                            f"adjustment engine stopped early ({sol.outcome.reason}; Gauss-Newton step {step:.2g} σ); "
-                            f"continued with the dense LM: {dense.outcome.reason}")
-    return dense

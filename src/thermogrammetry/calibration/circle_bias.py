@@ -30,9 +30,7 @@ __all__ = ["circle_centroid_bias", "unbias_circle_detections", "calibrate_circle
 
 def _free_parameters(cc) -> dict:
     """{name: [value, std]} of the estimated parameters of a CameraCalibration (for the round history)."""
-    from .bundle import PARAM_NAMES
-
-    return {n: [float(cc.params[i]), float(cc.std[i])] for i, n in enumerate(PARAM_NAMES) if cc.free[i]}
+    return {n: [float(cc.params[i]), float(cc.std[i])] for i, n in enumerate(cc.param_names) if cc.free[i]}
 
 
 def unbias_circle_detections(detections: Sequence, spec, *, pixel_pitch_um=None, focal_mm=None,

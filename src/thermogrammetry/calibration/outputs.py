@@ -7,16 +7,17 @@ Keys written by :func:`write_outputs` (``store`` is a :class:`~thermogrammetry.p
     calibration.json                 figures of the run (see calibration_dict)
     report.html                      self-contained report (figures embedded as base64 PNG)
     exports/opencv.yaml              cv::FileStorage YAML: camera_matrix, distortion_coefficients
-    exports/opencv.json              the same as JSON, with the conversion residuals and the covariance
+    exports/opencv.json              the same as JSON, with the residuals and the covariance
     exports/colmap_cameras.txt       COLMAP cameras.txt (OPENCV / FULL_OPENCV; x_colmap = x + 0.5)
     exports/metashape.xml            Agisoft Metashape calibration XML
+    exports/photogrammetric.json     opencv-model calibrations only: the photogrammetric camera (camera.json format)
 
-The calibration is estimated in the correction (photogrammetric) form; OpenCV, COLMAP and Metashape
-use the forward form, so the exports are least-squares conversions over the whole image
-(:func:`thermogrammetry.camera.convert_camera`); their max and RMS residuals over the whole frame and
-over the area the data covered are recorded in calibration.json ("exports") and the files. Above
-:data:`WARN_RESIDUAL_PX` (0.1 px) a warning is given; above :data:`BAD_RESIDUAL_PX` (1 px) the files are
-written as ``opencv_INACCURATE.yaml`` etc. (the names say so) with the warning inside.
+camera.json is in the model that was estimated (``photogrammetric`` by default, or ``opencv``). Exports to
+another model are least-squares conversions over the whole image; exports to the same model hold the
+estimated parameters (:mod:`thermogrammetry.calibration.exports`). Their max and RMS residuals over the
+whole frame and over the area the data covered are recorded in calibration.json ("exports") and the files.
+Above :data:`WARN_RESIDUAL_PX` (0.1 px) a warning is given; above :data:`BAD_RESIDUAL_PX` (1 px) the files
+are written as ``opencv_INACCURATE.yaml`` etc. (the names say so) with the warning inside.
 
 To keep OUT consistent on failure, build everything into a :class:`~thermogrammetry.pipeline.MemoryProject`
 first and copy it to the folder only when complete (:func:`flush`); every folder write is atomic.
@@ -28,14 +29,14 @@ import base64
 import datetime as _dt
 import html
 import io
-import tempfile
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..camera.models import CameraModel
 from ..store import ProjectStore
-from .bundle import PARAM_NAMES, PARAM_UNITS
+from .exports import BAD_RESIDUAL_PX, WARN_RESIDUAL_PX, camera_from_calibration  # noqa: F401 (public here as before)
+from .exports import export_files as _exports
 from .selfcal import CalibrationResult, CameraCalibration
 from .workflow import CalibrationRun
 
@@ -43,15 +44,6 @@ __all__ = ["camera_from_calibration", "calibration_dict", "write_outputs", "flus
 
 FORMAT_NAME = "thermogrammetry.calibration"
 FORMAT_VERSION = 1
-
-
-def camera_from_calibration(cc: CameraCalibration):
-    """The calibrated camera as a :class:`thermogrammetry.Camera` (model ``photogrammetric``, with std)."""
-    from ..camera import Camera, CameraModel
-
-    std = {n: float(s) for n, s in zip(PARAM_NAMES, cc.std) if np.isfinite(s)}
-    return Camera(CameraModel.PHOTOGRAMMETRIC, cc.image_size, cc.param_dict, pixel_pitch_um=cc.pixel_pitch_um,
-                  param_std=std, name=cc.name)
 
 
 def calibration_solver(r: CalibrationResult) -> str:
@@ -68,7 +60,7 @@ def _f(v):
 def _camera_block(cc: CameraCalibration) -> dict[str, Any]:
     tests = {t.name: t for t in cc.tests}
     params = {}
-    for i, (n, u) in enumerate(zip(PARAM_NAMES, PARAM_UNITS)):
+    for i, (n, u) in enumerate(zip(cc.param_names, cc.param_units)):
         d = {"value": _f(cc.params[i]), "std": _f(cc.std[i]), "unit": u, "estimated": bool(cc.free[i])}
         if n in tests:
             d["t"] = _f(tests[n].t)
@@ -78,6 +70,7 @@ def _camera_block(cc: CameraCalibration) -> dict[str, Any]:
     names, rho = cc.correlation()
     return {
         "name": cc.name,
+        "model": cc.model.value,
         "image_size": list(cc.image_size),
         "pixel_pitch_um": list(cc.pixel_pitch_um),
         "parameters": params,
@@ -132,7 +125,7 @@ def calibration_dict(run: CalibrationRun, exports: dict | None = None) -> dict[s
         "run": run.meta,
     }
     if cams:
-        for k in ("parameters", "parameters_px", "sigma_x_px", "sigma_y_px", "sigma_x_um", "sigma_y_um",
+        for k in ("model", "parameters", "parameters_px", "sigma_x_px", "sigma_y_px", "sigma_x_um", "sigma_y_um",
                   "correlation_warnings"):
             d[k] = cams[0][k]
     d["cameras"] = cams
@@ -146,122 +139,6 @@ def calibration_dict(run: CalibrationRun, exports: dict | None = None) -> dict[s
     if exports:
         d["exports"] = exports
     return d
-
-
-# ---------------------------------------------------------------------------------------------- exports
-def _opencv_yaml(K: np.ndarray, dist: np.ndarray, size) -> str:
-    import cv2
-
-    fs = cv2.FileStorage("calib.yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
-    fs.write("image_width", int(size[0]))
-    fs.write("image_height", int(size[1]))
-    fs.write("camera_matrix", np.asarray(K, float))
-    fs.write("distortion_coefficients", np.asarray(dist, float).reshape(1, -1))
-    return fs.releaseAndGetString()
-
-
-#: conversion residual (px, max over the whole frame) above which an export is flagged
-WARN_RESIDUAL_PX = 0.1
-#: above this the file is written under a name that says so (``<name>_INACCURATE.<ext>``)
-BAD_RESIDUAL_PX = 1.0
-
-
-def _verdict(fmt: str, summary: dict) -> tuple[str, str]:
-    """(file suffix, warning text) of an export from its residuals."""
-    mx = summary.get("max_residual_px")
-    if mx is None:
-        return "_INACCURATE", f"{fmt} export: conversion residual unknown ({summary.get('reason', '')})"
-    area = summary.get("area_max_residual_px")
-    figs = (f"max {mx:.3g} px / RMS {summary['rms_residual_px']:.3g} px over the whole frame"
-            + (f", max {area:.3g} px / RMS {summary['area_rms_residual_px']:.3g} px over the data area" if area is not None else ""))
-    if mx > BAD_RESIDUAL_PX:
-        return "_INACCURATE", (f"{fmt} export loses accuracy: {figs} (> {BAD_RESIDUAL_PX:g} px); written as "
-                               f"*_INACCURATE.*; use camera.json (exact) where possible")
-    if mx > WARN_RESIDUAL_PX:
-        return "", f"{fmt} export: {figs} (> {WARN_RESIDUAL_PX:g} px)"
-    return "", ""
-
-
-def _exports(cc: CameraCalibration, area_px: np.ndarray | None = None) -> tuple[dict[str, bytes], dict[str, Any]]:
-    """Files (relative key -> bytes) and a summary with conversion residuals (whole frame and the
-    area the data covered), conditioning, warnings; a file whose conversion loses more than
-    :data:`BAD_RESIDUAL_PX` is written under ``<name>_INACCURATE.<ext>``."""
-    import json
-
-    from ..camera import convert_camera
-    from ..camera.convert import conversion_covariance
-    from ..camera import models as _M
-
-    files: dict[str, bytes] = {}
-    info: dict[str, Any] = {}
-    cam = camera_from_calibration(cc)
-    cov = np.where(cc.free[:, None] & cc.free[None, :], cc.covariance, 0.0)
-    conv = convert_camera(cam, "opencv", area_px=area_px)
-    summ = conv.summary()
-    suffix, warn = _verdict("OpenCV/COLMAP", summ)
-    summ["warning"] = warn
-    if conv.success:
-        ocv = conv.camera
-        K, dist = ocv.to_opencv()
-        summ["files"] = [f"opencv{suffix}.yaml", f"opencv{suffix}.json", f"colmap_cameras{suffix}.txt"]
-        files[f"opencv{suffix}.yaml"] = _opencv_yaml(K, dist, cc.image_size).encode()
-        ocv_cov = None
-        try:
-            free = list(conv.free)
-            idx = [ocv.param_names.index(k) for k in free]
-
-            def proj(t, rays):
-                p = ocv.params.copy()
-                p[idx] = t
-                return _M.project("opencv", p, rays)
-
-            C = conversion_covariance(cam, cov, proj, ocv.params[idx])
-            ocv_cov = {"params": free, "matrix": C.tolist()}
-        except (np.linalg.LinAlgError, ValueError):  # pragma: no cover - reported as absent
-            ocv_cov = None
-        files[f"opencv{suffix}.json"] = (json.dumps({
-            "image_size": list(cc.image_size), "K": K.tolist(), "dist": np.asarray(dist).ravel().tolist(),
-            "dist_order": "k1 k2 p1 p2 k3 [k4 k5 k6]",
-            "converted_from": "photogrammetric (correction form)",
-            "conversion_max_residual_px": _f(conv.max_residual_px),
-            "conversion_rms_residual_px": _f(conv.rms_residual_px),
-            "conversion_area_max_residual_px": summ["area_max_residual_px"],
-            "conversion_area_rms_residual_px": summ["area_rms_residual_px"],
-            "conversion_warning": warn,
-            "covariance": ocv_cov,
-        }, indent=2) + "\n").encode()
-        try:
-            from ..io.colmap import colmap_camera_line
-
-            header = "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# Number of cameras: 1\n"
-            if warn:
-                header += f"# WARNING: {warn}\n"
-            files[f"colmap_cameras{suffix}.txt"] = (header + colmap_camera_line(1, ocv) + "\n").encode()
-        except Exception as exc:  # noqa: BLE001 - an export that cannot be made is reported, not fatal
-            summ["colmap_error"] = f"{type(exc).__name__}: {exc}"
-    info["opencv"] = summ
-    info["colmap"] = {"max_residual_px": summ["max_residual_px"], "area_max_residual_px": summ["area_max_residual_px"],
-                      "same_as": "opencv"}
-    try:
-        from ..io.metashape import MetashapeCalibration, write_metashape_xml
-
-        ex = MetashapeCalibration.from_camera(cam, area_px=area_px, covariance=cov)
-        ms = ex.summary()
-        suffix, warn = _verdict("Metashape", ms)
-        ms["warning"] = warn
-        if ex.outcome.success:
-            with tempfile.TemporaryDirectory() as td:
-                p = Path(td) / "metashape.xml"
-                write_metashape_xml(p, ex.calibration)
-                text = p.read_text()
-            if warn:
-                text = text.replace("<calibration>", f"<!-- WARNING: {html.escape(warn)} -->\n<calibration>", 1)
-            files[f"metashape{suffix}.xml"] = text.encode()
-            ms["files"] = [f"metashape{suffix}.xml"]
-        info["metashape"] = ms
-    except Exception as exc:  # noqa: BLE001
-        info["metashape"] = {"error": f"{type(exc).__name__}: {exc}", "warning": f"Metashape export failed: {exc}"}
-    return files, info
 
 
 # ---------------------------------------------------------------------------------------------- figures
@@ -310,28 +187,31 @@ def _figures(run: CalibrationRun, ci: int) -> dict[str, str]:
     fig.colorbar(im, ax=ax, shrink=0.8, label="observations per cell")
     figs["coverage"] = _png(fig)
     # distortion curve (radial and tangential along the image diagonal directions)
-    p = cc.params
-    px_mm = cc.pixel_pitch_um[0] * 1e-3
-    rmax = float(np.hypot(w * cc.pixel_pitch_um[0], h * cc.pixel_pitch_um[1]) * 0.5e-3)
-    rr = np.linspace(0, rmax, 200)
-    K = p[3:8]
-    dr = sum(K[i] * rr ** (2 * i + 3) for i in range(5))
-    fig, ax = plt.subplots(figsize=(6.4, 3.8))
-    ax.plot(rr, dr * 1e3, label="radial Δr (µm)")
-    # 1-σ band by propagation through the K covariance
-    J = np.stack([rr ** (2 * i + 3) for i in range(5)], axis=1)
-    C = cc.covariance[3:8, 3:8]
-    sd = np.sqrt(np.maximum(np.einsum("ni,ij,nj->n", J, C, J), 0))
-    ax.fill_between(rr, (dr - sd) * 1e3, (dr + sd) * 1e3, alpha=0.3, label="±1σ")
-    tang = np.sqrt(p[8] ** 2 + p[9] ** 2) * rr**2
-    ax.plot(rr, tang * 1e3, "--", label="decentering |P| r² (µm)")
-    ax.axhline(0, color="k", lw=0.5)
-    sec = ax.secondary_yaxis("right", functions=(lambda y: y / (px_mm * 1e3), lambda y: y * px_mm * 1e3))
-    sec.set_ylabel("px")
-    ax.set_xlabel("radial distance r from the principal point [mm]")
-    ax.set_ylabel("µm")
-    ax.legend(fontsize=8)
-    ax.set_title("distortion (correction form: Δr = K1 r³ + K2 r⁵ + …)")
+    if cc.model is CameraModel.OPENCV:
+        fig = _distortion_opencv(cc, plt)
+    else:
+        p = cc.params
+        px_mm = cc.pixel_pitch_um[0] * 1e-3
+        rmax = float(np.hypot(w * cc.pixel_pitch_um[0], h * cc.pixel_pitch_um[1]) * 0.5e-3)
+        rr = np.linspace(0, rmax, 200)
+        K = p[3:8]
+        dr = sum(K[i] * rr ** (2 * i + 3) for i in range(5))
+        fig, ax = plt.subplots(figsize=(6.4, 3.8))
+        ax.plot(rr, dr * 1e3, label="radial Δr (µm)")
+        # 1-σ band by propagation through the K covariance
+        J = np.stack([rr ** (2 * i + 3) for i in range(5)], axis=1)
+        C = cc.covariance[3:8, 3:8]
+        sd = np.sqrt(np.maximum(np.einsum("ni,ij,nj->n", J, C, J), 0))
+        ax.fill_between(rr, (dr - sd) * 1e3, (dr + sd) * 1e3, alpha=0.3, label="±1σ")
+        tang = np.sqrt(p[8] ** 2 + p[9] ** 2) * rr**2
+        ax.plot(rr, tang * 1e3, "--", label="decentering |P| r² (µm)")
+        ax.axhline(0, color="k", lw=0.5)
+        sec = ax.secondary_yaxis("right", functions=(lambda y: y / (px_mm * 1e3), lambda y: y * px_mm * 1e3))
+        sec.set_ylabel("px")
+        ax.set_xlabel("radial distance r from the principal point [mm]")
+        ax.set_ylabel("µm")
+        ax.legend(fontsize=8)
+        ax.set_title("distortion (correction form: Δr = K1 r³ + K2 r⁵ + …)")
     figs["distortion"] = _png(fig)
     # correlation heat map
     names, rho = cc.correlation()
@@ -359,6 +239,42 @@ def _figures(run: CalibrationRun, ci: int) -> dict[str, str]:
     return figs
 
 
+def _distortion_opencv(cc: CameraCalibration, plt):
+    """Radial and decentering distortion of an opencv-model camera in px against the ideal radius in px (along x),
+    with the 1σ band of the radial part from the covariance of k1..k6."""
+    p = cc.param_dict
+    w, h = cc.image_size
+    f = p["fx"]
+    from ..camera.models import opencv_unproject
+
+    # the ideal radius of the frame's corners (their rays), else the distorted one
+    rays = opencv_unproject(cc.params, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]))
+    rn = np.hypot(rays[:, 0], rays[:, 1])
+    rn_max = float(np.nanmax(rn)) if np.isfinite(rn).any() else \
+        float(np.hypot(max(p["cx"], w - 1 - p["cx"]) / p["fx"], max(p["cy"], h - 1 - p["cy"]) / p["fy"]))
+    rn = np.linspace(0, rn_max, 200)
+    r2 = rn * rn
+    num = 1 + r2 * (p["k1"] + r2 * (p["k2"] + r2 * p["k3"]))
+    den = 1 + r2 * (p["k4"] + r2 * (p["k5"] + r2 * p["k6"]))
+    dr = f * rn * (num / den - 1)
+    # d dr / d (k1 k2 k3 k4 k5 k6)
+    J = f * rn[:, None] * np.stack([r2 / den, r2**2 / den, r2**3 / den, -num * r2 / den**2, -num * r2**2 / den**2,
+                                    -num * r2**3 / den**2], axis=1)
+    ks = [cc.param_names.index(k) for k in ("k1", "k2", "k3", "k4", "k5", "k6")]
+    C = np.where(cc.free[:, None] & cc.free[None, :], cc.covariance, 0.0)[np.ix_(ks, ks)]
+    sd = np.sqrt(np.maximum(np.einsum("ni,ij,nj->n", J, C, J), 0))
+    fig, ax = plt.subplots(figsize=(6.4, 3.8))
+    ax.plot(f * rn, dr, label="radial Δr (px)")
+    ax.fill_between(f * rn, dr - sd, dr + sd, alpha=0.3, label="±1σ")
+    ax.plot(f * rn, f * np.hypot(p["p1"], p["p2"]) * r2, "--", label="decentering f |p| r² (px)")
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_xlabel("ideal radial distance f·r from the principal point [px]")
+    ax.set_ylabel("px")
+    ax.legend(fontsize=8)
+    ax.set_title("distortion (forward form: Δr = f r (k1 r² + k2 r⁴ + k3 r⁶), r = ideal normalised radius)")
+    return fig
+
+
 # ---------------------------------------------------------------------------------------------- HTML
 def _sci(value: float, std: float) -> tuple[str, str, str]:
     """Seed 001 Table 2 style: value and std scaled by a common 10^e (e from the std)."""
@@ -375,7 +291,14 @@ _LABEL = {"c_mm": "Focal length, c (mm)", "x0_mm": "Principal point x<sub>0</sub
           "K1": "Radial distortion K<sub>1</sub>", "K2": "Radial distortion K<sub>2</sub>", "K3": "Radial distortion K<sub>3</sub>",
           "K4": "Radial distortion K<sub>4</sub>", "K5": "Radial distortion K<sub>5</sub>",
           "P1": "Tangential distortion P<sub>1</sub>", "P2": "Tangential distortion P<sub>2</sub>",
-          "B1": "Affinity B<sub>1</sub>", "B2": "Shear B<sub>2</sub>"}
+          "B1": "Affinity B<sub>1</sub>", "B2": "Shear B<sub>2</sub>",
+          "fx": "Focal length f<sub>x</sub> (px)", "fy": "Focal length f<sub>y</sub> (px)",
+          "cx": "Principal point c<sub>x</sub> (px)", "cy": "Principal point c<sub>y</sub> (px)", "skew": "Skew (px)",
+          **{f"k{i}": f"Radial distortion k<sub>{i}</sub>" for i in range(1, 7)},
+          "p1": "Tangential distortion p<sub>1</sub>", "p2": "Tangential distortion p<sub>2</sub>"}
+
+_MODEL_TEXT = {CameraModel.PHOTOGRAMMETRIC: "the correction-form (photogrammetric) model, Brown (1971) / Fraser (1997)",
+               CameraModel.OPENCV: "OpenCV's forward-form model (as cv2.calibrateCamera), Brown (1971) / Bradski (2000)"}
 
 _CSS = """body{font-family:sans-serif;max-width:1100px;margin:1em auto;color:#222}table{border-collapse:collapse;margin:.5em 0}
 td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}th{background:#eee}td.l{text-align:left}
@@ -392,8 +315,7 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
     out.append(f"<p>Route: <b>{e(str(meta.get('route', '')))}</b>. Termination: <b>{e(r.outcome.termination.value)}</b> "
                f"({e(r.outcome.reason)}). σ0 = {r.sigma0:.4f} (a-priori σ of a coordinate = 1 unless given), "
                f"redundancy {r.dof}, RMS {r.rms_px:.4f} px. Blunder test: {e(r.snooping_test)}. "
-               f"Solver: {e(calibration_solver(r))} with the correction-form (photogrammetric) model, "
-               "Brown (1971) / Fraser (1997).</p>")
+               f"Solver: {e(calibration_solver(r))} with {_MODEL_TEXT[r.cameras[0].model if r.cameras else CameraModel.PHOTOGRAMMETRIC]}.</p>")
     for wtext in r.warnings:
         out.append(f"<p class='warn'>Warning: {e(wtext)}</p>")
     if meta.get("pixel_pitch_assumed"):
@@ -413,7 +335,7 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
         tests = {t.name: t for t in cc.tests}
         ppx = cc.parameters_px()
         pxmap = {"c_mm": "fx", "x0_mm": "cx", "y0_mm": "cy"}
-        for i, n in enumerate(PARAM_NAMES):
+        for i, n in enumerate(cc.param_names):
             if not cc.free[i]:
                 continue
             v, s, sc = _sci(cc.params[i], cc.std[i])
@@ -484,7 +406,7 @@ def report_html(run: CalibrationRun, exports: dict | None = None) -> str:
             out.append(f"<li>{e(k)}: {e(str(v))}</li>")
         out.append("</ul>")
     out.append("<p style='font-size:small'>References: Yastikli &amp; Guler 2013; Khodaei et al. 2015; "
-               "Brown 1971; Fraser 1997; Baarda 1968; Pope 1976.</p></body></html>")
+               "Brown 1971; Fraser 1997; Bradski 2000; Baarda 1968; Pope 1976.</p></body></html>")
     return "\n".join(out)
 
 

@@ -10,7 +10,9 @@ Strategy of Yastikli & Guler (2013, §3), extended to several cameras, rigs and 
    default 5), so that only gross errors go. After stage 2 has converged, every stage-1 reject within 10 σ of
    the full model is re-admitted and re-tested by the stage-2 data snooping (otherwise valid
    corner points, the most informative on distortion, would stay out).
-2. **Stage 2** — x0, y0, c, K1–K3, P1, P2 free (K4, K5 as in Khodaei et al. 2015, and B1, B2 on request). Data
+2. **Stage 2** — x0, y0, c, K1–K3, P1, P2 free (K4, K5 as in Khodaei et al. 2015, and B1, B2 on request); in
+   the OpenCV model (``options.model = "opencv"``) fx, fy, cx, cy, k1, k2, p1, p2, k3 free, what
+   ``cv2.calibrateCamera`` estimates by default (k3 can be held, ``fixed=("k3",)``; k4–k6 on request). Data
    snooping (Baarda 1968) with the a-priori σ of the measurements when every measurement carries
    one, otherwise Pope's τ test with the a-posteriori σ0; critical value 3.29 (α0 = 0.1 %,
    two-sided); at most one observation (image point) is removed per image and round.
@@ -46,9 +48,9 @@ import numpy as np
 from ..errors import InvalidInputError, TooFewPointsError
 from ..geometry.rotations import mean_rotation
 from ..results import Termination
-from .bundle import N_PARAMS, BundleProblem, BundleSolution, CameraBlock, residuals, solve_bundle
+from .bundle import BundleProblem, BundleSolution, CameraBlock, residuals, solve_bundle
 from .selfcal_initial import init_focal_planar, is_planar, nominal_vector, pinhole_K, resect
-from .selfcal_inputs import STAGE2_PARAMS, CameraSetup, ImageMeasurements, SelfCalibrationOptions
+from .selfcal_inputs import STAGE2_PARAMS, STAGE2_PARAMS_OPENCV, CameraSetup, ImageMeasurements, SelfCalibrationOptions
 from .selfcal_results import (  # (ADDITIONAL and the result types: importable from here as before)
     ADDITIONAL,
     CalibrationResult,
@@ -71,6 +73,7 @@ __all__ = [
     "CalibrationResult",
     "calibrate",
     "STAGE2_PARAMS",
+    "STAGE2_PARAMS_OPENCV",
 ]
 
 
@@ -96,14 +99,14 @@ def calibrate(
     images : per-image measurements (indices into ``points``, pixels in the OpenCV convention).
     point_std : (M, 3) a-priori standard deviations of the object coordinates (m); points with
         finite positive values are adjusted as weighted unknowns, others are fixed.
-    options : :class:`SelfCalibrationOptions`.
+    options : :class:`SelfCalibrationOptions` (``options.model``: the camera model estimated, for every camera).
     rig : model images of different cameras sharing a ``frame`` as a rigid rig (first camera in
         each frame is the reference) and estimate the relative orientation. The cameras are then
         also solved with independent poses, and ``warnings`` says when a rig camera's RMS is more
         than ``options.rig_rms_warning_factor`` times its independent RMS.
     progress : optional callable ``progress(stage: str, done: int, total: int)``.
-    initial : optional {camera index: (12,) parameters} to start stage 2 from (skips stage 1's
-        nominal model for that camera; used by Monte-Carlo studies started at the truth).
+    initial : optional {camera index: (P,) parameters of ``options.model``} to start stage 2 from (skips
+        stage 1's nominal model for that camera; used by Monte-Carlo studies started at the truth).
     initial_poses : optional per-image (R, t) to skip resection.
 
     Returns
@@ -183,10 +186,18 @@ def _calibrate_once(
         verdicts.append(v)
 
     # nominal principal distance per camera
+    model = opt.model
+    n_par = len(opt.param_names)
     cam_p: list[np.ndarray] = []
+    c_nominal: list[float] = []
     for ci, cs in enumerate(cameras):
         if initial is not None and ci in initial:
-            cam_p.append(np.asarray(initial[ci], float).copy())
+            p0 = np.asarray(initial[ci], float).copy()
+            if p0.shape != (n_par,):
+                raise InvalidInputError(f"initial[{ci}]: shape {p0.shape}; expected ({n_par},) parameters of the "
+                                        f"{model.value} model ({' '.join(opt.param_names)})")
+            cam_p.append(p0)
+            c_nominal.append(float("nan"))
             continue
         c = cs.nominal.get("c_mm")
         if c is None:
@@ -198,7 +209,8 @@ def _calibrate_once(
                     verdicts[k].reason = "camera has no nominal focal length and too few planar views to initialise it"
                 usable = [k for k in usable if images[k].camera != ci]
                 c = 1.0
-        cam_p.append(nominal_vector(cs, float(c)))
+        cam_p.append(nominal_vector(cs, float(c), model))
+        c_nominal.append(float(c))
 
     # resection of every usable image
     poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -216,7 +228,7 @@ def _calibrate_once(
             verdicts[k].reason = f"only {xyz.shape[0]} non-coplanar points (need >= 6 for resection)"
             usable.remove(k)
             continue
-        K = pinhole_K(cam_p[im.camera], cameras[im.camera])
+        K = pinhole_K(cam_p[im.camera], cameras[im.camera], model)
         Rt, why = resect(xyz, xy[fin], K, planar)
         if Rt is None:
             verdicts[k].reason = why
@@ -291,8 +303,8 @@ def _calibrate_once(
                 pose_keys.append(k)
         R = np.array([poses[k][0] for k in pose_keys])
         t = np.array([poses[k][1] for k in pose_keys])
-        blocks = [CameraBlock(cam_params[ci], free_masks[ci], cameras[ci].image_size, cameras[ci].pitch_mm, cameras[ci].name)
-                  for ci in range(len(cameras))]
+        blocks = [CameraBlock(cam_params[ci], free_masks[ci], cameras[ci].image_size, cameras[ci].pitch_mm, cameras[ci].name,
+                              model) for ci in range(len(cameras))]
         oc = np.array([images[k].camera for k in obs_img[sel]], dtype=int)
         op = np.array([pose_of_img[k] for k in obs_img[sel]], dtype=int)
         orig = np.array([rig_of_img.get(k, -1) for k in obs_img[sel]], dtype=int)
@@ -365,7 +377,7 @@ def _calibrate_once(
         return sol, sel, pose_keys
 
     # ---- stage 1: nominal interior orientation, poses only --------------------------------
-    fixed_masks = [np.zeros(N_PARAMS, dtype=bool) for _ in cameras]
+    fixed_masks = [np.zeros(n_par, dtype=bool) for _ in cameras]
     if rig_members:
         init_rig()
     stage1 = {}
@@ -378,7 +390,7 @@ def _calibrate_once(
         rms1 = float(np.sqrt(np.mean(np.sum(sol1.residuals_px**2, axis=1))))
         stage1 = {"sigma0": sol1.sigma0, "rms_px": rms1, "n_observations": int(sel1.size),
                   "n_blunders": sum(1 for b in blunders if b["stage"] == "stage1"),
-                  "c_mm": [float(p[0]) for p in cam_p]}
+                  "c_mm": c_nominal}
 
     # ---- stage 2: additional parameters free, data snooping --------------------------------
     free2 = opt.stage2_free()

@@ -6,18 +6,45 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .bundle import N_PARAMS, PARAM_NAMES
+from ..camera.models import CameraModel, ideal_K
+from ..errors import ConfigError
+from .bundle import param_names
 from .selfcal_inputs import CameraSetup
 
 __all__ = ["nominal_vector", "is_planar", "pinhole_K", "init_focal_planar", "resect"]
 
 
-def nominal_vector(setup: CameraSetup, c_mm: float) -> np.ndarray:
-    p = np.zeros(N_PARAMS)
+def nominal_vector(setup: CameraSetup, c_mm: float, model=CameraModel.PHOTOGRAMMETRIC) -> np.ndarray:
+    """The stage-1 camera of ``setup`` in ``model``'s layout: principal distance ``c_mm`` (mm), the setup's
+    nominal values, everything else 0.
+
+    opencv model: ``fx = c_mm / pitch_x``, ``fy = c_mm / pitch_y`` (px), the principal point at the image
+    centre ``((w - 1)/2, (h - 1)/2)``, no distortion; nominal values given by opencv names override these.
+    A nominal value of the other model (other than ``c_mm``) raises ConfigError: it is not silently dropped.
+    """
+    model = CameraModel(model)
+    names = param_names(model)
+    if model is CameraModel.PHOTOGRAMMETRIC:
+        p = np.zeros(len(names))
+        for k, v in setup.nominal.items():
+            if v is not None:
+                if k not in names:
+                    raise ConfigError(f"camera {setup.name!r}: nominal {k!r} is not a parameter of the photogrammetric "
+                                      f"model; expected names from {list(names)}")
+                p[names.index(k)] = float(v)
+        p[0] = c_mm
+        return p
+    w, h = setup.image_size
+    px, py = setup.pitch_mm
+    p = np.zeros(len(names))
+    p[:4] = (c_mm / px, c_mm / py, 0.5 * (w - 1), 0.5 * (h - 1))
     for k, v in setup.nominal.items():
-        if v is not None:
-            p[PARAM_NAMES.index(k)] = float(v)
-    p[0] = c_mm
+        if v is None or k == "c_mm":
+            continue
+        if k not in names:
+            raise ConfigError(f"camera {setup.name!r}: nominal {k!r} is a parameter of the photogrammetric model, not "
+                              f"of the opencv model being calibrated; expected names from {list(names)} (or c_mm)")
+        p[names.index(k)] = float(v)
     return p
 
 
@@ -29,10 +56,13 @@ def is_planar(xyz: np.ndarray) -> bool:
     return s[2] < 1e-6 * max(s[0], 1e-12)
 
 
-def pinhole_K(p: np.ndarray, setup: CameraSetup) -> np.ndarray:
-    px, py = setup.pitch_mm
-    w, h = setup.image_size
-    return np.array([[p[0] / px, 0, (w - 1) / 2 + p[1] / px], [0, p[0] / py, (h - 1) / 2 - p[2] / py], [0, 0, 1.0]])
+def pinhole_K(p: np.ndarray, setup: CameraSetup, model=CameraModel.PHOTOGRAMMETRIC) -> np.ndarray:
+    """(3, 3) ideal camera matrix in px of the parameter vector ``p`` of ``model``."""
+    if CameraModel(model) is CameraModel.PHOTOGRAMMETRIC:
+        px, py = setup.pitch_mm
+        w, h = setup.image_size
+        return np.array([[p[0] / px, 0, (w - 1) / 2 + p[1] / px], [0, p[0] / py, (h - 1) / 2 - p[2] / py], [0, 0, 1.0]])
+    return ideal_K(model, p)
 
 
 def init_focal_planar(setup: CameraSetup, obj: list[np.ndarray], img: list[np.ndarray]) -> float | None:

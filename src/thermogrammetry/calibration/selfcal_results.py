@@ -9,15 +9,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from ..camera.models import CameraModel
 from ..results import Outcome
-from .bundle import PARAM_NAMES, BundleSolution
+from .bundle import BundleSolution, param_names, param_units
 
 __all__ = [
     "ParameterTest", "CameraCalibration", "ImageVerdict", "RelativeOrientation", "CalibrationResult", "ADDITIONAL",
-    "assemble", "empty_result",
+    "ADDITIONAL_OPENCV", "assemble", "empty_result",
 ]
 
+#: parameters given a significance test (H0: value = 0), photogrammetric model
 ADDITIONAL = ("x0_mm", "y0_mm", "K1", "K2", "K3", "K4", "K5", "P1", "P2", "B1", "B2")
+#: the same for the opencv model: the distortion terms and the skew (its principal point is measured from the
+#: top-left pixel, so "cx = 0" is no hypothesis)
+ADDITIONAL_OPENCV = ("skew", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
 
 
 @dataclass(frozen=True)
@@ -32,28 +37,38 @@ class ParameterTest:
 
 @dataclass
 class CameraCalibration:
-    """Calibrated intrinsics of one camera with precision (correction form, references' units)."""
+    """Calibrated intrinsics of one camera with precision, in the model that was estimated (``model``:
+    the correction form in the references' units, or OpenCV's forward form in px)."""
 
     name: str
     image_size: tuple[int, int]
     pixel_pitch_um: tuple[float, float]
-    params: np.ndarray  # (12,)
-    std: np.ndarray  # (12,) NaN where not estimated
-    covariance: np.ndarray  # (12,12)
-    free: np.ndarray  # (12,) bool
+    params: np.ndarray  # (P,) layout param_names
+    std: np.ndarray  # (P,) NaN where not estimated
+    covariance: np.ndarray  # (P,P)
+    free: np.ndarray  # (P,) bool
     sigma_xy_px: tuple[float, float]  # σx, σy of an image coordinate (Table 4), px
     rms_px: float
     n_observations: int
     tests: list[ParameterTest] = field(default_factory=list)
     correlation_warnings: list[tuple[str, str, float]] = field(default_factory=list)
+    model: CameraModel = CameraModel.PHOTOGRAMMETRIC
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return param_names(self.model)
+
+    @property
+    def param_units(self) -> tuple[str, ...]:
+        return param_units(self.model)
 
     @property
     def param_dict(self) -> dict[str, float]:
-        return dict(zip(PARAM_NAMES, map(float, self.params)))
+        return dict(zip(self.param_names, map(float, self.params)))
 
     @property
     def std_dict(self) -> dict[str, float]:
-        return dict(zip(PARAM_NAMES, map(float, self.std)))
+        return dict(zip(self.param_names, map(float, self.std)))
 
     @property
     def sigma_xy_um(self) -> tuple[float, float]:
@@ -66,14 +81,18 @@ class CameraCalibration:
         s = np.sqrt(np.diag(C))
         with np.errstate(invalid="ignore", divide="ignore"):
             rho = C / s[:, None] / s[None, :]
-        return [PARAM_NAMES[i] for i in idx], rho
+        return [self.param_names[i] for i in idx], rho
 
     def parameters_px(self) -> dict[str, tuple[float, float, str]]:
         """The parameters expressed in pixels: name -> (value, std, unit).
 
-        c -> fx, fy (px); x0, y0 -> cx, cy (px, OpenCV origin); K_i -> K_i·pitch^(2i) (px^-2i);
-        P_i -> P_i·pitch (px^-1); B unitless. Pitch = x pitch for the distortion terms.
+        Photogrammetric model: c -> fx, fy (px); x0, y0 -> cx, cy (px, OpenCV origin); K_i -> K_i·pitch^(2i)
+        (px^-2i); P_i -> P_i·pitch (px^-1); B unitless. Pitch = x pitch for the distortion terms.
+        OpenCV model: the parameters as they are (fx fy cx cy skew in px, the distortion terms unitless).
         """
+        if self.model is CameraModel.OPENCV:
+            return {n: (float(v), float(s), u) for n, v, s, u in zip(self.param_names, self.params, self.std,
+                                                                    self.param_units)}
         px, py = (v * 1e-3 for v in self.pixel_pitch_um)
         w, h = self.image_size
         p, s = self.params, self.std
@@ -194,8 +213,9 @@ def assemble(sol, sel, pose_keys, cameras, images, verdicts, obs_img, obs_pt, ob
         std = sol.camera_std[ci]
         cov = sol.camera_cov[ci]
         tests = []
-        for name in ADDITIONAL:
-            i = PARAM_NAMES.index(name)
+        names = cb.param_names
+        for name in (ADDITIONAL_OPENCV if cb.model is CameraModel.OPENCV else ADDITIONAL):
+            i = names.index(name)
             if cb.free[i]:
                 if np.isfinite(std[i]) and std[i] > 0:
                     tv = abs(cb.params[i]) / std[i]
@@ -204,7 +224,7 @@ def assemble(sol, sel, pose_keys, cameras, images, verdicts, obs_img, obs_pt, ob
                 tests.append(ParameterTest(name, float(cb.params[i]), float(std[i]), float(tv), tcrit,
                                            bool(np.isfinite(tv) and tv > tcrit)))
         cc = CameraCalibration(cs.name, cs.image_size, cs.pixel_pitch_um, cb.params.copy(), std.copy(), cov.copy(),
-                               cb.free.copy(), (sx, sy), rms, int(np.count_nonzero(m)), tests)
+                               cb.free.copy(), (sx, sy), rms, int(np.count_nonzero(m)), tests, model=cb.model)
         names, rho = cc.correlation()
         for a in range(len(names)):
             for b in range(a + 1, len(names)):
@@ -217,7 +237,7 @@ def assemble(sol, sel, pose_keys, cameras, images, verdicts, obs_img, obs_pt, ob
         rel.append(RelativeOrientation(ci, ref_cam, sol.rig_R[g], sol.rig_t[g], sol.rig_std[g], n_frames))
     rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
     warns = []
-    undet = [f"{cc.name}.{PARAM_NAMES[i]}" for cc in cams_out for i in np.flatnonzero(cc.free) if not np.isfinite(cc.std[i])]
+    undet = [f"{cc.name}.{cc.param_names[i]}" for cc in cams_out for i in np.flatnonzero(cc.free) if not np.isfinite(cc.std[i])]
     if dof <= 0 or not np.isfinite(sol.sigma0) or undet:
         warns.append(f"precision undetermined (redundancy {dof}, sigma0 {sol.sigma0:.4g}): standard deviations are NaN"
                      + (f" for {', '.join(undet[:6])}{' ...' if len(undet) > 6 else ''}" if undet else ""))

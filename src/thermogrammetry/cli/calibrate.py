@@ -11,6 +11,10 @@ Routes (public contract)::
     thermogrammetry calibrate --control control.csv --measurements measurements.csv \\
         --image-size 320x240 --pixel-pitch-um 25 --focal-mm 18 -o OUT
 
+Every route takes ``--model photogrammetric`` (default: the correction form, Brown 1971 / Fraser 1997) or
+``--model opencv`` (OpenCV's forward form as cv2.calibrateCamera estimates it: fx fy cx cy k1 k2 p1 p2 k3;
+``--fix-k3``, ``--rational``); camera.json is in that model and the exports to the same model are exact.
+
 IMAGES may be files or folders (8-bit JPEG/PNG, 16-bit TIFF/PNG, float TIFF). Everything is computed
 in memory and written to OUT only at the end (each file atomically), so a failed run leaves OUT as
 it was. Bad input exits with status 2 and a message naming the file (and row).
@@ -52,6 +56,9 @@ def calibrate(
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
     k45: bool = typer.Option(False, "--k45", help="Also estimate K4, K5 (as Khodaei et al. 2015 do)."),
     affinity: bool = typer.Option(False, "--affinity", help="Also estimate affinity/shear B1, B2."),
+    model: str = typer.Option("photogrammetric", "--model", help="Camera model estimated: photogrammetric (correction form, Brown 1971 / Fraser 1997: c x0 y0 K1-K3 P1 P2) or opencv (forward form as cv2.calibrateCamera: fx fy cx cy k1 k2 p1 p2 k3); camera.json is in this model, its exports to the same model exact."),
+    fix_k3: bool = typer.Option(False, "--fix-k3", help="Hold K3 (photogrammetric) / k3 (opencv) at 0, as cv2.CALIB_FIX_K3."),
+    rational: bool = typer.Option(False, "--rational", help="--model opencv: also estimate k4, k5, k6 (cv2.CALIB_RATIONAL_MODEL)."),
     name: str = typer.Option("camera", "--name", help="Camera name written into camera.json."),
 ) -> None:
     """Calibrate a (thermal) camera: parameters with standard deviations, report and exports in OUT."""
@@ -69,7 +76,7 @@ def calibrate(
                      coded_marks=coded_marks)
         run = run_calibrate(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, control, measurements,
                             image_size, pixel_pitch_um, focal_mm, output, k45, affinity, name, coded,
-                            progress=lambda: progress(console, "calibrate"))
+                            model=model, fix_k3=fix_k3, rational=rational, progress=lambda: progress(console, "calibrate"))
     except CalibrateUsageError as exc:
         print_error(err, exc)
         raise typer.Exit(2) from None
@@ -139,13 +146,18 @@ def _summary(console, cal: dict, output, keys) -> None:
     if cal["blunders"]:
         console.print(f"{len(cal['blunders'])} observation(s) rejected as blunders ({cal['blunder_test']})", highlight=False)
     for info in cal.get("exports", {}).values():
-        for fmt, key in (("OpenCV/COLMAP", "opencv"), ("Metashape", "metashape")):
+        colmap_apart = "same_as" not in info.get("colmap", {"same_as": "opencv"})
+        for fmt, key in (("OpenCV" if colmap_apart else "OpenCV/COLMAP", "opencv"), ("COLMAP", "colmap"),
+                         ("Metashape", "metashape"), ("photogrammetric", "photogrammetric")):
             o = info.get(key, {})
+            if key == "colmap" and not colmap_apart:
+                continue
             if o.get("max_residual_px") is not None:
                 area = o.get("area_max_residual_px")
-                console.print(f"{fmt} export: conversion residual max {o['max_residual_px']:.3f} px / RMS "
-                              f"{o['rms_residual_px']:.3f} px over the whole frame"
-                              + (f", max {area:.3f} px / RMS {o['area_rms_residual_px']:.3f} px over the data area"
+                label = "residual of the file read back" if (o.get("method") or o.get("residual")) else "conversion residual"
+                console.print(f"{fmt} export: {label} max {o['max_residual_px']:.3g} px / "
+                              f"RMS {o['rms_residual_px']:.3g} px over the whole frame"
+                              + (f", max {area:.3g} px / RMS {o['area_rms_residual_px']:.3g} px over the data area"
                                  if area is not None else ""), highlight=False)
             if o.get("warning"):
                 print_error(console, o["warning"], "warning:", "yellow")

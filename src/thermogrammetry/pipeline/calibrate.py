@@ -219,10 +219,39 @@ def _coded_marks(value: str, cols: int, rows: int, diameter_mm) -> tuple:
     return tuple(marks)
 
 
+def _options(model, k45: bool, affinity: bool, fix_k3: bool, rational: bool):
+    """The self-calibration's options from the flags; CalibrateUsageError naming the flag and the valid values."""
+    from ..calibration.selfcal import SelfCalibrationOptions
+    from ..calibration.selfcal_inputs import calibration_model
+    from ..camera.models import CameraModel
+
+    try:
+        m = calibration_model(model)
+    except ConfigError:
+        from ..calibration.bundle import CALIBRATION_MODELS
+
+        raise CalibrateUsageError(f"--model {model!r}: expected one of "
+                                  + ", ".join(v.value for v in CALIBRATION_MODELS)) from None
+    if m is CameraModel.OPENCV and (k45 or affinity):
+        flags = " and ".join(f for f, v in (("--k45", k45), ("--affinity", affinity)) if v)
+        raise CalibrateUsageError(f"{flags}: K4, K5, B1 and B2 are parameters of the photogrammetric model; with --model "
+                                  "opencv fx and fy are estimated apart already, and --rational adds k4, k5, k6")
+    if m is CameraModel.PHOTOGRAMMETRIC and rational:
+        raise CalibrateUsageError("--rational: k4, k5, k6 are parameters of the opencv model; use it with --model opencv "
+                                  "(the photogrammetric model takes --k45 for K4, K5)")
+    fixed = (("k3",) if m is CameraModel.OPENCV else ("K3",)) if fix_k3 else ()
+    return SelfCalibrationOptions(model=m, k45=k45, affinity=affinity, rational=rational, fixed=fixed)
+
+
 def run_calibrate(images, target, corners, grid, spacing_mm, asymmetric, diameter_mm, control, measurements, image_size,
-                  pixel_pitch_um, focal_mm, output, k45, affinity, name, coded=None, *, progress=None) -> CalibrateRun:
+                  pixel_pitch_um, focal_mm, output, k45, affinity, name, coded=None, *, model="photogrammetric",
+                  fix_k3: bool = False, rational: bool = False, progress=None) -> CalibrateRun:
     """Calibrate from target images (chessboard, circle grid, coded checkerboard) or a surveyed 3D test field and
     write OUT (``camera.json``, ``calibration.json``, ``report.html``, exports) as one output set.
+
+    ``model``: the camera model estimated, ``"photogrammetric"`` (correction form) or ``"opencv"`` (forward form, as
+    ``cv2.calibrateCamera``: fx fy cx cy k1 k2 p1 p2 k3); ``fix_k3`` holds K3 / k3 at 0 (``cv2.CALIB_FIX_K3``);
+    ``rational`` (opencv) also estimates k4, k5, k6 (``cv2.CALIB_RATIONAL_MODEL``).
 
     ``progress()`` gives a context manager with ``add_task(description, total)``, ``advance(task)`` and
     ``update(task, ...)`` (a rich Progress); None shows nothing. Usage errors raise :class:`CalibrateUsageError`,
@@ -233,12 +262,11 @@ def run_calibrate(images, target, corners, grid, spacing_mm, asymmetric, diamete
     progress = progress or _no_progress
     from ..calibration.outputs import flush
     from ..calibration.pipeline import calibration_steps, observations_dict
-    from ..calibration.selfcal import SelfCalibrationOptions
     from ..calibration.workflow import prepare_detections, prepare_testfield
     from ..io.testfield_csv import read_control_csv, read_measurements_csv
     from ..store import FolderProject, MemoryProject, run_steps
 
-    opt = SelfCalibrationOptions(k45=k45, affinity=affinity)
+    opt = _options(model, k45, affinity, fix_k3, rational)
     if output.exists() and not output.is_dir():
         raise CalibrateUsageError(f"-o {output}: exists and is not a folder")
     csv_route = control is not None or measurements is not None
