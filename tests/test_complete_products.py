@@ -55,6 +55,86 @@ def test_fill_surface_reproduces_a_plane_and_flags_exactly_the_holes():
     assert m0.sum() == 0 and np.array_equal(np.isnan(f0), holes)
 
 
+def test_fill_surface_reaches_twice_as_far_beyond_the_datas_outer_edge():
+    """A gap beyond the convex hull of the measured cells has its rim on one side only: its width across is its depth
+    from the rim, so it is filled up to max_hole_px from the rim (a hole inside the hull: max_hole_px / 2, as the test
+    above checks). The data: a plane on columns 40..199 of a 120 x 200 grid (hull = that block), a 40-column gap on
+    the west (no data beyond it) and an interior hole 40 cells wide. max_hole_px = 60: the west gap is filled
+    entirely (depth 40 <= 60), continued flat from its rim column (Neumann at the grid border) within the rim's
+    range; the interior hole (40 <= 60) entirely. With open_edges=False the gap is filled within 30 cells of its rim
+    only, as before."""
+    from thermogrammetry.products.dsm import fill_surface, outside_hull
+
+    yy, xx = np.mgrid[0:120, 0:200].astype(float)
+    z = 100.0 + 0.05 * xx - 0.03 * yy
+    h = z.copy()
+    h[:, :40] = np.nan
+    h[40:80, 100:140] = np.nan
+    hull_out = outside_hull(np.isfinite(h))
+    assert hull_out[:, :40].all() and not hull_out[:, 40:].any()
+    f, m = fill_surface(h, max_hole_px=60)
+    assert m[:, :40].all() and m[40:80, 100:140].all() and int(m.sum()) == int((~np.isfinite(h)).sum())
+    assert np.max(np.abs(f[40:80, 100:140] - z[40:80, 100:140])) < 1e-6  # a plane, exactly
+    assert z[:, 40].min() - 1e-9 <= f[:, :40].min() and f[:, :40].max() <= z[:, 40].max() + 1e-9
+    f_old, m_old = fill_surface(h, max_hole_px=60, open_edges=False)
+    assert m_old[:, 10:40].all() and not m_old[:, :10].any() and np.isnan(f_old[:, :10]).all()
+    # a hull of collinear cells (one measured row) has no inside: nothing is "beyond" it
+    one = np.full((5, 6), np.nan)
+    one[2] = 1.0
+    assert not outside_hull(np.isfinite(one)).any()
+
+
+def test_extended_grid_and_the_filled_dsm_on_it(tmp_path):
+    """extended_grid grows a grid by whole cells towards a box, capped per side, never shrinking it; write_filled_dsm
+    on that grid places the DSM cell for cell and fills beyond its box like any gap (reported apart)."""
+    from thermogrammetry.products.dsm import extended_grid, write_filled_dsm
+    from thermogrammetry.products.raster import Grid, write_cog
+
+    g = Grid(1000.0, 2000.0, 0.5, 40, 30, 64)  # x 1000..1020, y 1985..2000
+    e = extended_grid(g, (997.2, 1986.0, 1030.0, 2000.4), 10)
+    # west: ceil(2.8 / 0.5) = 6 cells; east: 10 m = 20 cells, capped at 10; north: ceil(0.4 / 0.5) = 1; south: none
+    assert (e.x0, e.y0, e.gsd, e.width, e.height) == (997.0, 2000.5, 0.5, 40 + 6 + 10, 30 + 1)
+    assert extended_grid(g, (1005.0, 1990.0, 1010.0, 1995.0), 10) == g  # a box inside: unchanged
+    yy, xx = np.mgrid[0:30, 0:40].astype(float)
+    h = 50.0 + 0.1 * xx
+    h[10:14, 10:14] = np.nan
+    src, dst = tmp_path / "dsm.tif", tmp_path / "surface.tif"
+    write_cog(src, g, np.float32, lambda r0, c0, r, c: h[r0:r0 + r, c0:c0 + c], crs="EPSG:32633", nodata=float("nan"),
+              unit="m")
+    rec = write_filled_dsm(src, dst, 10.0, "EPSG:32633", grid=e)  # 20 cells
+    with rasterio.open(dst) as s:
+        z, m = s.read(1), s.read(2)
+        assert (s.width, s.height) == (e.width, e.height) and s.transform.c == e.x0 and s.transform.f == e.y0
+    inner = (slice(1, 31), slice(6, 46))
+    np.testing.assert_array_equal(z[inner][np.isfinite(h)], h[np.isfinite(h)].astype(np.float32))
+    assert rec["grid"] == {"x0": e.x0, "y0": e.y0, "width": e.width, "height": e.height}
+    assert rec["filled_beyond_dsm_cells"] == e.width * e.height - g.width * g.height  # all within reach of the data
+    assert rec["filled_cells"] == rec["filled_beyond_dsm_cells"] + 16 and int(np.nansum(m)) == rec["filled_cells"]
+    with pytest.raises(ValueError, match="does not hold"):
+        write_filled_dsm(src, tmp_path / "x.tif", 10.0, None, grid=Grid(1000.25, 2000.0, 0.5, 50, 40))
+
+
+def test_horn_normals_of_a_plane_and_their_noise():
+    """surface_normals: exact for a plane (Horn's estimator is exact for linear heights); on independent height
+    noise σ the slope's standard deviation is sqrt(12)/8 σ/gsd = 0.433 σ/gsd per axis (central differences of two
+    cells: 0.707). 200 x 200 cells of N(0, 1) heights: the sample std of ~39,000 values is within ±3 % of that
+    (the estimates of neighbouring cells share heights: the effective count is a few thousand, 3 % is > 3 of its
+    standard errors), far from 0.707."""
+    from thermogrammetry.products.ortho import surface_normals
+
+    yy, xx = np.mgrid[0:20, 0:30].astype(float)
+    gsd = 0.5
+    Z = 3.0 + 0.4 * xx * gsd - 0.2 * (-yy * gsd)  # dz/dx = 0.4, dz/dy(north) = -0.2 (row 0 is north: y = -row * gsd)
+    n = surface_normals(Z, gsd)
+    want = np.array([-0.4, 0.2, 1.0]) / np.linalg.norm([-0.4, 0.2, 1.0])
+    np.testing.assert_allclose(n[1:-1, 1:-1].reshape(-1, 3), np.broadcast_to(want, (18 * 28, 3)), atol=1e-12)
+    assert np.array_equal(n[0, 0], [0.0, 0.0, 1.0])  # the border: vertical
+    rng = np.random.default_rng(5)
+    N = surface_normals(rng.normal(0, 1, (200, 200)), 1.0)[1:-1, 1:-1]
+    sx = np.std(-N[..., 0] / N[..., 2])
+    assert abs(sx / (np.sqrt(12) / 8) - 1) < 0.03
+
+
 def test_filled_dsm_file_and_the_heights_datum(tmp_path):
     from thermogrammetry.products.dsm import HEIGHTS_AS_INPUT, height_tags, write_filled_dsm
     from thermogrammetry.products.raster import Grid, write_cog
@@ -125,6 +205,52 @@ def test_ortho_fills_the_dsm_hole_and_flags_it(holed_ortho):
     assert same.sum() > 10_000 and eq.mean() > 0.99
     gained = ~np.isfinite(a) & np.isfinite(b) & ~flagged  # on measured heights a view the hole's edge had hidden
     assert gained.sum() < 0.2 * flagged.sum()
+
+
+def test_ortho_reaches_beyond_a_dsm_smaller_than_the_footprints(holed_ortho):
+    """A DSM cut to its east half (x >= 500032 m; the frames see the ground from x ~ 500017 m): the ortho's grid
+    grows west into the images' footprints (at most the fill limit beyond the DSM's box), its surface there continued
+    from the DSM's edge; those cells are flagged as filled. Of the strip's cells that the ortho on the whole DSM
+    covers, the one on the cut DSM covers >= 95 % (measured 96.7 %, deterministic: true poses, rendered frames; the
+    rest lies by the strip's buildings, which the continued surface does not have, so that the z-buffer and the
+    angle differ there); with --no-fill the grid is the DSM's and the strip is empty."""
+    root, _ = holed_ortho
+    with rasterio.open(root / "true.tif") as s:
+        z, prof, tr = s.read(1), s.profile, s.transform
+    c_cut = int(round((500032.0 - tr.c) / tr.a))
+    prof.update(driver="GTiff", width=z.shape[1] - c_cut, transform=rasterio.Affine(tr.a, 0, tr.c + c_cut * tr.a, 0, tr.e, tr.f))
+    with rasterio.open(root / "cut.tif", "w", **prof) as d:
+        d.write(z[:, c_cut:], 1)
+    for name, extra in (("cut", []), ("cut_nofill", ["--no-fill"])):
+        assert main(["ortho", str(root / "survey"), "--dsm", str(root / "cut.tif"), "-o", str(root / name),
+                     "--workers", "0"] + extra) == 0
+    with rasterio.open(root / "cut" / "ortho.tif") as s:
+        cut, tc = s.read(1), s.transform
+    with rasterio.open(root / "cut" / "ortho_filled_mask.tif") as s:
+        mask = s.read(1)
+    with rasterio.open(root / "cut_nofill" / "ortho.tif") as s:
+        assert (s.width, s.transform.c) == (z.shape[1] - c_cut, 500032.0)
+    with rasterio.open(root / "fill" / "ortho.tif") as s:
+        ref, tf = s.read(1), s.transform
+    fill = json.loads((root / "cut" / "ortho.json").read_text())["fill"]
+    assert 500032.0 - fill["max_hole_m"] - 1e-6 <= tc.c < 500032.0 - 5.0 and fill["filled_beyond_dsm_cells"] > 0
+    strip = np.zeros(cut.shape, bool)
+    strip[:, :int(round((500032.0 - tc.c) / tc.a))] = True
+    assert np.isfinite(cut[strip]).sum() > 5000 and np.all(mask[strip & np.isfinite(cut)] == 1)
+    dc, dr = int(round((tc.c - tf.c) / tf.a)), int(round((tf.f - tc.f) / tf.a))
+    sub = ref[dr:dr + cut.shape[0], dc:dc + cut.shape[1]]
+    seen = strip & np.isfinite(sub)
+    assert seen.sum() > 5000 and np.isfinite(cut[seen]).mean() >= 0.95
+    # the frames' footprint on the surface: every cell with a value is in it. The 15 x 15-cell hole of the holed DSM
+    # lies in the middle of the overlap: without the fill its cells (no height: taken at the DSM's mid height) are in
+    # the footprint all the same, and empty
+    reps = {n: json.loads((root / n / "ortho.json").read_text()) for n in ("cut", "cut_nofill", "fill", "nofill")}
+    for r in reps.values():
+        fp = r["footprint"]
+        assert fp["cells"] >= r["cells"] and fp["covered"] == round(r["cells"] / fp["cells"], 4)
+    a, b = reps["fill"], reps["nofill"]
+    assert abs(a["footprint"]["cells"] - b["footprint"]["cells"]) <= 50 and a["cells"] - b["cells"] >= 225
+    assert b["footprint"]["covered"] < a["footprint"]["covered"]
 
 
 def test_ortho_float_and_u16_overviews_agree(holed_ortho):

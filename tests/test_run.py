@@ -220,6 +220,12 @@ def test_ortho_qml_is_a_qgis_style_in_the_orthos_unit(project, tmp_path):
     items = rr.findall("rastershader/colorrampshader/item")
     vals = [float(i.get("value")) for i in items]
     assert len(items) >= 5 and all(i.get("label").endswith(" K") for i in items) and vals == sorted(vals)
+    # QGIS's continuous legend (a ramp with its end values): the unit as suffix, the entries' decimals as number format
+    legend = rr.find("rastershader/colorrampshader/rampLegendSettings")
+    assert legend.get("suffix") == " K" and legend.get("useContinuousLegend") == "1"
+    fmt = {o.get("name"): o.get("value") for o in legend.findall("numericFormat/Option/Option")}
+    assert legend.find("numericFormat").get("id") == "basic" and fmt["show_thousand_separator"] == "false"
+    assert fmt["decimals"] == rr.find("rastershader/colorrampshader").get("labelPrecision")
     # the robust limits (2nd, 98th percentiles) lie inside the mosaic's range, not at its extremes
     rep = json.loads((proj / "ortho" / "ortho.json").read_text())
     import rasterio

@@ -318,6 +318,15 @@ def test_cli_texture_outputs(cli_out, scene, views):
     assert len(vt) == len(scene.vertices) and 270 < np.nanmin(vt) and np.nanmax(vt) < 300
     glb = trimesh.load(out / "textured.glb", force="mesh")
     assert len(glb.faces) == len(scene.faces) and glb.visual.uv.shape == (len(glb.vertices), 2)
+    # the preview's colour scale is recorded (°C here) and the GLB's material is unlit: viewers show those colours
+    pal = d["preview_palette"]
+    assert pal["unit"] == "°C" and pal["quantity"] == "temperature" and pal["colormap"] == "inferno"
+    fin = t[np.isfinite(t)]
+    np.testing.assert_allclose([pal["min"], pal["max"]], np.percentile(fin, [1, 99]), rtol=0, atol=1e-4)
+    raw = (out / "textured.glb").read_bytes()
+    doc = json.loads(raw[20:20 + int.from_bytes(raw[12:16], "little")])
+    assert doc["extensionsUsed"] == ["KHR_materials_unlit"]
+    assert all("KHR_materials_unlit" in m["extensions"] for m in doc["materials"])
     assert "°C" in (out / "report.html").read_text()
     assert "map_Kd textured.png" in (out / "textured.mtl").read_text()
 

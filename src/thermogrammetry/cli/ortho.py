@@ -28,7 +28,8 @@ def ortho(
     fill: bool = typer.Option(True, "--fill/--no-fill", help="Fill the DSM's holes for the mosaic's surface (Laplace "
                               "interpolation from the rim; flagged in ortho_filled_mask.tif). --no-fill: the DSM as given."),
     max_hole: Optional[float] = typer.Option(None, "--fill-max-hole", help="Largest hole filled entirely, in metres "
-                                             "across (default 100 DSM cells); farther than half of it from data stays empty."),
+                                             "across (default 100 DSM cells); farther than half of it from data stays empty "
+                                             "(beyond the data's outer edge: farther than all of it)."),
     workers: Optional[int] = typer.Option(None, "--workers", help="Local dask worker processes (0 or 1 = in this process; "
                                           "default 2, or 1 on a single core; at most the cores)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing dask scheduler (instead of --workers)."),
@@ -61,10 +62,15 @@ def ortho(
         raise typer.Exit(2)
     console.print(f"ortho {rep['width']}×{rep['height']} cells at {rep['gsd_m']} m in {rep['unit']}, {rep['cells']} cells "
                   f"from {rep['images_used']} images ({rep['sampling']}), {rep['seconds']:.1f} s", highlight=False)
+    fp = rep.get("footprint")
+    if fp and fp.get("cells"):
+        console.print(f"coverage: {100 * fp['covered']:.1f} % of the {fp['cells']} cells the frames see", highlight=False)
     if rep.get("fill"):
         f = rep["fill"]
-        console.print(f"surface: {f['filled_cells']} DSM cells interpolated (holes up to {f['max_hole_m']:g} m), "
-                      f"{f['ortho_cells_on_filled']} mosaic cells on them (ortho_filled_mask.tif)", highlight=False)
+        beyond = f.get("filled_beyond_dsm_cells")
+        console.print(f"surface: {f['filled_cells']} DSM cells interpolated (holes up to {f['max_hole_m']:g} m"
+                      + (f"; {beyond} beyond the DSM's box, into the frames' footprints" if beyond else "")
+                      + f"), {f['ortho_cells_on_filled']} mosaic cells on them (ortho_filled_mask.tif)", highlight=False)
     for n in rep["notes"]:
         print_plain(console, f"note: {n}")
     if rep.get("sigma"):

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import OutputSet, write_atomic_text
-from ..products.ortho import SCORE_DOC, OrthoConfig, bilinear, gradient, occluder_subdivision, occluders, ortho_tile, project_world
+from ..products.ortho import (SCORE_DOC, OrthoConfig, bilinear, gradient, occluder_subdivision, occluders, ortho_tile,
+                              project_world, surface_normals)
 from ..products.raster import Grid, read_window
 from ..tasks import open_client, ordered_results
 from .frames import SurveyFrames, open_survey
@@ -33,7 +34,8 @@ __all__ = ["run_ortho", "check_dsm_matches_survey"]
 
 def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoConfig, margin_m: float,
                 correction=None, unit_out: str = "K", dji_sdk: str | None = None, filled_band: int | None = None,
-                dsm_grid: Grid | None = None, skip: tuple[str, ...] = (), sigma: dict | None = None):
+                dsm_grid: Grid | None = None, skip: tuple[str, ...] = (), sigma: dict | None = None,
+                zmid: float | None = None):
     sv = open_survey(survey_path, skip, dji_sdk)
     r0, c0, rows, cols = window
     # ortho cells (with a one-cell pad for the normals) and their DSM heights
@@ -52,14 +54,8 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
     if filled_band:  # a cell whose height leans on an interpolated DSM cell (any bilinear weight on one)
         F = np.nan_to_num(read_window(dsm_path, dr0, dc0, dr1 - dr0, dc1 - dc0, band=filled_band), nan=0.0)
         filled = bilinear(F, (dg.y0 - Y) / dg.gsd - 0.5 - dr0, (X - dg.x0) / dg.gsd - 0.5 - dc0)[1:-1, 1:-1] > 0
-    gx = np.full_like(Z, np.nan)
-    gy = np.full_like(Z, np.nan)
-    gx[:, 1:-1] = (Z[:, 2:] - Z[:, :-2]) / (2 * grid.gsd)
-    gy[1:-1] = (Z[:-2] - Z[2:]) / (2 * grid.gsd)
-    nrm = np.stack([-gx, -gy, np.ones_like(Z)], axis=-1)
-    nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+    nrm = surface_normals(Z, grid.gsd)  # Horn's 3 x 3 slope; border of the surface: horizontal
     X, Y, Z, nrm = X[1:-1, 1:-1], Y[1:-1, 1:-1], Z[1:-1, 1:-1], nrm[1:-1, 1:-1]
-    nrm = np.where(np.isfinite(nrm), nrm, np.array([0.0, 0.0, 1.0]))  # border of the DSM: horizontal
     # candidate images: the tile's box (at the DSM's height range) projects into the frame
     images = []
     cell_px = 0.0  # largest projected DSM cell (px) among the candidates
@@ -81,6 +77,16 @@ def _ortho_task(survey_path: str, dsm_path: str, grid: Grid, window, cfg: OrthoC
     tol_min = cfg.tolerance_m if cfg.tolerance_m is not None else 4 * grid.gsd
     occ = occluders(D, dg, dr0, dc0, occluder_subdivision(cell_px, cfg.bin_px), min_span_m=0.5 * tol_min)
     res = ortho_tile(X, Y, Z, nrm, occ, images, sv, cfg, gsd=grid.gsd, masks=sv.display_mask)
+    if zmid is not None and images and not np.isfinite(Z).all():  # no surface height: the footprint at the mid height
+        hole = ~np.isfinite(Z)
+        P = np.column_stack([X[hole], Y[hole], np.full(int(hole.sum()), float(zmid))])
+        seen = np.zeros(len(P), bool)
+        for _k, cam, R, t in images:
+            uv, z = project_world(cam, R, t, P)
+            W, H = cam.image_size
+            with np.errstate(invalid="ignore"):
+                seen |= (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < H - 0.5)
+        res["in_frame"][hole] = seen
     v = res["value"]
     parts = None
     if sigma is not None:  # the σ model (products.ortho_sigma): sensor, geometry, correction
@@ -198,6 +204,31 @@ def check_dsm_matches_survey(meta: dict, sv, dsm_path, survey_dir) -> None:
                           "surveyed area in the survey's coordinates")
 
 
+def footprints_box(sv, z: float, samples: int = 9):
+    """(xmin, ymin, xmax, ymax): the box of the images' footprints on the horizontal plane at height ``z`` (m), each
+    frame's border (``samples`` points per edge) cast from its camera; rays that do not reach the plane (above the
+    horizon) are left out. None when no ray reaches it."""
+    pts = []
+    for k in range(len(sv)):
+        cam, (R, t) = sv.cameras[k], sv.poses[k]
+        w, h = cam.image_size
+        s = np.linspace(0.0, 1.0, samples)
+        border = np.concatenate([np.column_stack([s * (w - 1), np.zeros_like(s)]),
+                                 np.column_stack([np.full_like(s, w - 1), s * (h - 1)]),
+                                 np.column_stack([s * (w - 1), np.full_like(s, h - 1)]),
+                                 np.column_stack([np.zeros_like(s), s * (h - 1)])])
+        d = np.asarray(cam.unproject(border), float) @ np.asarray(R, float)  # world directions (rows)
+        C = -np.asarray(R, float).T @ np.asarray(t, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = (float(z) - C[2]) / d[:, 2]
+        ok = np.isfinite(lam) & (lam > 0)
+        pts.append(C[None, :2] + lam[ok, None] * d[ok, :2])
+    P = np.concatenate(pts) if pts else np.zeros((0, 2))
+    if not len(P):
+        return None
+    return float(P[:, 0].min()), float(P[:, 1].min()), float(P[:, 0].max()), float(P[:, 1].max())
+
+
 def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: str | None = None,
               sampling: str = "nearest", correct: bool = False, correction=None, workers: int = 1,
               scheduler: str | None = None, tile: int = 512, config: OrthoConfig | None = None, on_tile=None,
@@ -269,17 +300,32 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
     g = gsd if gsd is not None else meta["grid"].gsd
     if not (np.isfinite(g) and g > 0):
         raise ConfigError(f"--gsd {gsd!r}: expected a positive cell size in metres")
+    if max_hole_m is not None and not (np.isfinite(max_hole_m) and max_hole_m >= 0):
+        raise ConfigError(f"--fill-max-hole {max_hole_m!r}: expected a hole size in metres >= 0")
     dg = meta["grid"]
     gw, gh = int(np.ceil(dg.width * dg.gsd / g)), int(np.ceil(dg.height * dg.gsd / g))
     if min(gw, gh) < 2:  # a cell larger than the DSM: no mosaic (and its one-cell pad would read a window of that size)
         raise ConfigError(f"--gsd {float(g):g} m: the DSM {dsm_path} covers {dg.width * dg.gsd:.4g} x "
                           f"{dg.height * dg.gsd:.4g} m, an ortho grid of {gw} x {gh} cell(s) at that size; expected a "
                           f"cell size giving at least 2 x 2 cells (at most {min(dg.width, dg.height) * dg.gsd / 2:.4g} m)")
-    check_cells(gw, gh, f"ortho grid of {dsm_path} at {float(g):g} m" + (" (--gsd)" if gsd is not None else ""),
-                cap=max_cells, what="mosaic")
+    what = f"ortho grid of {dsm_path} at {float(g):g} m" + (" (--gsd)" if gsd is not None else "")
+    check_cells(gw, gh, what, cap=max_cells, what="mosaic")
+    if fill:
+        # the surface (and so the mosaic) reaches beyond the DSM's box into the images' footprints, as far as the
+        # fill can give heights (a gap beyond the data's outer edge: up to the largest hole from the rim): a DSM cut
+        # to its points' box leaves out the edges of the block that the frames see
+        from ..products.dsm import DEFAULT_MAX_HOLE_CELLS, extended_grid
+
+        max_px = DEFAULT_MAX_HOLE_CELLS if max_hole_m is None else float(max_hole_m) / dg.gsd
+        box = footprints_box(sv, meta["zmin"])
+        if box is not None:
+            dg = extended_grid(dg, box, int(np.floor(max_px)))
+            check_cells(dg.width, dg.height, f"surface of {dsm_path} grown into the images' footprints", cap=max_cells,
+                        what="DSM")
+            gw, gh = int(np.ceil(dg.width * dg.gsd / g)), int(np.ceil(dg.height * dg.gsd / g))
+            check_cells(gw, gh, what + ", grown into the images' footprints", cap=max_cells, what="mosaic")
+        meta = {**meta, "surface_grid": dg}
     grid = Grid(dg.x0, dg.y0, float(g), gw, gh, tile)
-    if max_hole_m is not None and not (np.isfinite(max_hole_m) and max_hole_m >= 0):
-        raise ConfigError(f"--fill-max-hole {max_hole_m!r}: expected a hole size in metres >= 0")
     if not 0.0 < float(cfg.max_angle_deg) < 90.0:
         raise ConfigError(f"--max-angle {cfg.max_angle_deg!r}: expected a viewing angle in degrees between 0 and 90")
     margin_m = min(50.0, (meta["zmax"] - meta["zmin"]) * np.tan(np.radians(cfg.max_angle_deg)))
@@ -308,13 +354,14 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         sig, sig_rec = prepare_sigma(sv, dpath, sigma_cfg, label)
         sig_keep = []
         sig_stride = max(1, grid.width * grid.height // 4_000_000)
+    dg = meta.get("surface_grid", meta["grid"])  # the grid of the surface the tiles read
     if fill_opts[0]:
-        fill_rec = write_filled_dsm(dpath, surface, fill_opts[1], sv.crs)
+        fill_rec = write_filled_dsm(dpath, surface, fill_opts[1], sv.crs, grid=dg)
         fill_rec.pop("file")
         dpath, band = str(surface.resolve()), 2
     client = open_client(workers, scheduler)
     windows = list(grid.tiles())
-    dg = meta["grid"]  # (the filled surface is written on the DSM's grid)
+    zmid = 0.5 * (float(meta["zmin"]) + float(meta["zmax"]))  # where the surface has no height (for the footprint)
     skip = tuple(n for n, _ in sv.skipped)
     stats = {"lo": np.inf, "hi": -np.inf, "cells": 0, "uncorrected": 0, "filled": 0}
     sources: set = set()
@@ -326,6 +373,8 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
             stats["hi"] = max(stats["hi"], float(np.nanmax(v)))
         stats["cells"] += int(np.isfinite(v).sum())
         stats["uncorrected"] += res["uncorrected"]
+        stats["in_frame"] = stats.get("in_frame", 0) + int(res["in_frame"].sum())
+        stats["in_frame_covered"] = stats.get("in_frame_covered", 0) + int((res["in_frame"] & np.isfinite(v)).sum())
         sources.update(int(s) for s in np.unique(res["source"]) if s >= 0)
         stats["tiles"] = stats.get("tiles", 0) + 1
         if on_tile:
@@ -347,10 +396,10 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
             tiles = (collect(r) for r in ordered_results(client, _ortho_task, [spath] * nt, [dpath] * nt, [grid] * nt,
                                                          windows, [cfg] * nt, [margin_m] * nt, [corr] * nt,
                                                          [unit_out] * nt, [sv.dji_sdk] * nt, [band] * nt, [dg] * nt,
-                                                         [skip] * nt, [sig] * nt))
+                                                         [skip] * nt, [sig] * nt, [zmid] * nt))
         else:
             tiles = (collect(_ortho_task(spath, dpath, grid, w, cfg, margin_m, corr, unit_out, sv.dji_sdk, band, dg, skip,
-                                         sig))
+                                         sig, zmid))
                      for w in windows)
         crs = sv.crs
         specs = {
@@ -446,12 +495,18 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         "u16_nodata": 0,
         "sampling": str(cfg.sampling),
         "max_angle_deg": float(cfg.max_angle_deg),
+        "normals": "Horn's 3 x 3 slope of the surface (Horn 1981); vertical where a neighbour has no height",
         "score": SCORE_DOC,
         "gsd_m": grid.gsd,
         "width": grid.width,
         "height": grid.height,
         "crs": sv.crs,
         "cells": stats["cells"],
+        "footprint": {"cells": stats.get("in_frame", 0),
+                      "covered": round(stats.get("in_frame_covered", 0) / max(1, stats.get("in_frame", 0)), 4),
+                      "definition": "cells of the grid whose surface point projects into at least one frame (where the "
+                                    "surface has no height: at the DSM's mid height); covered = the share of them with "
+                                    "a value"},
         "images_used": len(sources),
         "skipped_frames": [{"name": n, "reason": r} for n, r in sv.skipped],
         "corrected": bool(correct),

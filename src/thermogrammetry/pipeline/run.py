@@ -226,7 +226,8 @@ def _dense_summary(r: dict) -> dict:
 def _ortho_summary(r: dict) -> dict:
     box = max(1, int(r["width"]) * int(r["height"]))
     return {"cells": r["cells"], "size": [r["width"], r["height"]], "gsd_m": r["gsd_m"], "unit": r["unit"],
-            "coverage": round(r["cells"] / box, 4), "images_used": r["images_used"]}
+            "coverage": round(r["cells"] / box, 4), "images_used": r["images_used"],
+            "footprint_coverage": (r.get("footprint") or {}).get("covered")}
 
 
 def run_project(project, inp, opt, *, products: Sequence[str] = tuple(PRODUCTS), rerun_from: str | None = None,
@@ -364,5 +365,7 @@ def _figures(name: str, s: dict) -> str:
     if name == "dense":
         return (f"{s['points']} points, DSM {s['dsm_cells'][0]}×{s['dsm_cells'][1]} cells at {s['gsd_m']} m, "
                 f"completeness {100 * s['completeness']:.1f} %")
-    return (f"ortho {s['size'][0]}×{s['size'][1]} cells at {s['gsd_m']} m in {s['unit']}, coverage of its box "
-            f"{100 * s['coverage']:.1f} %, {s['images_used']} images used")
+    fp = s.get("footprint_coverage")
+    return (f"ortho {s['size'][0]}×{s['size'][1]} cells at {s['gsd_m']} m in {s['unit']}, "
+            + (f"{100 * fp:.1f} % of the frames' footprint covered, " if fp is not None else "")
+            + f"coverage of its box {100 * s['coverage']:.1f} %, {s['images_used']} images used")

@@ -654,12 +654,15 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
         # result.temperature_k holds kelvin for temperature frames and the frames' raw counts for count frames
         t_unit = result.temperature_k.astype(np.float32) if counts else from_kelvin(result.temperature_k, u).astype(np.float32)
         preview = tx.preview_rgb(t_unit)
-        palette = None
+        lo, hi = tx.palette_range(t_unit)
         if counts:
-            lo, hi = tx.palette_range(t_unit)
             palette = {"colormap": "inferno", "quantity": "raw_counts", "unit": "counts", "label": "raw counts",
                        "min": lo, "max": hi, "note": "colours span the 1st-99th percentile of the raw counts (not temperatures)"}
-        store.write_bytes("textured.png", tx.png_bytes(preview, text=None if palette is None else tx.palette_png_text(palette)))
+        else:
+            uname = {"K": "K", "C": "°C"}.get(u.value, u.value)
+            palette = {"colormap": "inferno", "quantity": "temperature", "unit": uname, "label": "temperature",
+                       "min": lo, "max": hi, "note": f"colours span the 1st-99th percentile of the temperatures ({uname})"}
+        store.write_bytes("textured.png", tx.png_bytes(preview, text=tx.palette_png_text(palette)))
         glb = tx.glb_bytes(result, preview, extras=palette, crs=cameras.crs)
         store.write_bytes("textured.glb", glb)
         store.write_text("viewer.html", tx.viewer_html(glb))
@@ -707,8 +710,7 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
                  "pose_fit": pose_fit, "photometric_fit": photo_fit}
         if winding_note:
             extra["mesh_winding"] = {"reversed": True, "reason": winding_note}
-        if counts:
-            extra["preview_palette"] = palette
+        extra["preview_palette"] = palette
         text = tx.texture_json(result, unit_out, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
         store.write_text("texture.json", text)
         store.write_text("report.html", texture_report_html(result, views, skipped, unit_out, pose_fit, photo_fit))

@@ -13,7 +13,9 @@ hole's rim held fixed (Dirichlet), no flux across the grid border or into the ce
 The result is the smoothest surface through the rim: a plane is reproduced exactly, a hole's heights stay
 within its rim's range (maximum principle), and a gap at the data's outer edge is continued flat from the
 rim. Holes up to ``max_hole_px`` across are filled entirely; wider ones only within ``max_hole_px / 2`` of
-their rim. The computation holds the whole DSM in memory (about 30 bytes per cell while solving).
+their rim. A gap beyond the convex hull of the measured cells (the data's outer edge: the rim is on one side only,
+so the gap's width across is its depth from the rim) is filled up to ``max_hole_px`` from the rim. The computation
+holds the whole DSM in memory (about 30 bytes per cell while solving).
 
 References
 ----------
@@ -30,10 +32,11 @@ import numpy as np
 
 from .raster import Grid
 
-__all__ = ["grid_median", "fill_holes", "fill_surface", "FILL_METHOD", "DEFAULT_MAX_HOLE_CELLS", "height_tags", "write_filled_dsm", "TileSpill", "aligned_grid"]
+__all__ = ["grid_median", "fill_holes", "fill_surface", "FILL_METHOD", "DEFAULT_MAX_HOLE_CELLS", "height_tags", "write_filled_dsm",
+           "extended_grid", "TileSpill", "aligned_grid"]
 
 #: the method of :func:`fill_surface`, as recorded in dense.json / ortho.json
-FILL_METHOD = ("Laplace interpolation from the hole's rim (measured cells fixed; no flux across the grid border or into cells left empty); cells farther than max_hole_m / 2 from a measured cell stay empty")
+FILL_METHOD = ("Laplace interpolation from the hole's rim (measured cells fixed; no flux across the grid border or into cells left empty); cells farther than max_hole_m / 2 from a measured cell stay empty (max_hole_m beyond the convex hull of the measured cells, where a gap has its rim on one side only)")
 #: default largest hole (in DSM cells) that :func:`fill_surface` fills entirely
 DEFAULT_MAX_HOLE_CELLS = 100
 
@@ -84,14 +87,44 @@ def fill_holes(z, max_distance_px: float = np.inf) -> tuple[np.ndarray, np.ndarr
     return out, fill.astype(np.uint8)
 
 
-def fill_surface(z, max_hole_px: float = DEFAULT_MAX_HOLE_CELLS) -> tuple[np.ndarray, np.ndarray]:
+def outside_hull(ok) -> np.ndarray:
+    """(H, W) bool: the cells whose centre lies outside the convex hull of the cells where ``ok`` is True (the
+    hull of the cell centres; all False when those cells are collinear or fewer than 3)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    ok = np.asarray(ok, bool)
+    H, W = ok.shape
+    rows = np.flatnonzero(ok.any(axis=1))
+    cols = np.flatnonzero(ok.any(axis=0))
+    if len(rows) < 2 or len(cols) < 2:
+        return np.zeros(ok.shape, bool)
+    # the hull of all the cells is the hull of each row's and each column's first and last cell
+    first_c, last_c = ok[rows].argmax(axis=1), W - 1 - ok[rows, ::-1].argmax(axis=1)
+    first_r, last_r = ok[:, cols].argmax(axis=0), H - 1 - ok[::-1, cols].argmax(axis=0)
+    pts = np.unique(np.concatenate([np.column_stack([first_c, rows]), np.column_stack([last_c, rows]),
+                                    np.column_stack([cols, first_r]), np.column_stack([cols, last_r])]), axis=0)
+    try:
+        eq = ConvexHull(pts.astype(float)).equations  # a·x + b·y + c <= 0 inside
+    except QhullError:
+        return np.zeros(ok.shape, bool)
+    out = np.zeros(ok.shape, bool)
+    cc = np.arange(W, dtype=float)
+    for r in range(H):  # row by row: memory of one row times the hull's facets
+        v = eq[:, 0:1] * cc[None] + eq[:, 1:2] * float(r) + eq[:, 2:3]
+        out[r] = (v > 1e-9).any(axis=0)
+    return out
+
+
+def fill_surface(z, max_hole_px: float = DEFAULT_MAX_HOLE_CELLS, *, open_edges: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Fill the holes of a DSM by Laplace interpolation from their rim (see the module docstring).
 
     Parameters
     ----------
     z : (H, W) heights (m), NaN = no data
     max_hole_px : largest hole filled entirely, in cells (its width across); empty cells farther than
-        ``max_hole_px / 2`` from every measured cell stay empty. 0 fills nothing.
+        ``max_hole_px / 2`` from every measured cell stay empty. Beyond the convex hull of the measured cells (a gap
+        at the data's outer edge, its rim on one side only: its width across is its depth from the rim) the limit
+        is ``max_hole_px`` from the rim (``open_edges``; False: ``max_hole_px / 2`` there too). 0 fills nothing.
 
     Returns
     -------
@@ -108,7 +141,10 @@ def fill_surface(z, max_hole_px: float = DEFAULT_MAX_HOLE_CELLS) -> tuple[np.nda
     if ok.all() or not ok.any() or not max_hole_px > 0:
         return out, none
     dist = distance_transform_edt(~ok)
-    todo = ~ok & (dist <= 0.5 * float(max_hole_px))
+    # a hole inside the measured cells' convex hull has its rim all around: filled within half its width of the rim;
+    # a gap beyond the hull (the data's outer edge) has its rim on one side only: filled within its width
+    reach = np.where(outside_hull(ok) if open_edges else False, float(max_hole_px), 0.5 * float(max_hole_px))
+    todo = ~ok & (dist <= reach)
     # 4-neighbour pieces that touch no measured cell have no rim: left empty (only reachable diagonally)
     lab, n = label(todo)
     H, W = z.shape
@@ -167,13 +203,44 @@ def height_tags(crs) -> dict:
     return {"vertical_datum": HEIGHTS_AS_INPUT}
 
 
-def write_filled_dsm(src, dst, max_hole_m: float | None, crs) -> dict:
+def extended_grid(g: Grid, box, max_cells: int) -> Grid:
+    """``g`` grown by whole cells towards ``box`` = (xmin, ymin, xmax, ymax) (m), at most ``max_cells`` cells on each
+    side (never shrunk): the same cell size and cell edges, so that ``g``'s cells are cells of the result."""
+    xmin, ymin, xmax, ymax = (float(v) for v in box)
+    n = max(0, int(max_cells))
+
+    def grow(d):
+        return int(min(n, max(0, np.ceil(d / g.gsd - 1e-9)))) if np.isfinite(d) else 0
+
+    left, right = grow(g.x0 - xmin), grow(xmax - (g.x0 + g.width * g.gsd))
+    top, bottom = grow(ymax - g.y0), grow((g.y0 - g.height * g.gsd) - ymin)
+    return Grid(g.x0 - left * g.gsd, g.y0 + top * g.gsd, g.gsd, g.width + left + right, g.height + top + bottom, g.tile)
+
+
+def write_filled_dsm(src, dst, max_hole_m: float | None, crs, *, grid: Grid | None = None) -> dict:
     """Write ``dst``: the DSM ``src`` with its holes filled (:func:`fill_surface`); band 1 height (m), band 2 =
-    1 where interpolated. Returns the record of ``dense.json``/``ortho.json`` (file, method, cells filled)."""
+    1 where interpolated. Returns the record of ``dense.json``/``ortho.json`` (file, method, cells filled).
+
+    ``grid``: a grid holding the DSM's (:func:`extended_grid`): the DSM is placed in it, the cells beyond its box
+    empty, and filled like any other empty cell (from the measured cells within ``max_hole_m / 2``, continued flat
+    towards the grid's border), so that the surface reaches the parts of the images' footprints that the DSM's box
+    leaves out."""
     from .raster import read_raster, write_cog
 
     z, g, _, _ = read_raster(src)
     max_px = DEFAULT_MAX_HOLE_CELLS if max_hole_m is None else float(max_hole_m) / g.gsd
+    beyond = np.zeros(z.shape, bool)  # cells of the surface's grid outside the DSM's box
+    if grid is not None:
+        fc, fr = (g.x0 - grid.x0) / g.gsd, (grid.y0 - g.y0) / g.gsd
+        c0, r0 = int(round(fc)), int(round(fr))
+        if (abs(grid.gsd - g.gsd) > 1e-9 * g.gsd or abs(fc - c0) > 1e-6 or abs(fr - r0) > 1e-6 or c0 < 0 or r0 < 0
+                or c0 + g.width > grid.width or r0 + g.height > grid.height):
+            raise ValueError(f"write_filled_dsm: grid {grid} does not hold the DSM's grid {g} cell for cell")
+        big = np.full((grid.height, grid.width), np.nan)
+        big[r0:r0 + g.height, c0:c0 + g.width] = z
+        beyond = np.ones(big.shape, bool)
+        beyond[r0:r0 + g.height, c0:c0 + g.width] = False
+        z, g = big, grid
     zf, mask = fill_surface(z, max_px)
     g = Grid(g.x0, g.y0, g.gsd, g.width, g.height, 512)
     both = np.stack([zf, mask.astype(float)]).astype(np.float32)
@@ -183,9 +250,13 @@ def write_filled_dsm(src, dst, max_hole_m: float | None, crs) -> dict:
               description=["height (m): measured, holes interpolated (band 2)", "1 = interpolated (not measured), 0 = measured"],
               tags={"product": "thermogrammetry filled DSM", "gsd_m": g.gsd, "fill_method": FILL_METHOD,
                     "max_hole_m": max_px * g.gsd, **height_tags(crs)})
-    return {"file": Path(dst).name, "method": FILL_METHOD, "max_hole_m": round(max_px * g.gsd, 4),
-            "filled_cells": int(mask.sum()), "measured_cells": int(np.isfinite(z).sum()),
-            "empty_cells": int((~np.isfinite(zf)).sum())}
+    rec = {"file": Path(dst).name, "method": FILL_METHOD, "max_hole_m": round(max_px * g.gsd, 4),
+           "filled_cells": int(mask.sum()), "measured_cells": int(np.isfinite(z).sum()),
+           "empty_cells": int((~np.isfinite(zf)).sum())}
+    if grid is not None:
+        rec["grid"] = {"x0": g.x0, "y0": g.y0, "width": g.width, "height": g.height}
+        rec["filled_beyond_dsm_cells"] = int((mask.astype(bool) & beyond).sum())
+    return rec
 
 
 def aligned_grid(xmin, ymin, xmax, ymax, gsd: float, tile: int) -> Grid:

@@ -17,7 +17,8 @@ Per output cell (centre ``(x, y)``, height ``z`` from the DSM, bilinear):
 
        score = cos θ · (g_min / g) · (1 − 0.5 r)
 
-   θ: angle between the DSM normal and the direction to the camera; g = distance / f_px: the image's
+   θ: angle between the DSM normal (Horn's 3 × 3 slope, :func:`surface_normals`) and the direction to the camera,
+   at most ``max_angle_deg``; g = distance / f_px: the image's
    ground sampling distance at the cell, g_min the best among the visible images; r: distance of the
    projected point from the image centre divided by the half-diagonal. The highest score wins (ties:
    lowest image index). No blending: the value is the chosen frame's value at the projected position,
@@ -46,7 +47,7 @@ import numpy as np
 from ..enums import StrChoice
 from .._validate import config_keys
 
-__all__ = ["Sampling", "OrthoConfig", "ortho_tile", "gradient", "bilinear", "project_world", "occluders",
+__all__ = ["Sampling", "OrthoConfig", "ortho_tile", "gradient", "surface_normals", "bilinear", "project_world", "occluders",
            "occluder_subdivision", "SCORE_DOC"]
 
 SCORE_DOC = ("score = cos(theta) * (g_min / g) * (1 - 0.5 r); theta = angle between the DSM normal and the "
@@ -107,7 +108,8 @@ def ortho_tile(X, Y, Z, normals, dsm_pts, images, frames, config: OrthoConfig | 
     Returns
     -------
     dict of (h, w) arrays: ``value`` float64 (NaN none), ``source`` int32 (−1), ``row``/``col`` int32 (source
-    pixel for nearest), ``angle_deg``, ``distance_m``
+    pixel for nearest), ``angle_deg``, ``distance_m``, ``in_frame`` bool (the cell's surface point projects into
+    some candidate frame, in front of its camera: the images' footprint on the surface)
     """
     cfg = config or OrthoConfig()
     h, w = X.shape
@@ -123,6 +125,7 @@ def ortho_tile(X, Y, Z, normals, dsm_pts, images, frames, config: OrthoConfig | 
     dist = np.full(h * w, np.nan)
     gmin = np.full(h * w, np.inf)
     per = []
+    in_frame = np.zeros(h * w, bool)
     cos_max = np.cos(np.radians(cfg.max_angle_deg))
     for idx, cam, R, t in images:
         W, H = cam.image_size
@@ -131,6 +134,7 @@ def ortho_tile(X, Y, Z, normals, dsm_pts, images, frames, config: OrthoConfig | 
             inside = ok & (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < H - 0.5)
         if not inside.any():
             continue
+        in_frame |= inside
         C = -R.T @ t
         d = C[None] - P
         dn = np.linalg.norm(d, axis=1)
@@ -195,7 +199,31 @@ def ortho_tile(X, Y, Z, normals, dsm_pts, images, frames, config: OrthoConfig | 
             val[sel] = ((a[y0, x0] * (1 - fx) + a[y0, x0 + 1] * fx) * (1 - fy)
                         + (a[y0 + 1, x0] * (1 - fx) + a[y0 + 1, x0 + 1] * fx) * fy)
     return {"value": val.reshape(h, w), "source": src.reshape(h, w), "row": rowi.reshape(h, w),
-            "col": coli.reshape(h, w), "angle_deg": ang.reshape(h, w), "distance_m": dist.reshape(h, w)}
+            "col": coli.reshape(h, w), "angle_deg": ang.reshape(h, w), "distance_m": dist.reshape(h, w),
+            "in_frame": in_frame.reshape(h, w)}
+
+
+def surface_normals(Z, gsd: float) -> np.ndarray:
+    """(h, w, 3) unit upward normals of a north-up height grid (row 0 north) by Horn's 3 × 3 slope estimator [H81]_:
+    ``∂z/∂x = ((z_NE + 2 z_E + z_SE) − (z_NW + 2 z_W + z_SW)) / (8 gsd)`` and likewise north. It weighs the three
+    rows (columns) of the neighbourhood, so that the slope's noise from independent height errors σ is 0.43 σ/gsd
+    against 0.71 σ/gsd for the central difference of two cells: on a photogrammetric DSM, whose neighbouring cells
+    differ by their noise, the viewing angle to the normal is less often the noise's. Cells without all 8
+    neighbours (the grid's border, next to a hole) get the vertical normal.
+
+    References
+    ----------
+    .. [H81] Horn, B. K. P. (1981). Hill shading and the reflectance map. Proceedings of the IEEE 69(1), 14-47.
+    """
+    a = np.asarray(Z, float)
+    gx = np.full(a.shape, np.nan)
+    gy = np.full(a.shape, np.nan)
+    if min(a.shape) >= 3:
+        gx[1:-1, 1:-1] = ((a[:-2, 2:] + 2 * a[1:-1, 2:] + a[2:, 2:]) - (a[:-2, :-2] + 2 * a[1:-1, :-2] + a[2:, :-2])) / (8 * gsd)
+        gy[1:-1, 1:-1] = ((a[:-2, :-2] + 2 * a[:-2, 1:-1] + a[:-2, 2:]) - (a[2:, :-2] + 2 * a[2:, 1:-1] + a[2:, 2:])) / (8 * gsd)
+    n = np.stack([-gx, -gy, np.ones_like(a)], axis=-1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.where(np.isfinite(n), n, np.array([0.0, 0.0, 1.0]))
 
 
 def gradient(values, gsd: float) -> tuple[np.ndarray, np.ndarray]:

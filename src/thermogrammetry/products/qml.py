@@ -4,7 +4,9 @@ QGIS applies ``ortho.qml`` automatically when it opens ``ortho.tif`` from the sa
 raster of the same base name is its default style). The style is QGIS's ``singlebandpseudocolor`` renderer with an
 interpolated colour ramp (``colorrampshader``) from the robust minimum to the robust maximum of the values
 (:func:`robust_limits`: the 2nd and 98th percentiles, so that a few hot or cold outliers do not take the ramp), each
-legend entry labelled in the raster's unit (``°C``, ``K``, ``counts``: the raster's own, never converted).
+legend entry labelled in the raster's unit (``°C``, ``K``, ``counts``: the raster's own, never converted). The
+continuous legend QGIS draws (a ramp with its end values) takes the unit as its suffix and the entries' decimals (a
+number format; without it QGIS prints four decimals, "41.3209 °C").
 """
 
 from __future__ import annotations
@@ -87,7 +89,19 @@ def thermal_qml(lo: float, hi: float, unit: str, *, band: int = 1) -> str:
           </colorramp>
 {chr(10).join(items)}
           <rampLegendSettings minimumLabel="" maximumLabel="" prefix="" suffix={suffix} direction="0"
-                              useContinuousLegend="1" orientation="2"/>
+                              useContinuousLegend="1" orientation="2">
+            <numericFormat id="basic">
+              <Option type="Map">
+                <Option type="QChar" name="decimal_separator" value=""/>
+                <Option type="int" name="decimals" value="{digits}"/>
+                <Option type="int" name="rounding_type" value="0"/>
+                <Option type="bool" name="show_plus" value="false"/>
+                <Option type="bool" name="show_thousand_separator" value="false"/>
+                <Option type="bool" name="show_trailing_zeros" value="true"/>
+                <Option type="QChar" name="thousand_separator" value=""/>
+              </Option>
+            </numericFormat>
+          </rampLegendSettings>
         </colorrampshader>
       </rastershader>
     </rasterrenderer>

@@ -99,7 +99,8 @@ GLB_AXES = ("glTF +X = east, +Y = up, +Z = south (Y-up, right-handed) about a lo
 
 
 def glb_bytes(result, preview, extras: dict | None = None, crs: str | None = None) -> bytes:
-    """Binary glTF of the atlas mesh with the preview as its base-colour texture (unlit look).
+    """Binary glTF of the atlas mesh with the preview as its base-colour texture, unlit (``KHR_materials_unlit``:
+    viewers show the palette's colours unshaded, so that they read against the palette's legend).
 
     Positions are Y-up (glTF's convention: a viewer shows the model upright) about a local origin with no node
     transform (float32 keeps sub-millimetre steps; the model sits at the viewer's origin, not kilometres away):
@@ -127,11 +128,15 @@ def glb_bytes(result, preview, extras: dict | None = None, crs: str | None = Non
     scene = trimesh.Scene()
     scene.add_geometry(mesh, node_name="textured", geom_name="textured")
     info = {"offset": [float(o) for o in origin], "crs": crs, "axes": GLB_AXES, "unit": "m"}
-    return _with_asset_extras(scene.export(file_type="glb"), {"thermogrammetry": info})
+    return _with_asset_extras(scene.export(file_type="glb"), {"thermogrammetry": info}, unlit=True)
 
 
-def _with_asset_extras(glb: bytes, extras: dict) -> bytes:
-    """The GLB with ``asset.extras`` set (its JSON chunk rewritten, padded to 4 bytes with spaces)."""
+def _with_asset_extras(glb: bytes, extras: dict, *, unlit: bool = False) -> bytes:
+    """The GLB with ``asset.extras`` set (its JSON chunk rewritten, padded to 4 bytes with spaces).
+
+    ``unlit``: every material also gets the ``KHR_materials_unlit`` extension (listed in ``extensionsUsed``; viewers
+    without it fall back to the PBR base colour): the preview colours are data (the palette of a legend), so a viewer
+    shows them as they are, without its lights shading them."""
     import json
     import struct
 
@@ -139,6 +144,12 @@ def _with_asset_extras(glb: bytes, extras: dict) -> bytes:
     assert kind == 0x4E4F534A, "first GLB chunk must be JSON"
     doc = json.loads(glb[20:20 + n_json].decode("utf-8"))
     doc.setdefault("asset", {"version": "2.0"}).setdefault("extras", {}).update(extras)
+    if unlit and doc.get("materials"):
+        for m in doc["materials"]:
+            m.setdefault("extensions", {})["KHR_materials_unlit"] = {}
+        used = doc.setdefault("extensionsUsed", [])
+        if "KHR_materials_unlit" not in used:
+            used.append("KHR_materials_unlit")
     js = json.dumps(doc, separators=(",", ":")).encode("utf-8")
     js += b" " * (-len(js) % 4)
     rest = glb[20 + n_json:]
