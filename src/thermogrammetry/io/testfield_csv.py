@@ -43,7 +43,7 @@ __all__ = [
     "parse_control_csv",
     "parse_measurements_csv",
     "check_measurement_ids", "read_control_csv", "read_measurements_csv", "read_text",
-    "GnssPositions", "parse_gnss_csv", "read_gnss_csv"]
+    "GnssPositions", "parse_gnss_csv", "read_gnss_csv", "Readings", "parse_readings_csv", "read_readings_csv"]
 
 CONTROL_COLUMNS = ("id", "X", "Y", "Z")
 CONTROL_OPTIONAL = ("sX", "sY", "sZ")
@@ -262,6 +262,69 @@ def read_gnss_csv(path: str | os.PathLike) -> GnssPositions:
     """Read ``image,X,Y,Z[,sX,sY,sZ]``; see :func:`parse_gnss_csv`."""
     text, src = read_text(path)
     return parse_gnss_csv(text, src)
+
+
+@dataclass(frozen=True)
+class Readings:
+    """Contact temperature readings: ``ids`` (M,) str, ``xy`` (M,2) m, ``z`` (M,) m or None, ``value`` (M,) in the
+    readings' unit, ``std`` (M,) or None; ``lines`` (M,) the 1-based line numbers in the source (for messages)."""
+
+    ids: tuple[str, ...]
+    xy: np.ndarray
+    z: np.ndarray | None
+    value: np.ndarray
+    std: np.ndarray | None
+    lines: tuple[int, ...]
+    source: str = ""
+
+
+#: column names of a readings file (lower case), first the canonical one
+READINGS_COLUMNS = {"id": ("id", "name", "point"), "X": ("x", "e", "easting"), "Y": ("y", "n", "northing"),
+                    "Z": ("z", "h", "height"), "T": ("t", "temperature", "reading", "value"),
+                    "sT": ("st", "sigma", "sigma_t", "std")}
+
+
+def parse_readings_csv(text: str, source: str = "readings.csv") -> Readings:
+    """Parse contact readings ``[id,]X,Y[,Z],T[,sT]`` (metres in the ortho's CRS; the temperature and its σ in one
+    unit, > 0 for σ). A header row is required (the columns are optional in different combinations); without an
+    ``id`` column the points are named by their row number."""
+    _, rows = _rows(text)
+    if not rows:
+        raise UnsupportedFormatError(f"{source}: empty file; expected a header [id,]X,Y[,Z],T[,sT] and one row per reading")
+    n0, first = rows[0]
+    lower = [c.lower() for c in first]
+    cmap = {k: lower.index(a) for k, names in READINGS_COLUMNS.items() for a in names[::-1] if a in lower}
+    missing = [k for k in ("X", "Y", "T") if k not in cmap]
+    if missing:
+        hint = " (no header row? the first row holds numbers)" if first and _is_number(first[0]) else ""
+        raise UnsupportedFormatError(
+            f"{source}, row {n0}: missing column(s) {', '.join(missing)} in header {','.join(first)!r}{hint}; expected "
+            "[id,]X,Y[,Z],T[,sT] (aliases E/N/H, temperature/reading/value, sigma)")
+    data = rows[1:]
+    if not data:
+        raise UnsupportedFormatError(f"{source}: no readings after the header")
+    ids, xy, z, val, std, lines, seen = [], [], [], [], [], [], {}
+    for n, row in data:
+        pid = _text(row, cmap, "id", n, source) if "id" in cmap else f"row{n}"
+        if pid in seen:
+            raise CorruptFileError(f"{source}, row {n}: duplicate point id {pid!r} (first on row {seen[pid]})")
+        seen[pid] = n
+        ids.append(pid)
+        xy.append([_num(row, cmap, c, n, source, "metres") for c in ("X", "Y")])
+        if "Z" in cmap:
+            z.append(_num(row, cmap, "Z", n, source, "metres"))
+        val.append(_num(row, cmap, "T", n, source, "a temperature"))
+        if "sT" in cmap:
+            std.append(_num(row, cmap, "sT", n, source, "the reading's standard deviation", positive=True))
+        lines.append(n)
+    return Readings(tuple(ids), np.array(xy, float), np.array(z, float) if z else None, np.array(val, float),
+                    np.array(std, float) if std else None, tuple(lines), source)
+
+
+def read_readings_csv(path: str | os.PathLike) -> Readings:
+    """Read contact readings ``[id,]X,Y[,Z],T[,sT]``; see :func:`parse_readings_csv`."""
+    text, src = read_text(path)
+    return parse_readings_csv(text, src)
 
 
 def check_measurement_ids(meas: Measurements, control: ControlPoints) -> np.ndarray:
