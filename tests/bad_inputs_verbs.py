@@ -367,3 +367,128 @@ def _(t):
     ref.write_bytes(ref.read_bytes()[: ref.stat().st_size // 2])
     return ["evaluate", "--dsm", str(dsm(t)), "--reference", str(ref), "-o", str(t / "OUT")], \
         ["ref.tif", "cannot be read"], t / "OUT"
+
+
+# ------------------------------------------------------------------------------------------------ evaluate --ortho
+def tiny_ortho(t: Path, name: str = "A", *, unit: str | None = "K", x0: float = X0, sigma: bool | str = True,
+               value: float = 300.0) -> Path:
+    """``t/name/ortho.tif``: 20 x 20 cells of 1 m from (x0, Y0) holding ``value`` with the unit tag ``unit``, and (with
+    ``sigma``) its ``ortho_sigma.tif`` of 0.05 (``sigma="shifted"``: on a grid one cell east)."""
+    import rasterio
+    from rasterio.transform import Affine
+
+    d = t / name
+    d.mkdir(parents=True, exist_ok=True)
+    kw = dict(driver="GTiff", width=20, height=20, dtype="float32", crs=CRS, nodata=float("nan"))
+    with rasterio.open(d / "ortho.tif", "w", count=1, transform=Affine(1.0, 0.0, x0, 0.0, -1.0, Y0), **kw) as o:
+        o.write(np.full((1, 20, 20), value, np.float32))
+        if unit:
+            o.update_tags(unit=unit)
+    if sigma:
+        sx = x0 + (1.0 if sigma == "shifted" else 0.0)
+        with rasterio.open(d / "ortho_sigma.tif", "w", count=4, transform=Affine(1.0, 0.0, sx, 0.0, -1.0, Y0), **kw) as s:
+            s.write(np.full((4, 20, 20), 0.05, np.float32))
+            if unit:
+                s.update_tags(unit=unit)
+    return d / "ortho.tif"
+
+
+def compare_argv(t: Path, a: Path, *extra) -> list[str]:
+    return ["evaluate", "--ortho", str(a), "-o", str(t / "OUT"), *extra]
+
+
+@_c("evaluate: orthos in different units (K against counts)")
+def _(t):
+    a, b = tiny_ortho(t, "A"), tiny_ortho(t, "B", unit="counts", value=16000.0)
+    return compare_argv(t, a, "--against", str(b)), [f"{b} is in 'counts'", f"{a} in 'K'", "different units"], t / "OUT"
+
+
+@_c("evaluate: orthos in K and °C")
+def _(t):
+    a, b = tiny_ortho(t, "A"), tiny_ortho(t, "B", unit="°C", value=27.0)
+    return compare_argv(t, a, "--against", str(b)), [f"{b} is in '°C'", f"{a} in 'K'", "--unit K"], t / "OUT"
+
+
+@_c("evaluate: orthos that do not overlap")
+def _(t):
+    a, b = tiny_ortho(t, "A"), tiny_ortho(t, "B", x0=X0 + 1000.0)
+    return compare_argv(t, a, "--against", str(b)), [str(b), "does not overlap", str(a), "X 501000.00..501020.00"], t / "OUT"
+
+
+@_c("evaluate: --against ortho without its ortho_sigma.tif")
+def _(t):
+    a, b = tiny_ortho(t, "A"), tiny_ortho(t, "B", sigma=False)
+    return compare_argv(t, a, "--against", str(b)), [str(b), "no ortho_sigma.tif beside", "--reference-sigma"], t / "OUT"
+
+
+@_c("evaluate: ortho_sigma.tif on another grid than its ortho")
+def _(t):
+    a, b = tiny_ortho(t, "A", sigma="shifted"), tiny_ortho(t, "B")
+    return compare_argv(t, a, "--against", str(b)), ["A/ortho_sigma.tif", "differs from", "one ortho run"], t / "OUT"
+
+
+@_c("evaluate: ortho of display numbers")
+def _(t):
+    a, b = tiny_ortho(t, "A", unit="dn", value=128.0), tiny_ortho(t, "B", unit="dn", value=128.0)
+    return compare_argv(t, a, "--against", str(b)), [str(a), "display numbers"], t / "OUT"
+
+
+@_c("evaluate: reading outside the ortho")
+def _(t):
+    cp = t / "readings.csv"
+    cp.write_text(f"id,X,Y,T\nin,{X0 + 5},{Y0 - 5},300.1\nfar,{X0 + 500},{Y0 - 5},300.2\n")
+    return compare_argv(t, tiny_ortho(t), "--readings", str(cp)), \
+        ["readings.csv, row 3", "point 'far'", "outside the ortho", "X 500000.00..500020.00"], t / "OUT"
+
+
+@_c("evaluate: readings without a temperature column")
+def _(t):
+    cp = t / "readings.csv"
+    cp.write_text(f"id,X,Y,Z\n1,{X0 + 5},{Y0 - 5},100\n")
+    return compare_argv(t, tiny_ortho(t), "--readings", str(cp)), ["readings.csv", "missing column(s) T"], t / "OUT"
+
+
+@_c("evaluate: readings against an ortho of counts")
+def _(t):
+    cp = t / "readings.csv"
+    cp.write_text(f"X,Y,T\n{X0 + 5},{Y0 - 5},300.1\n")
+    return compare_argv(t, tiny_ortho(t, unit="counts", value=16000.0), "--readings", str(cp)), \
+        ["raw sensor counts", "readings.csv"], t / "OUT"
+
+
+@_c("evaluate: --alpha 1.5")
+def _(t):
+    return compare_argv(t, tiny_ortho(t, "A"), "--against", str(tiny_ortho(t, "B")), "--alpha", "1.5"), \
+        ["--alpha 1.5", "between 0 and 1"], t / "OUT"
+
+
+@_c("evaluate: --offset-box without --remove-offset median")
+def _(t):
+    return compare_argv(t, tiny_ortho(t, "A"), "--against", str(tiny_ortho(t, "B")), "--offset-box",
+                        f"{X0},{Y0 - 10},{X0 + 10},{Y0}"), ["--offset-box", "needs --remove-offset median"], t / "OUT"
+
+
+@_c("evaluate: --offset-box outside the overlap")
+def _(t):
+    return compare_argv(t, tiny_ortho(t, "A"), "--against", str(tiny_ortho(t, "B")), "--remove-offset", "median",
+                        "--offset-box", f"{X0 + 100},{Y0 - 10},{X0 + 110},{Y0}"), \
+        ["--offset-box", "no compared cell has its centre in the box"], t / "OUT"
+
+
+@_c("evaluate: --against with --dsm")
+def _(t):
+    return ["evaluate", "--dsm", str(dsm(t)), "--against", str(tiny_ortho(t, "B")), "-o", str(t / "OUT")], \
+        ["--against", "temperature mode"], t / "OUT"
+
+
+@_c("evaluate: --ortho and nothing to compare it with")
+def _(t):
+    return compare_argv(t, tiny_ortho(t)), ["nothing to compare the ortho with", "--against"], t / "OUT"
+
+
+@_c("evaluate: OUT is the ortho's folder")
+def _(t):
+    a = tiny_ortho(t, "A")
+    argv = compare_argv(t, a, "--against", str(tiny_ortho(t, "B")))
+    argv[argv.index("-o") + 1] = str(a.parent)
+    return argv, ["is the ortho's folder", "apart from the inputs"], None

@@ -191,7 +191,7 @@ def compare_rasters(a, sigma_a, b, sigma_b, grid: Grid, config: CompareConfig | 
     if cfg.remove_offset == "median":
         area = tested if cfg.offset_box is None else tested & _box_mask(grid, cfg.offset_box)
         if not area.any():
-            raise ConfigError(f"--offset-box {','.join(f'{v:g}' for v in cfg.offset_box)}: no compared cell has its "
+            raise ConfigError(f"--offset-box {','.join(f'{v:.10g}' for v in cfg.offset_box)}: no compared cell has its "
                               f"centre in the box (the rasters cover X {grid.x0:.2f}..{grid.x0 + grid.width * grid.gsd:.2f}, "
                               f"Y {grid.y0 - grid.height * grid.gsd:.2f}..{grid.y0:.2f}); expected a box over unchanged "
                               "ground inside the overlap")
