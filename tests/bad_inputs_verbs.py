@@ -475,6 +475,12 @@ def _(t):
         ["--offset-box", "no compared cell has its centre in the box"], t / "OUT"
 
 
+@_c("evaluate: --reference-sigma with --against")
+def _(t):
+    return compare_argv(t, tiny_ortho(t, "A"), "--against", str(tiny_ortho(t, "B")), "--reference-sigma", "0.1"), \
+        ["--reference-sigma", "give --reference"], t / "OUT"
+
+
 @_c("evaluate: --against with --dsm")
 def _(t):
     return ["evaluate", "--dsm", str(dsm(t)), "--against", str(tiny_ortho(t, "B")), "-o", str(t / "OUT")], \

@@ -147,8 +147,7 @@ def test_reference_raster_and_its_sigma(flights, tmp_path):
 
 def test_contact_readings_against_the_noise_free_truth(flights, tmp_path):
     """Readings = the noise-free truth of the flight-A ortho (its noise-free frames and true poses) at 300 cells: the
-    normalised residuals (value − reading) / σ have the spread the σ state (within 2σ: ~95 %, more with σ ~15 %
-    high); readings given in °C are converted; a point on a cell without a value is reported, not compared."""
+    normalised residuals (value − reading) / σ have the spread the σ state; readings given in °C are converted; a point on a cell without a value is reported, not compared."""
     import tifffile
 
     from thermogrammetry.pipeline.ortho import run_ortho
@@ -182,8 +181,12 @@ def test_contact_readings_against_the_noise_free_truth(flights, tmp_path):
     _evaluate("--ortho", f["A"], "--readings", tmp_path / "r.csv", "--readings-unit", "C", "-o", tmp_path / "E")
     r = json.loads((tmp_path / "E" / "evaluate.json").read_text())["readings"]
     assert r["n"] == 300 and r["not_on_a_value"] == 1 and r["converted_to"] == "K"
-    assert 0.9 <= r["share_within_2sigma"] <= 1.0, r
-    assert 0.5 < r["rms_z"] < 1.2, r
+    # measured 91 % within 2 sigma, RMS z 1.00: the core narrower than N(0, 1) (sigma ~20 % high), the tails heavier
+    # (the nearest sampling's geometry steps); one pose draw per frame moves many points together, so the figures of
+    # one map scatter by more than the binomial 1.7 % of 300 points. RMS z in 0.8-1.2 refuses a sigma more than
+    # 17 % low or 25 % high; the share within 2 sigma alone moves little with the sigma (87 % with sigma 25 % low)
+    assert 0.8 < r["rms_z"] < 1.2, r
+    assert 0.85 <= r["share_within_2sigma"] <= 1.0, r
     rows = (tmp_path / "E" / "readings.csv").read_text().splitlines()
     assert rows[0].startswith("id,x,y,reading") and len(rows) == 302 and rows[-1].startswith("nodata,")
     assert not (tmp_path / "E" / "difference.tif").exists()
@@ -216,3 +219,32 @@ def test_benjamini_hochberg_on_known_p_values():
     assert rej.tolist() == [True, True] + [False] * 9 and thr == 0.008
     rej, thr = benjamini_hochberg(np.array([0.5, 0.9]), 0.05)
     assert not rej.any() and thr is None
+
+
+def test_counts_compared_with_counts(tmp_path):
+    from bad_inputs_verbs import tiny_ortho
+
+    a = tiny_ortho(tmp_path, "A", unit="counts", value=16000.0)
+    b = tiny_ortho(tmp_path, "B", unit="counts", value=16030.0)
+    _evaluate("--ortho", a, "--against", b, "-o", tmp_path / "E", "--alpha", "0.01")
+    rep = json.loads((tmp_path / "E" / "evaluate.json").read_text())
+    c = rep["comparison"]
+    assert rep["unit"] == "counts" and c["cells_compared"] == 400 and c["median"] == pytest.approx(30.0)
+    assert c["sigma_median"] == pytest.approx(np.hypot(0.05, 0.05), rel=1e-6) and c["share_significant"] == 1.0
+    with rasterio.open(tmp_path / "E" / "difference.tif") as s:
+        assert s.tags()["unit"] == "counts" and s.units[0] == "counts"
+
+
+def test_readings_csv_columns_and_aliases():
+    from thermogrammetry.errors import CorruptFileError
+    from thermogrammetry.io.testfield_csv import parse_readings_csv
+
+    r = parse_readings_csv("# contact probe\nname;E;N;H;reading;sigma\nwall;500001.5;5000002;101.2;21.4;0.3\n"
+                           "roof;500003;5000004.5;104;25.0;0.2\n", "r.csv")
+    assert r.ids == ("wall", "roof") and r.lines == (3, 4)
+    assert np.allclose(r.xy, [[500001.5, 5000002], [500003, 5000004.5]]) and np.allclose(r.z, [101.2, 104])
+    assert np.allclose(r.value, [21.4, 25.0]) and np.allclose(r.std, [0.3, 0.2])
+    r = parse_readings_csv("X,Y,T\n1,2,300\n", "r.csv")
+    assert r.ids == ("row2",) and r.z is None and r.std is None
+    with pytest.raises(CorruptFileError, match=r"r.csv, row 3: sT = '0' must be positive"):
+        parse_readings_csv("X,Y,T,sT\n1,2,300,0.1\n1,3,300,0\n", "r.csv")

@@ -105,6 +105,11 @@ def _temperature_mode(console, ortho, out, against, reference, reference_sigma, 
             raise ConfigError(f"--offset-box {offset_box!r}: expected four numbers XMIN,YMIN,XMAX,YMAX (m)") from None
         if len(box) != 4:
             raise ConfigError(f"--offset-box {offset_box!r}: {len(box)} number(s); expected XMIN,YMIN,XMAX,YMAX (m)")
+    if reference_sigma is not None and reference is None:
+        raise ConfigError("--reference-sigma: the σ of a --reference raster; give --reference REF.tif (the σ of an "
+                          "--against ortho is its ortho_sigma.tif)")
+    if readings_unit is not None and readings is None:
+        raise ConfigError("--readings-unit: the unit of --readings; give --readings readings.csv")
     if (against is None and reference is None) and (alpha is not None or fdr or remove_offset or box):
         raise ConfigError("--alpha, --fdr, --remove-offset, --offset-box: options of a comparison of two rasters; "
                           "give --against or --reference")
