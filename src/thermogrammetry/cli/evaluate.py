@@ -31,8 +31,9 @@ def evaluate(
                                            "ortho_sigma.tif beside it): difference = against − ortho on the ortho's grid."),
     reference_sigma: Optional[float] = typer.Option(None, "--reference-sigma", help="σ of the --reference temperature "
                                                     "raster, in the ortho's unit (default 0: taken as exact)."),
-    readings: Optional[Path] = typer.Option(None, "--readings", help="Contact readings CSV [id,]X,Y[,Z],T[,sT] (m in the "
-                                            "ortho's CRS; T in --readings-unit)."),
+    readings: Optional[Path] = typer.Option(None, "--readings", help="Contact readings CSV, columns id (optional), X, Y "
+                                            "(m, the ortho's CRS), Z (optional, not used), T and sT (optional) in "
+                                            "--readings-unit."),
     readings_unit: Optional[str] = typer.Option(None, "--readings-unit", help="K or C: the unit of the readings "
                                                 "(default: the ortho's)."),
     alpha: Optional[float] = typer.Option(None, "--alpha", help="Two-sided level of the per-cell test of the "
