@@ -262,11 +262,13 @@ def _write_rasters(stage, a: _Raster, cmp_, summary: dict) -> None:
 
 
 def _readings_csv(rows) -> str:
+    """``readings.csv``: coordinates to the millimetre, values and residuals to 4 decimals, σ and z to 6 digits."""
+    fmt = {"x": "{:.3f}", "y": "{:.3f}", "reading": "{:.4f}", "value": "{:.4f}", "residual": "{:.4f}",
+           "reading_sigma": "{:.6g}", "sigma": "{:.6g}", "sigma_total": "{:.6g}", "z": "{:.6g}"}
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     keys = ["id", "x", "y", "reading", "reading_sigma", "value", "sigma", "residual", "sigma_total", "z"]
     w.writerow(keys)
     for r in rows:
-        w.writerow(["" if r[k] is None else (f"{r[k]:.6g}" if isinstance(r[k], float) and k not in ("x", "y")
-                                              else (f"{r[k]:.3f}" if isinstance(r[k], float) else r[k])) for k in keys])
+        w.writerow(["" if r[k] is None else fmt[k].format(r[k]) if k in fmt else r[k] for k in keys])
     return buf.getvalue()
