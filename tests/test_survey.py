@@ -393,6 +393,8 @@ def test_real_m3t_gimbal_attitude_and_a_single_strip(m3t, tmp_path):
                  *cache]) == 0
     s = json.loads((o2 / "survey.json").read_text())
     assert s["crs"] == "EPSG:32631" and s["images_oriented"] == 16
+    assert s["camera_file"] == {"file": str(tmp_path / "camera.json"), "format": "camera.json",
+                                "conversion_max_residual_px": 0.0}
     assert "attitude" in s["blocks"][0]["datum"]
     est = OrientedCameras.load(o2 / "cameras.json")
     dr = np.array([_rotvec_deg(im.R, by_name[im.name].R) for im in est.images])
