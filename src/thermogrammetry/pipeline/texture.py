@@ -571,8 +571,30 @@ def _link_frame(cameras, im: dict, store) -> str:
 STAGE_PHOTOMETRIC_FIT = "photometric pose fit (views)"
 
 
+def with_camera_file(cameras, camera_file):
+    """``cameras`` (OrientedCameras) with the thermal camera(s) of the same image size replaced by the camera of
+    ``camera_file`` (:class:`~thermogrammetry.io.camera_file.CameraFile`: a lab calibration held for the texturing);
+    returns ``(cameras, record)`` with ``record = {**camera_file.to_dict(), "replaces": [camera ids]}``. A camera of
+    another image size than every thermal camera is refused (:class:`ConfigError` naming both sizes)."""
+    from dataclasses import replace
+
+    size = tuple(camera_file.camera.image_size)
+    ids = sorted({im.camera_id for im in cameras.images if str(getattr(im.sensor, "value", im.sensor)) == "thermal"})
+    hit = [cid for cid in ids if tuple(cameras.cameras[cid].image_size) == size]
+    if not hit:
+        sizes = sorted({tuple(cameras.cameras[cid].image_size) for cid in ids})
+        raise ConfigError(f"--camera {camera_file.path}: image size {size[0]}x{size[1]}; the survey's thermal cameras "
+                          f"are {', '.join(f'{w}x{h}' for w, h in sizes) or 'none'}; expected the calibration of the "
+                          "thermal camera at its frames' size")
+    new = dict(cameras.cameras)
+    for cid in hit:
+        new[cid] = camera_file.camera
+    return replace(cameras, cameras=new), {**camera_file.to_dict(), "replaces": hit}
+
+
 def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, correct: bool = False, levelling: str = "none",
-                rig_path=None, config=None, progress=None, fit_poses: str = "auto", max_faces: int | None = None) -> dict:
+                rig_path=None, config=None, progress=None, fit_poses: str = "auto", max_faces: int | None = None,
+                camera=None) -> dict:
     """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict.
 
     ``unit``: ``"K"`` or ``"C"`` for kelvin frames (default ``"K"``); must stay ``None`` for frames in raw counts
@@ -582,7 +604,9 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     bending the block; ``texture.json`` ``pose_fit`` says what happened, ``cameras_fitted.json`` holds the poses
     used), then refines them photometrically (:func:`photometric_fit_views`, ``texture.json`` ``photometric_fit``);
     ``"mesh"``: the first step only; ``"off"``: the survey's poses as they are. ``max_faces``: the mesh's triangle cap
-    (default :data:`DEFAULT_MAX_FACES`). ``progress``: optional callable ``progress(stage, done, total)`` called as the
+    (default :data:`DEFAULT_MAX_FACES`). ``camera``: a camera file (camera.json, Metashape XML, OpenCV YAML/XML, COLMAP
+    cameras.txt) whose calibration replaces the survey's thermal camera of the same size (:func:`with_camera_file`;
+    ``texture.json`` ``camera_file``). ``progress``: optional callable ``progress(stage, done, total)`` called as the
     work goes: :data:`STAGE_PHOTOMETRIC_FIT` after each view of the photometric pose fit, then the stages of
     :func:`thermogrammetry.products.texture.texture_mesh` (per view, per chunk of texels and of face corners).
     """
@@ -599,6 +623,11 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
 
     check_output_apart(out_dir, [("survey folder", survey_dir)])
     cameras = OrientedCameras.load(survey_dir)
+    camera_record = None
+    if camera is not None:
+        from ..io.camera_file import open_camera_file
+
+        cameras, camera_record = with_camera_file(cameras, open_camera_file(camera))
     if max_faces is not None and (isinstance(max_faces, bool) or int(max_faces) != max_faces or max_faces < 1):
         raise ConfigError(f"max_faces={max_faces!r}: expected a positive number of triangles")
     V, F = read_mesh(mesh_path, max_faces=DEFAULT_MAX_FACES if max_faces is None else int(max_faces))
@@ -707,7 +736,7 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
                  "uint16_mapping": u16_info,
                  "rig": None if rig_path is None else str(rig_path),
                  "clean_radius_px": {"value": int(cfg.clean_radius_px), "reason": clean_note or "default"},
-                 "pose_fit": pose_fit, "photometric_fit": photo_fit}
+                 "pose_fit": pose_fit, "photometric_fit": photo_fit, "camera_file": camera_record}
         if winding_note:
             extra["mesh_winding"] = {"reversed": True, "reason": winding_note}
         extra["preview_palette"] = palette
