@@ -137,6 +137,9 @@ def test_thin_labels_keeps_at_most_the_cap():
     rp.thin_labels(ax, [f"IMG_{k:04d}" for k in range(300)], max_labels=40)
     assert 30 <= len(ax.get_xticks()) <= 40 and ax.get_xticklabels()[1].get_text() == "IMG_0008"
     plt.close(fig)
+    dji = ["DJI_20240806173449_0008_T", "DJI_20240806173450_0009_T", "DJI_20240806173451_0010_T"]
+    assert rp.short_names(dji) == ["0008_T", "0009_T", "0010_T"]  # not "9_0008_T": the parts that tell them apart
+    assert rp.short_names(["a_T", "b_T", "a_T"]) == ["a_T", "b_T", "a_T"]
 
 
 def test_control_points_take_the_given_coordinates():
@@ -159,3 +162,27 @@ def test_overlap_counts_two_squares():
     assert ext[0] == 0.0 and ext[3] == 10.0 and cell == pytest.approx(0.1)
     area = (counts > 0).sum() * cell**2
     assert area == pytest.approx(150.0, rel=0.02) and (counts == 2).sum() * cell**2 == pytest.approx(50.0, rel=0.03)
+
+
+def test_calibrate_report_has_the_header(tmp_path):
+    """calibrate (test-field route): the header under the report's title, with the command as typed and the
+    inputs' files; the report's own content after it."""
+    import shlex
+
+    from thermogrammetry.cli.main import main
+    from thermogrammetry.synthetic.testfield import make_testfield
+
+    field = make_testfield(np.random.default_rng(11), noise_px=0.4)
+    (tmp_path / "control.csv").write_text(field.control_csv())
+    (tmp_path / "measurements.csv").write_text(field.measurements_csv())
+    args = ["calibrate", "--control", str(tmp_path / "control.csv"), "--measurements", str(tmp_path / "measurements.csv"),
+            "--image-size", "320x240", "--pixel-pitch-um", "25", "--focal-mm", "18", "-o", str(tmp_path / "OUT")]
+    assert main(args) == 0
+    page = (tmp_path / "OUT" / "report.html").read_text()
+    f = _fields(page)
+    assert f["software"] == f"thermogrammetry {thermogrammetry.__version__}"
+    assert f["command"] == shlex.join(["thermogrammetry", *args])
+    assert f["inputs"] == (f"16 images measured\ncontrol points: {(tmp_path / 'control.csv').resolve()}\n"
+                           f"image measurements: {(tmp_path / 'measurements.csv').resolve()}")
+    assert float(f["time"].split()[0]) > 0 and "crs" not in f  # a calibration has no CRS: the row is left out
+    assert page.index("</h1>") < page.index("tg-header") < page.index("Table 2")

@@ -31,8 +31,8 @@ import numpy as np
 from . import __version__
 
 __all__ = ["ReportHeader", "header_html", "insert_header", "command_line", "cli_command", "driver_call",
-           "python_call", "folders_of", "html_page", "REPORT_CSS", "ColourLimits", "colour_limits", "colourbar", "figure_png", "nice_number", "height_colormap", "log_counts_axis",
-           "map_origin", "map_axes", "vectors_at", "ellipses_at", "thin_labels", "format_seconds", "crs_text"]
+           "python_call", "folders_of", "html_page", "REPORT_CSS", "ColourLimits", "colour_limits", "colourbar", "caption_below", "figure_png", "nice_number", "height_colormap", "log_counts_axis",
+           "map_origin", "map_axes", "pad_to_ratio", "vectors_at", "ellipses_at", "thin_labels", "short_names", "format_seconds", "crs_text"]
 
 # ---------------------------------------------------------------------------------------------------- command line
 
@@ -309,16 +309,25 @@ def colour_limits(values, lower: float = 1.0, upper: float = 99.0) -> ColourLimi
     return ColourLimits(lo, hi, lower, upper, int((v < lo).sum()), int((v > hi).sum()), int(v.size))
 
 
-def colourbar(fig, ax, mappable, label: str, limits: ColourLimits | None = None, unit: str = ""):
-    """A colour bar with ``label``; with ``limits`` its arrows show values beyond them and the limits' caption is
-    written under the axes."""
-    cb = fig.colorbar(mappable, ax=ax, label=label, extend=limits.extend if limits is not None else "neither",
-                      shrink=0.85)
+def colourbar(fig, ax, mappable, label: str, limits: ColourLimits | None = None, unit: str = "", **kw):
+    """A colour bar as tall as the axes (also for equal-aspect maps), labelled ``label``; with ``limits`` its arrows
+    show values beyond them and the limits' caption is written under the axes' labels."""
+    from mpl_toolkits.axes_grid1 import make_axes_locatable
+
+    cax = make_axes_locatable(ax).append_axes("right", size="3.5%", pad=0.12)
+    cb = fig.colorbar(mappable, cax=cax, label=label, extend=limits.extend if limits is not None else "neither", **kw)
     cb.ax.tick_params(labelsize=8)
     if limits is not None:
-        ax.annotate(limits.caption(unit), (0.0, -0.13), xycoords="axes fraction", fontsize=7.5, color="#444",
-                    va="top")
+        caption_below(ax, limits.caption(unit))
     return cb
+
+
+def caption_below(ax, text: str, *, ha: str = "left") -> None:
+    """A small note under the axes, below their tick labels and axis title (placed in points, not in axes fractions,
+    so that it does not run into the axis title of a flat map)."""
+    x = 0.0 if ha == "left" else 1.0
+    ax.annotate(text, (x, 0.0), xycoords="axes fraction", xytext=(0, -38), textcoords="offset points", fontsize=7.5,
+                color="#444", va="top", ha=ha)
 
 
 def height_colormap():
@@ -377,6 +386,19 @@ def map_axes(ax, origin=(0.0, 0.0), *, nbins: int = 6, names=("E", "N"), adjusta
     ax.set_ylabel(f"{names[1]} − {y0:.0f} (m)" if y0 else f"{'Y' if names[1] == 'N' else names[1]} (m)")
 
 
+def pad_to_ratio(ax, ratio: float = 0.45) -> None:
+    """Widen the shorter axis range of a map to at least ``ratio`` × the longer one (a strip of cameras along one line
+    is not drawn as a sliver)."""
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    w, h = x1 - x0, y1 - y0
+    if h < ratio * w:
+        c = 0.5 * (y0 + y1)
+        ax.set_ylim(c - 0.5 * ratio * w, c + 0.5 * ratio * w)
+    elif w < ratio * h:
+        c = 0.5 * (x0 + x1)
+        ax.set_xlim(c - 0.5 * ratio * h, c + 0.5 * ratio * h)
+
+
 def _map_scale(ax_extent: float, largest: float, share: float) -> float:
     """Magnification (a round number) drawing ``largest`` as at most ``share`` of ``ax_extent``."""
     if not (largest > 0 and ax_extent > 0):
@@ -427,6 +449,20 @@ def ellipses_at(ax, xy, cov2, *, origin=(0.0, 0.0), extent: float | None = None,
         ax.add_patch(Ellipse((x, y), 2 * ai * mag, 2 * bi * mag, angle=t, fill=False, edgecolor=color, lw=1.0,
                              zorder=4))
     return mag
+
+
+def short_names(names: Sequence[str], max_len: int = 12) -> list[str]:
+    """Image names shortened for an axis: the fewest trailing ``_``/``-``-separated parts that keep them apart
+    (``DJI_20240806173449_0008_T`` → ``0008_T``), cut to their last ``max_len`` characters."""
+    import re
+
+    names = [str(n) for n in names]
+    parts = [re.split(r"(?<=[_-])", n) for n in names]
+    for k in range(1, max((len(p) for p in parts), default=1) + 1):
+        tails = ["".join(p[-k:]) for p in parts]
+        if len(set(tails)) == len(set(names)):
+            return [t[-max_len:] for t in tails]
+    return [n[-max_len:] for n in names]
 
 
 def thin_labels(ax, labels: Sequence[str], *, max_labels: int = 40, rotation: float = 90, fontsize: float = 7) -> None:

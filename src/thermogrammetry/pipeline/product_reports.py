@@ -28,10 +28,11 @@ _EMPTY = "#ececec"  # cells without a value (the figures' background)
 
 def raster_preview(path, band: int = 1, max_px: int = PREVIEW_PX) -> tuple[np.ndarray, tuple[float, float, float, float]]:
     """Band ``band`` of a GeoTIFF read decimated to at most ``max_px`` cells a side (nodata → NaN) and its extent
-    ``(xmin, xmax, ymin, ymax)`` (m)."""
+    ``(xmin, xmax, ymin, ymax)`` (m). Every preview cell is one cell of the raster (nearest, from the full resolution:
+    not from the averaged overviews, whose cells have a value where any of the cells they average has one)."""
     import rasterio
 
-    with rasterio.open(path) as src:
+    with rasterio.open(path, OVERVIEW_LEVEL="NONE") as src:
         k = max(1, int(np.ceil(max(src.width, src.height) / max_px)))
         shape = (max(1, int(np.ceil(src.height / k))), max(1, int(np.ceil(src.width / k))))
         a = src.read(band, out_shape=shape, masked=True)
@@ -80,8 +81,10 @@ def _hillshade_figure(z: np.ndarray, ext) -> str:
     return figure_png(fig)
 
 
-def _cells_figure(classes: np.ndarray, ext, labels: list[tuple[int, str, str]], title: str) -> str:
-    """A categorical map: ``classes`` (h, w) ints, ``labels`` (value, colour, legend text) in legend order."""
+def _cells_figure(classes: np.ndarray, ext, labels: list[tuple[int, str, str]], title: str, shares=None,
+                  total: int | None = None) -> str:
+    """A categorical map: ``classes`` (h, w) ints, ``labels`` (value, colour, legend text) in legend order;
+    ``shares``: {value: share of the raster's ``total`` cells} counted on the full raster (else on the preview)."""
     from matplotlib.colors import ListedColormap
     from matplotlib.patches import Patch
 
@@ -92,11 +95,13 @@ def _cells_figure(classes: np.ndarray, ext, labels: list[tuple[int, str, str]], 
         lut[v] = k
     ax.imshow(lut[classes], extent=e, origin="upper", interpolation="nearest",
               cmap=ListedColormap([c for _, c, _ in labels]), vmin=-0.5, vmax=len(labels) - 0.5)
-    n = classes.size
-    ax.legend(handles=[Patch(facecolor=c, edgecolor="#888", label=f"{t}: {100 * np.mean(classes == v):.1f} %")
+    if shares is None:
+        shares, total = {v: float(np.mean(classes == v)) for v, _, _ in labels}, None
+    ax.legend(handles=[Patch(facecolor=c, edgecolor="#888", label=f"{t}: {100 * shares[v]:.1f} %")
                        for v, c, t in labels],
               loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False,
-              title=f"share of the {n:,} preview cells", title_fontsize=8)
+              title=f"share of the box's {total:,} cells" if total else f"share of the {classes.size:,} preview cells",
+              title_fontsize=8)
     map_axes(ax, origin, adjustable="box")
     ax.set_title(title, fontsize=10)
     return figure_png(fig)
@@ -172,17 +177,19 @@ def dense_report_html(out: Path, rep: dict, sv, survey_dir) -> str:
     parts.append("<h2>DSM</h2>" + fig + "<p class=caption>dsm.tif as measured (no filled cell); grey: no height.</p>")
     classes = np.where(np.isfinite(z), 1, 0)
     labels = [(1, "#6a8caf", "measured height"), (0, _EMPTY, "no height")]
-    fill_src = None
+    fill_src, n_filled = None, 0
     if filled_rec and (out / filled_rec["file"]).is_file():
-        fill_src, fill_band = out / filled_rec["file"], 2
+        fill_src, fill_band, n_filled = out / filled_rec["file"], 2, filled_rec["filled_cells"]
     elif d.get("filled_cells") is not None:
-        fill_src, fill_band = out / "dsm.tif", 2
+        fill_src, fill_band, n_filled = out / "dsm.tif", 2, d["filled_cells"]
     if fill_src is not None:
         m, _ = raster_preview(fill_src, fill_band)
         classes = np.where((classes == 0) & (np.nan_to_num(m) > 0), 2, classes)
         labels.insert(1, (2, "#f28e2b", f"filled ({fill_src.name})"))
+    shares = {1: d["valid_cells"] / max(cells, 1), 2: n_filled / max(cells, 1),
+              0: (cells - d["valid_cells"] - n_filled) / max(cells, 1)}
     parts.append("<h2>Completeness and what was filled</h2>"
-                 + _safe(_cells_figure, classes, ext, labels, "DSM cells: measured, filled, empty")
+                 + _safe(_cells_figure, classes, ext, labels, "DSM cells: measured, filled, empty", shares, cells)
                  + "<p class=caption>Shares of the DSM's box (the completeness above counts only the cells inside the "
                    "images' footprints).</p>")
     parts += _notes(rep.get("notes"))
@@ -268,12 +275,16 @@ def ortho_report_html(out: Path, rep: dict, sv, survey_dir, dsm_path) -> str:
     parts.append("<h2>Orthophoto</h2>" + img + "<p class=caption>ortho.tif (preview); grey: no value.</p>")
     classes = np.where(np.isfinite(v), 1, 0)
     labels = [(1, "#6a8caf", "value on measured heights"), (0, _EMPTY, "no value")]
+    on_filled = 0
     if fill and (out / fill["mask"]).is_file():
         m, _ = raster_preview(out / fill["mask"])
         classes = np.where((classes == 1) & (m == 1), 2, classes)
         labels.insert(1, (2, "#f28e2b", "value on filled heights"))
+        on_filled = fill["ortho_cells_on_filled"]
+    shares = {1: (rep["cells"] - on_filled) / box, 2: on_filled / box, 0: 1.0 - rep["cells"] / box}
     parts.append("<h2>Coverage and what was filled</h2>"
-                 + _safe(_cells_figure, classes, ext, labels, "Mosaic cells: on measured heights, on filled heights, empty")
+                 + _safe(_cells_figure, classes, ext, labels, "Mosaic cells: on measured heights, on filled heights, empty",
+                         shares, box)
                  + "<p class=caption>Shares of the mosaic's box. A cell on filled heights holds a copy of a source "
                    "pixel too; where the interpolated height is wrong, that pixel shows a neighbouring ground "
                    "point.</p>")

@@ -188,8 +188,11 @@ def survey_geometry(project) -> dict:
 
     if not project.exists("cameras.json"):
         return {}
-    P = _sparse_points(project)
-    return block_geometry(project.read_json("cameras.json"), float(np.median(P[:, 2])) if len(P) else None)
+    try:
+        P = _sparse_points(project)
+        return block_geometry(project.read_json("cameras.json"), float(np.median(P[:, 2])) if len(P) else None)
+    except Exception as exc:  # noqa: BLE001 - the report's figures must not fail the survey
+        return {"not_computed": f"{type(exc).__name__}: {exc}"}
 
 
 def survey_header(s: dict, geo: dict) -> ReportHeader:

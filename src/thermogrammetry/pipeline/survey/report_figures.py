@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...reporting import (colour_limits, colourbar, ellipses_at, figure_png, height_colormap, map_axes, map_origin,
-                          thin_labels, vectors_at)
+from ...reporting import (caption_below, colour_limits, colourbar, ellipses_at, figure_png, height_colormap, map_axes, map_origin,
+                          pad_to_ratio, short_names, thin_labels, vectors_at)
 
 __all__ = ["MAX_GRID", "footprints", "overlap_counts", "block_geometry", "control_points", "sparse_figure",
            "overlap_figure", "ellipse_figure", "control_figure", "residual_bars"]
@@ -153,9 +153,19 @@ def sparse_figure(P: np.ndarray, C: np.ndarray, names) -> str:
         colourbar(fig, ax, sc, "height of the tie points (m)", lim, "m")
     ax.plot(C[:, 0] - ox, C[:, 1] - oy, "r^", ms=5, label="camera centres")
     if len(C) <= 15:
-        for k, n in enumerate(names):
-            ax.annotate(str(n)[-8:], (C[k, 0] - ox, C[k, 1] - oy), fontsize=6, xytext=(3, 3), textcoords="offset points")
-    map_axes(ax, (ox, oy))
+        for k, n in enumerate(short_names(names)):
+            ax.annotate(n, (C[k, 0] - ox, C[k, 1] - oy), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    map_axes(ax, (ox, oy), adjustable="box")
+    if len(P) >= 20:  # the map's box: the cameras and the 0.5th-99.5th percentiles of the points (strays left out)
+        lo = np.minimum(np.percentile(P[:, :2], 0.5, axis=0), C[:, :2].min(axis=0))
+        hi = np.maximum(np.percentile(P[:, :2], 99.5, axis=0), C[:, :2].max(axis=0))
+        pad = 0.05 * max(float(np.max(hi - lo)), 1.0)
+        ax.set_xlim(lo[0] - pad - ox, hi[0] + pad - ox)
+        ax.set_ylim(lo[1] - pad - oy, hi[1] + pad - oy)
+        out = int(np.sum(np.any((P[:, :2] < lo - pad) | (P[:, :2] > hi + pad), axis=1)))
+        if out:
+            caption_below(ax, f"{out} of {len(P)} points outside the map", ha="right")
+    pad_to_ratio(ax)
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title("Camera centres over the sparse cloud", fontsize=10)
     return figure_png(fig)
@@ -175,14 +185,12 @@ def overlap_figure(counts: np.ndarray, ext, C: np.ndarray, ground_z: float) -> s
     im = ax.imshow(np.ma.masked_equal(counts, 0), extent=(ext[0] - ox, ext[1] - ox, ext[2] - oy, ext[3] - oy),
                    origin="upper", interpolation="nearest", cmap=cmap, norm=BoundaryNorm(bounds, cmap.N))
     if step == 1:
-        cb = fig.colorbar(im, ax=ax, shrink=0.85, label="images covering the cell", ticks=np.arange(1, top + 1))
+        colourbar(fig, ax, im, "images covering the cell", ticks=np.arange(1, top + 1))
     else:
-        cb = fig.colorbar(im, ax=ax, shrink=0.85, label=f"images covering the cell (bins of {step})",
-                          ticks=bounds[:-1])
+        cb = colourbar(fig, ax, im, f"images covering the cell (bins of {step})", ticks=bounds[:-1])
         cb.ax.set_yticklabels([f"{int(b + 0.5)}" for b in bounds[:-1]])
-    cb.ax.tick_params(labelsize=8)
     ax.plot(C[:, 0] - ox, C[:, 1] - oy, ".", color="#c33", ms=3, label="camera centres")
-    map_axes(ax, (ox, oy))
+    map_axes(ax, (ox, oy), adjustable="box")
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title(f"Overlap: images per ground cell (footprints on z = {ground_z:.1f} m)", fontsize=10)
     return figure_png(fig)
@@ -200,7 +208,10 @@ def ellipse_figure(C: np.ndarray, cov: np.ndarray) -> tuple[str, float]:
     lim = colour_limits(sz, 1.0, 99.0)
     sc = ax.scatter(C[:, 0] - ox, C[:, 1] - oy, c=sz, s=14, cmap="plasma", vmin=lim.lo, vmax=lim.hi, zorder=5)
     colourbar(fig, ax, sc, "σZ of the camera centre (cm)", lim, "cm")
-    map_axes(ax, (ox, oy))
+    map_axes(ax, (ox, oy), adjustable="box")
+    ax.margins(0.08)
+    ax.autoscale_view()
+    pad_to_ratio(ax)
     ax.set_title(f"Camera centres: 1 σ horizontal error ellipses, magnified ×{mag:g}", fontsize=10)
     return figure_png(fig), mag
 
@@ -224,7 +235,10 @@ def control_figure(points: list[dict], C: np.ndarray) -> tuple[str, float]:
     for p in points:
         ax.annotate(f"{p['id']}\ndZ {100 * p['dz']:+.1f} cm", (p["xy"][0] - ox, p["xy"][1] - oy), fontsize=7,
                     xytext=(5, -14), textcoords="offset points", color=style[p["kind"]][0])
-    map_axes(ax, (ox, oy))
+    map_axes(ax, (ox, oy), adjustable="box")
+    ax.margins(0.08)
+    ax.autoscale_view()
+    pad_to_ratio(ax)
     ax.legend(loc="lower right", fontsize=8)
     ax.set_title("Residuals at the points (arrows: dX, dY; text: dZ)", fontsize=10)
     return figure_png(fig), mag
@@ -235,7 +249,7 @@ def residual_bars(ims: list[dict]) -> str:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(min(max(6.0, 0.18 * len(ims)), 11.0), 3.0))
     ax.bar(range(len(ims)), [im["rms_px"] or 0 for im in ims], color="#47a")
-    thin_labels(ax, [im["name"][-8:] for im in ims])
+    thin_labels(ax, short_names([im["name"] for im in ims]))
     ax.set_ylabel("reprojection RMS (px)")
     ax.set_title("Tie-point residuals per image", fontsize=10)
     return figure_png(fig)
