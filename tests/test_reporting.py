@@ -51,6 +51,11 @@ def test_command_line_is_the_cli_s_else_the_outermost_driver_call():
     assert rp.command_line() is None
 
 
+def test_format_seconds():
+    assert [rp.format_seconds(x) for x in (12.34, 59.96, 119.7, 252.4, 3599.6, 3725.0)] == [
+        "12.3 s", "1 min 00 s", "2 min 00 s", "4 min 12 s", "1 h 00 min", "1 h 02 min"]
+
+
 def test_insert_header_goes_after_the_title():
     page = "<html><body><h1>Camera calibration report</h1><p>Route</p></body></html>"
     out = rp.insert_header(page, rp.ReportHeader("calibrate", command="thermogrammetry calibrate x"))

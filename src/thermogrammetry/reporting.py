@@ -31,8 +31,10 @@ import numpy as np
 from . import __version__
 
 __all__ = ["ReportHeader", "header_html", "insert_header", "command_line", "cli_command", "driver_call",
-           "python_call", "folders_of", "html_page", "REPORT_CSS", "ColourLimits", "colour_limits", "colourbar", "caption_below", "figure_png", "nice_number", "height_colormap", "log_counts_axis",
-           "map_origin", "map_axes", "pad_to_ratio", "vectors_at", "ellipses_at", "thin_labels", "short_names", "format_seconds", "crs_text"]
+           "python_call", "folders_of", "html_page", "REPORT_CSS", "ColourLimits", "colour_limits", "colourbar",
+           "caption_below", "figure_png", "nice_number", "height_colormap", "log_counts_axis", "map_origin",
+           "map_axes", "pad_to_ratio", "vectors_at", "ellipses_at", "thin_labels", "short_names", "format_seconds",
+           "crs_text"]
 
 # ---------------------------------------------------------------------------------------------------- command line
 
@@ -120,11 +122,13 @@ def folders_of(paths) -> list[str]:
 def format_seconds(s: float) -> str:
     """``12.3 s``, ``4 min 05 s``, ``1 h 02 min``."""
     s = float(s)
-    if s < 60:
+    if s < 59.95:
         return f"{s:.1f} s"
-    if s < 3600:
-        return f"{int(s // 60)} min {int(round(s % 60)):02d} s"
-    return f"{int(s // 3600)} h {int(round(s % 3600 / 60)):02d} min"
+    if s < 3599.5:
+        k = int(round(s))
+        return f"{k // 60} min {k % 60:02d} s"
+    m = int(round(s / 60))
+    return f"{m // 60} h {m % 60:02d} min"
 
 
 def crs_text(crs: str | None) -> str | None:
@@ -322,12 +326,11 @@ def colourbar(fig, ax, mappable, label: str, limits: ColourLimits | None = None,
     return cb
 
 
-def caption_below(ax, text: str, *, ha: str = "left") -> None:
+def caption_below(ax, text: str, *, line: int = 0) -> None:
     """A small note under the axes, below their tick labels and axis title (placed in points, not in axes fractions,
-    so that it does not run into the axis title of a flat map)."""
-    x = 0.0 if ha == "left" else 1.0
-    ax.annotate(text, (x, 0.0), xycoords="axes fraction", xytext=(0, -38), textcoords="offset points", fontsize=7.5,
-                color="#444", va="top", ha=ha)
+    so that it does not run into the axis title of a flat map); ``line`` 1, 2, ...: the lines under the first."""
+    ax.annotate(text, (0.0, 0.0), xycoords="axes fraction", xytext=(0, -38 - 11 * line), textcoords="offset points",
+                fontsize=7.5, color="#444", va="top", ha="left")
 
 
 def height_colormap():

@@ -9,7 +9,7 @@ import io
 
 import numpy as np
 
-from ...reporting import ReportHeader, figure_png, html_page, log_counts_axis
+from ...reporting import ReportHeader, figure_png, html_page, log_counts_axis, map_origin
 
 _png = figure_png  # (the name older callers import)
 
@@ -259,11 +259,12 @@ def _figures(project, s: dict, geo: dict) -> list[str]:
         P = _sparse_points(project)
         if len(P) > 20000:
             P = P[np.random.default_rng(0).choice(len(P), 20000, replace=False)]
-        out.append(_figure(rf.sparse_figure, P, C, [im["name"] for im in cams["images"]]))
+        origin = map_origin(C[:, 0], C[:, 1])  # one origin for every map of the report
+        out.append(_figure(rf.sparse_figure, P, C, [im["name"] for im in cams["images"]], origin))
         if geo.get("ground_z_m") is not None:
             def overlap():
                 counts, ext, cell = rf.overlap_counts([q for _, q in rf.footprints(cams, geo["ground_z_m"])])
-                return (rf.overlap_figure(counts, ext, C, geo["ground_z_m"])
+                return (rf.overlap_figure(counts, ext, C, geo["ground_z_m"], origin)
                         + f"<p class=caption>Images covering each {cell:.2g} m ground cell: the footprints of "
                           f"cameras.gpkg ({geo.get('images_with_footprint')} images), i.e. the image corners on the plane "
                           f"at the sparse cloud's median height; median {_f(geo.get('images_per_cell_median'), '{:g}')}, "
@@ -272,7 +273,7 @@ def _figures(project, s: dict, geo: dict) -> list[str]:
         cov = _centre_cov(s, cams)
         if np.isfinite(cov).all(axis=(1, 2)).any():
             def ellipses():
-                img, mag = rf.ellipse_figure(C, cov)
+                img, mag = rf.ellipse_figure(C, cov, origin)
                 sd = 100 * np.sqrt(np.nanmedian(np.diagonal(cov, axis1=1, axis2=2), axis=0))
                 return img + (f"<p class=caption>1 σ error ellipses of the camera centres (from the covariance of the "
                               f"final adjustment), drawn magnified ×{mag:g}; the dots' colour is σZ. Median σX, σY, σZ "
@@ -281,7 +282,7 @@ def _figures(project, s: dict, geo: dict) -> list[str]:
         pts = rf.control_points(s)
         if pts:
             def control():
-                img, mag = rf.control_figure(pts, C)
+                img, mag = rf.control_figure(pts, C, origin)
                 return img + (f"<p class=caption>Planimetric residuals dX, dY drawn at each point's given position, "
                               f"magnified ×{mag:g} (key arrow above the map); dZ written beside each point.</p>")
             out.append(_figure(control))

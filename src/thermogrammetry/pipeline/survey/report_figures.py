@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...reporting import (caption_below, colour_limits, colourbar, ellipses_at, figure_png, height_colormap, map_axes, map_origin,
-                          pad_to_ratio, short_names, thin_labels, vectors_at)
+from ...reporting import (caption_below, colour_limits, colourbar, ellipses_at, figure_png, height_colormap,
+                          map_axes, map_origin, pad_to_ratio, short_names, thin_labels, vectors_at)
 
 __all__ = ["MAX_GRID", "footprints", "overlap_counts", "block_geometry", "control_points", "sparse_figure",
            "overlap_figure", "ellipse_figure", "control_figure", "residual_bars"]
@@ -141,10 +141,11 @@ def control_points(s: dict) -> list[dict]:
     return out
 
 
-def sparse_figure(P: np.ndarray, C: np.ndarray, names) -> str:
-    """Camera centres over the sparse cloud, coloured by height with 1st–99th percentile limits."""
+def sparse_figure(P: np.ndarray, C: np.ndarray, names, origin=None) -> str:
+    """Camera centres over the sparse cloud, coloured by height with 1st–99th percentile limits. ``origin``: the
+    maps' origin (default: :func:`~thermogrammetry.reporting.map_origin` of the camera centres)."""
     plt = _plt()
-    ox, oy = map_origin(np.r_[P[:, 0], C[:, 0]], np.r_[P[:, 1], C[:, 1]])
+    ox, oy = origin or map_origin(C[:, 0], C[:, 1])
     fig, ax = plt.subplots(figsize=(7.6, 6.2))
     if len(P):
         lim = colour_limits(P[:, 2], 1.0, 99.0)
@@ -164,19 +165,19 @@ def sparse_figure(P: np.ndarray, C: np.ndarray, names) -> str:
         ax.set_ylim(lo[1] - pad - oy, hi[1] + pad - oy)
         out = int(np.sum(np.any((P[:, :2] < lo - pad) | (P[:, :2] > hi + pad), axis=1)))
         if out:
-            caption_below(ax, f"{out} of {len(P)} points outside the map", ha="right")
+            caption_below(ax, f"{out} of the {len(P)} points drawn lie outside the map", line=1)
     pad_to_ratio(ax)
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title("Camera centres over the sparse cloud", fontsize=10)
     return figure_png(fig)
 
 
-def overlap_figure(counts: np.ndarray, ext, C: np.ndarray, ground_z: float) -> str:
+def overlap_figure(counts: np.ndarray, ext, C: np.ndarray, ground_z: float, origin=None) -> str:
     """The overlap map: images covering each ground cell (0: not covered, drawn blank)."""
     from matplotlib.colors import BoundaryNorm
 
     plt = _plt()
-    ox, oy = map_origin(np.r_[ext[:2], C[:, 0]], np.r_[ext[2:], C[:, 1]])
+    ox, oy = origin or map_origin(C[:, 0], C[:, 1])
     fig, ax = plt.subplots(figsize=(7.6, 6.2))
     top = max(1, int(counts.max()))
     step = max(1, int(np.ceil(top / 12)))
@@ -196,11 +197,11 @@ def overlap_figure(counts: np.ndarray, ext, C: np.ndarray, ground_z: float) -> s
     return figure_png(fig)
 
 
-def ellipse_figure(C: np.ndarray, cov: np.ndarray) -> tuple[str, float]:
+def ellipse_figure(C: np.ndarray, cov: np.ndarray, origin=None) -> tuple[str, float]:
     """1 σ horizontal error ellipses of the camera centres (``cov`` (n, 3, 3) m², NaN = unknown), magnified; the
     centres coloured by σZ. Returns ``(figure, magnification)``."""
     plt = _plt()
-    ox, oy = map_origin(C[:, 0], C[:, 1])
+    ox, oy = origin or map_origin(C[:, 0], C[:, 1])
     fig, ax = plt.subplots(figsize=(7.6, 6.2))
     extent = max(float(np.ptp(C[:, 0])), float(np.ptp(C[:, 1])), 1.0)
     mag = ellipses_at(ax, C[:, :2], cov[:, :2, :2], origin=(ox, oy), extent=extent)
@@ -216,12 +217,12 @@ def ellipse_figure(C: np.ndarray, cov: np.ndarray) -> tuple[str, float]:
     return figure_png(fig), mag
 
 
-def control_figure(points: list[dict], C: np.ndarray) -> tuple[str, float]:
+def control_figure(points: list[dict], C: np.ndarray, origin=None) -> tuple[str, float]:
     """GCP and check-point planimetric residuals as arrows at the points' map positions, dZ written beside each.
     Returns ``(figure, magnification)``."""
     plt = _plt()
     xy = np.array([p["xy"] for p in points], float)
-    ox, oy = map_origin(np.r_[xy[:, 0], C[:, 0]], np.r_[xy[:, 1], C[:, 1]])
+    ox, oy = origin or map_origin(C[:, 0], C[:, 1])
     fig, ax = plt.subplots(figsize=(7.6, 6.2))
     ax.plot(C[:, 0] - ox, C[:, 1] - oy, ".", color="#bbb", ms=3, label="camera centres")
     extent = max(float(np.ptp(np.r_[xy[:, 0], C[:, 0]])), float(np.ptp(np.r_[xy[:, 1], C[:, 1]])), 1.0)
@@ -239,8 +240,8 @@ def control_figure(points: list[dict], C: np.ndarray) -> tuple[str, float]:
     ax.margins(0.08)
     ax.autoscale_view()
     pad_to_ratio(ax)
-    ax.legend(loc="lower right", fontsize=8)
-    ax.set_title("Residuals at the points (arrows: dX, dY; text: dZ)", fontsize=10)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
+    ax.set_title("Residuals at the points (arrows: dX, dY; text: dZ)", fontsize=10, loc="left")
     return figure_png(fig), mag
 
 
