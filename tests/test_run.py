@@ -127,6 +127,25 @@ def test_layout_hashes_report_and_log(project):
     for link in ("survey/report.html", "dense/dsm.tif", "ortho/ortho.tif", "ortho/ortho.qml", "run.log"):
         assert f"href='{link}'" in html or f'href="{link}"' in html, link
     assert "images oriented: 6/6" in html and "ortho coverage of its box" in html
+    # every report has the header: the version, the command as typed, the CRS, the inputs; dense and ortho write one
+    import shlex
+
+    import thermogrammetry
+    from report_fields import header_fields
+
+    root, args = project["root"], project["args"]
+    cmd = shlex.join(["thermogrammetry", "run", *args, "-o", str(proj)])
+    crs = json.loads((proj / "survey" / "cameras.json").read_text())["crs"]
+    for page in ("report.html", "survey/report.html", "dense/report.html", "ortho/report.html"):
+        f = header_fields((proj / page).read_text())
+        assert f["software"] == f"thermogrammetry {thermogrammetry.__version__}", page
+        assert f["command"] == cmd and f["crs"].startswith(f"{crs} ("), page
+    for step in ("dense", "ortho"):
+        assert "report.html" in json.loads((proj / step / f"{step}-manifest.json").read_text())["files"]
+    f = header_fields((proj / "survey" / "report.html").read_text())
+    assert f["inputs"] == f"6 thermal images in {(root / 'images').resolve()}"
+    assert 40.0 < float(f["flying_height"].split()[0]) < 50.0  # the scene's 45 m above its ground
+    assert "images covering each" in (proj / "survey" / "report.html").read_text().lower()
     log = (proj / "run.log").read_text()
     # progress with counts and elapsed time; the libraries' own messages are in the log
     assert re.search(r"dense reference images: 6/6 \(\d+\.\d s\)", log)

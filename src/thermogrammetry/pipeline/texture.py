@@ -53,11 +53,13 @@ import json
 import os
 import posixpath
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ConfigError, DataFileError, InvalidInputError, ThermogrammetryError, UnsupportedFormatError
+from ..reporting import ReportHeader, command_line, figure_png, header_html, python_call
 
 __all__ = ["DEFAULT_MAX_FACES", "read_mesh", "frames_unit", "load_views", "check_views_unit", "load_rig_views", "run_texture", "texture_report_html"]
 
@@ -233,18 +235,6 @@ def load_rig_views(cameras, rig: dict, *, source: str = "rig.json"):
     return views, skipped, unit
 
 
-def _fig_png(fig) -> str:
-    import base64
-    import io
-
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return f'<img src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
-
-
 def _default_viewpoint(result, views):
     """A virtual camera behind the best-covering image, pulled back 30 % to show context."""
     V = result.vertices
@@ -258,9 +248,10 @@ def _default_viewpoint(result, views):
 
 
 def texture_report_html(result, views, skipped, unit: str, pose_fit: dict | None = None,
-                        photometric_fit: dict | None = None) -> str:
+                        photometric_fit: dict | None = None, header=None) -> str:
     """The report page. ``unit``: unit of the written texture (``K``, ``C`` or ``counts``); the result holds kelvin
-    for temperature frames (shown in °C) and the frames' raw counts for count frames (shown as "raw counts")."""
+    for temperature frames (shown in °C) and the frames' raw counts for count frames (shown as "raw counts").
+    ``header``: the :class:`~thermogrammetry.reporting.ReportHeader` shown under the title (None: none)."""
     import html
 
     import matplotlib
@@ -289,13 +280,13 @@ def texture_report_html(result, views, skipped, unit: str, pose_fit: dict | None
         ax.set_axis_off()
         ax.set_title("textured mesh (untextured and background: white)")
         fig.colorbar(im, ax=ax, label="raw counts (not a temperature)" if counts else "temperature (°C)")
-        figs.append(_fig_png(fig))
+        figs.append(figure_png(fig, dpi=100))
     fig, ax = plt.subplots(figsize=(6, 3))
     h = s["views_per_face_histogram"]
     ax.bar(range(len(h)), h)
     ax.set_xlabel("images with a positive score")
     ax.set_ylabel("faces")
-    figs.append(_fig_png(fig))
+    figs.append(figure_png(fig, dpi=100))
     cnt = np.bincount(result.source[result.source >= 0], minlength=len(views))
     rows = "".join(f"<tr><td>{i}</td><td>{html.escape(v.name)}</td><td>{int(cnt[i])}</td><td>{int(result.occluded_texels[i])}</td>"
                    f"<td>{result.offsets_k[i]:+.3f}</td></tr>" for i, v in enumerate(views))
@@ -337,7 +328,7 @@ def texture_report_html(result, views, skipped, unit: str, pose_fit: dict | None
         fit_note += f"<p>No photometric pose refinement: {html.escape(str(ph['reason']))}.</p>"
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>thermogrammetry texture</title>
 <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}</style></head><body>
-<h1>Thermal texture</h1>
+<h1>Thermal texture</h1>{header_html(header) if header is not None else ''}
 <h2>Coverage</h2>
 <table><tr><th>faces</th><td>{s['faces_total']}</td></tr><tr><th>faces scored by an image</th><td>{s['faces_seen']}</td></tr>
 <tr><th>faces visible (a texel inside an image, within the angle limit, not occluded)</th><td>{vis}</td></tr>
@@ -621,6 +612,7 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     from .._atomic import OutputSet, check_output_apart, sync_folder
     from ..store import FolderProject
 
+    call, t0 = python_call(run_texture, locals()), time.perf_counter()  # (the report's command line and time)
     check_output_apart(out_dir, [("survey folder", survey_dir)])
     cameras = OrientedCameras.load(survey_dir)
     camera_record = None
@@ -742,7 +734,11 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
         extra["preview_palette"] = palette
         text = tx.texture_json(result, unit_out, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
         store.write_text("texture.json", text)
-        store.write_text("report.html", texture_report_html(result, views, skipped, unit_out, pose_fit, photo_fit))
+        header = ReportHeader("texture", inputs=[(len(views), "images of the survey", [str(Path(survey_dir).resolve())]),
+                                                 (None, "mesh", [str(Path(mesh_path).resolve())])],
+                              crs=cameras.crs, georeferenced=cameras.crs is not None, command=command_line() or call,
+                              seconds=time.perf_counter() - t0)
+        store.write_text("report.html", texture_report_html(result, views, skipped, unit_out, pose_fit, photo_fit, header))
         sync_folder(outputs.stage)
         outputs.commit()
 
