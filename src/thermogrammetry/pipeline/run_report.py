@@ -41,6 +41,8 @@ def _figures(name: str, s: dict) -> list[str]:
         return [f"points: {s['points']}", f"DSM: {s['dsm_cells'][0]} × {s['dsm_cells'][1]} cells at {s['gsd_m']} m",
                 f"DSM completeness: {100 * s['completeness']:.1f} %", f"values: {s['unit']}"]
     return [f"ortho: {s['size'][0]} × {s['size'][1]} cells at {s['gsd_m']} m in {s['unit']}",
+            *([f"the frames' footprint covered: {100 * s['footprint_coverage']:.1f} %"]
+              if s.get("footprint_coverage") is not None else []),
             f"ortho coverage of its box: {100 * s['coverage']:.1f} %", f"images used: {s['images_used']}"]
 
 
