@@ -21,6 +21,31 @@ def small_survey_config(**kw):
     return SurveyConfig(**base)
 
 
+#: 2 lines x 3 frames of the small survey scene (:func:`write_small_block`)
+SMALL_BLOCK_FRAMES = (20, 21, 22, 34, 35, 36)
+
+
+def write_small_block(root: Path):
+    """Six rendered frames of the small survey scene (float TIFFs in kelvin without a unit tag) in ``root/images``,
+    their RTK-like GNSS (the true centres, σ 3/5 cm) in ``root/gnss.csv`` and the true camera in
+    ``root/camera.json``; returns ``(scene, the survey options every user of the block passes)``."""
+    import tifffile
+
+    from thermogrammetry.synthetic.survey import make_survey, render_frame
+
+    sc = make_survey(small_survey_config())
+    (root / "images").mkdir()
+    lines = ["image,X,Y,Z,sX,sY,sZ"]
+    for k in SMALL_BLOCK_FRAMES:
+        f = sc.frames[k]
+        tifffile.imwrite(root / "images" / f"{f.name}.tif", render_frame(sc, k)["image_k"].astype(np.float32))
+        c = f.pose.center
+        lines.append(f"{f.name},{c[0]:.4f},{c[1]:.4f},{c[2]:.4f},0.03,0.03,0.05")
+    (root / "gnss.csv").write_text("\n".join(lines) + "\n")
+    sc.camera.save(root / "camera.json")
+    return sc, ["--input-unit", "K", "--gnss", str(root / "gnss.csv"), "--crs", f"EPSG:{sc.terrain.epsg}", "--workers", "0"]
+
+
 def write_true_survey(folder, config=None, *, unit: str = "K", sensor: bool = True, frames=None, display: bool = False):
     """Render the frames and write a survey folder with the true poses. Returns ``(scene, folder)``.
 

@@ -78,3 +78,42 @@ def test_files_that_are_no_single_camera_are_refused_with_their_name(tmp_path):
         read_camera_file(tmp_path / "nosize.yaml")
     with pytest.raises(DataFileError, match="missing.json"):
         read_camera_file(tmp_path / "missing.json")
+
+
+def test_the_file_format_and_conversion_residual_are_recorded(tmp_path):
+    """open_camera_file: the format and the conversion residual (0 for files in the camera's own model)."""
+    from thermogrammetry.io.camera_file import describe_camera_file, open_camera_file
+
+    K, dist = CAM.to_opencv()
+    _opencv_file(tmp_path / "opencv.yaml", K, dist, CAM.image_size)
+    cf = open_camera_file(tmp_path / "opencv.yaml")
+    assert cf.format == "OpenCV YAML/XML" and cf.conversion_max_residual_px == 0.0
+    _same_projection(cf.camera, 1e-6)
+    assert describe_camera_file(cf.to_dict()) == f"camera {tmp_path / 'opencv.yaml'} (OpenCV YAML/XML; read exactly)"
+
+
+def test_correct_takes_an_opencv_camera_file(tmp_path, capsys):
+    """`correct --camera` reads any of the formats, prints and records where the camera came from; the result is
+    the same as from the camera.json of the same camera."""
+    import json
+
+    import tifffile
+
+    from test_bad_inputs import correct_argv
+    from thermogrammetry.cli.main import main
+
+    a = tmp_path / "a"
+    a.mkdir()
+    argv = correct_argv(a)
+    assert main(argv) == 0
+    cam = Camera.load(a / "camera.json")
+    K, dist = cam.to_opencv()
+    _opencv_file(a / "opencv.yaml", K, dist, cam.image_size)
+    argv_yaml = [str(a / "opencv.yaml") if v == str(a / "camera.json") else v for v in argv]
+    argv_yaml[argv_yaml.index("-o") + 1] = str(tmp_path / "OUT_yaml")
+    capsys.readouterr()
+    assert main(argv_yaml) == 0
+    assert "(OpenCV YAML/XML; read exactly)" in capsys.readouterr().out
+    man = json.loads((tmp_path / "OUT_yaml" / "correct-manifest.json").read_text())
+    assert man["camera_file"]["format"] == "OpenCV YAML/XML", man
+    assert np.array_equal(tifffile.imread(a / "OUT" / "corrected.tif"), tifffile.imread(tmp_path / "OUT_yaml" / "corrected.tif"))

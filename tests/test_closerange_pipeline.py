@@ -114,6 +114,15 @@ def test_cli_closerange_and_correct(case, tmp_path):
     assert rc == 0
     for f in ("points.csv", "cameras.json", "orientation.json", "planes.csv", "corrected.tif", "report.html"):
         assert (out / f).is_file()
+    import shlex
+
+    from report_fields import header_fields
+
+    f = header_fields((out / "report.html").read_text())  # the report's header: the command as typed, the counts
+    assert f["command"].startswith(shlex.join(["thermogrammetry", "closerange", "--control", str(tmp_path / "control.csv")]))
+    n_img, n_ctl = len({r[0] for r in rows}), len(s.control_csv().strip().splitlines()) - 1
+    assert f["inputs"] == (f"{n_img} images measured\n{n_ctl} control points\n{len(rows)} image measurements\n"
+                           "3 planes")
     from thermogrammetry.io import read_thermal
 
     corr = read_thermal(out / "corrected.tif").temperature_k

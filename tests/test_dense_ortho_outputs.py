@@ -220,3 +220,47 @@ def test_dense_sigkilled_mid_run_then_rerun_and_two_processes_at_once(clean):
     assert json.loads((both / "OUT" / "dense.json").read_text())["points"] == n
     assert json.loads((both / "OUT" / "dense-manifest.json").read_text())["complete"] is True
     assert [q.name for q in both.iterdir()] == ["OUT"]
+
+
+def test_dense_and_ortho_reports_are_outputs_with_the_header(clean, tmp_path):
+    """report.html is in dense's and ortho's OUT and manifest; its header names the version, the command line as typed
+    (the CLI) or the driver's Python call, the survey's CRS, the inputs; the ortho's figures include the σ map only
+    when ortho_sigma.tif was written."""
+    import shlex
+
+    import thermogrammetry
+    from report_fields import header_fields
+    from thermogrammetry.pipeline.ortho import run_ortho
+
+    root, sv, n = clean
+    crs = json.loads((sv / "cameras.json").read_text())["crs"]
+    dense = root / "clean"
+    assert "report.html" in json.loads((dense / "dense-manifest.json").read_text())["files"]
+    page = (dense / "report.html").read_text()
+    f = header_fields(page)
+    assert f["software"] == f"thermogrammetry {thermogrammetry.__version__}"
+    assert f["command"] == shlex.join(["thermogrammetry", "dense", str(sv), "-o", str(dense), "--workers", "0"])
+    assert f["crs"].startswith(f"{crs} (") and f["inputs"] == f"3 oriented images of the survey in {sv.resolve()}"
+    rep = json.loads((dense / "dense.json").read_text())
+    assert f["gsd"].startswith(f"{100 * rep['gsd_m']:.1f} cm") and 35.0 < float(f["flying_height"].split()[0]) < 50.0
+    assert f"{n:,}" in page and f"{100 * rep['completeness']:.1f} %" in page and page.count("data:image/png") == 2
+
+    out = tmp_path / "O"
+    assert main(["ortho", str(sv), "--dsm", str(dense / "dsm.tif"), "-o", str(out), "--workers", "0"]) == 0
+    assert "report.html" in json.loads((out / "ortho-manifest.json").read_text())["files"]
+    page = (out / "report.html").read_text()
+    f = header_fields(page)
+    assert f["command"] == shlex.join(["thermogrammetry", "ortho", str(sv), "--dsm", str(dense / "dsm.tif"), "-o",
+                                       str(out), "--workers", "0"])
+    assert f["crs"].startswith(f"{crs} (") and f"DSM: {(dense / 'dsm.tif').resolve()}" in f["inputs"]
+    rep = json.loads((out / "ortho.json").read_text())
+    assert f"values in {rep['unit']} (temperature (K))" in page and f"{rep['cells']:,}" in page
+    assert f"{rep['fill']['ortho_cells_on_filled']:,} mosaic cells" in page
+    assert page.count("data:image/png") == 3 and "Precision of each cell" in page  # ortho, coverage, σ
+
+    # from Python: the driver's call is the command line; no σ map without ortho_sigma.tif
+    run_ortho(sv, dense / "dsm.tif", tmp_path / "P", workers=0, sigma=False)
+    page = (tmp_path / "P" / "report.html").read_text()
+    cmd = header_fields(page)["command"]
+    assert cmd.startswith(f"thermogrammetry.pipeline.ortho.run_ortho({str(sv)!r}, ") and cmd.endswith("sigma=False)")
+    assert "workers=0" in cmd and "Precision of each cell" not in page and page.count("data:image/png") == 2

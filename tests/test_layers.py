@@ -19,7 +19,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "thermogrammetry"
 #: bottom to top; a module belongs to the layer of the longest prefix that names it
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("foundation", ("errors", "results", "enums", "_validate", "_atomic", "_libc", "_memory", "_procs", "_interrupt", "_sampling",
-                    "store", "tasks")),
+                    "reporting", "store", "tasks")),
     ("camera models, rotations, radiometry", ("camera", "geometry.rotations", "geometry.pose", "geometry._camera",
                                               "geometry._common", "geometry.attitude", "radiometry")),
     ("adjustment engine", ("adjustment",)),

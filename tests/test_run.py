@@ -14,32 +14,18 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
-import tifffile
 
-from survey_truth import small_survey_config
+from survey_truth import SMALL_BLOCK_FRAMES as FRAMES
+from survey_truth import write_small_block
 from thermogrammetry.cli.main import main
 
-FRAMES = (20, 21, 22, 34, 35, 36)  # 2 lines x 3 frames of the small survey scene
 
 
 @pytest.fixture(scope="module")
 def block(tmp_path_factory):
-    from thermogrammetry.synthetic.survey import make_survey, render_frame
-
     root = tmp_path_factory.mktemp("runblock")
-    sc = make_survey(small_survey_config())
-    (root / "images").mkdir()
-    lines = ["image,X,Y,Z,sX,sY,sZ"]
-    for k in FRAMES:
-        f = sc.frames[k]
-        tifffile.imwrite(root / "images" / f"{f.name}.tif", render_frame(sc, k)["image_k"].astype(np.float32))
-        c = f.pose.center
-        lines.append(f"{f.name},{c[0]:.4f},{c[1]:.4f},{c[2]:.4f},0.03,0.03,0.05")
-    (root / "gnss.csv").write_text("\n".join(lines) + "\n")
-    sc.camera.save(root / "camera.json")
-    args = [str(root / "images"), "--input-unit", "K", "--camera", str(root / "camera.json"), "--gnss",
-            str(root / "gnss.csv"), "--crs", f"EPSG:{sc.terrain.epsg}", "--workers", "0"]
-    return root, args
+    _, opts = write_small_block(root)
+    return root, [str(root / "images"), "--camera", str(root / "camera.json"), *opts]
 
 
 def _snapshot(project):
@@ -127,6 +113,25 @@ def test_layout_hashes_report_and_log(project):
     for link in ("survey/report.html", "dense/dsm.tif", "ortho/ortho.tif", "ortho/ortho.qml", "run.log"):
         assert f"href='{link}'" in html or f'href="{link}"' in html, link
     assert "images oriented: 6/6" in html and "ortho coverage of its box" in html
+    # every report has the header: the version, the command as typed, the CRS, the inputs; dense and ortho write one
+    import shlex
+
+    import thermogrammetry
+    from report_fields import header_fields
+
+    root, args = project["root"], project["args"]
+    cmd = shlex.join(["thermogrammetry", "run", *args, "-o", str(proj)])
+    crs = json.loads((proj / "survey" / "cameras.json").read_text())["crs"]
+    for page in ("report.html", "survey/report.html", "dense/report.html", "ortho/report.html"):
+        f = header_fields((proj / page).read_text())
+        assert f["software"] == f"thermogrammetry {thermogrammetry.__version__}", page
+        assert f["command"] == cmd and f["crs"].startswith(f"{crs} ("), page
+    for step in ("dense", "ortho"):
+        assert "report.html" in json.loads((proj / step / f"{step}-manifest.json").read_text())["files"]
+    f = header_fields((proj / "survey" / "report.html").read_text())
+    assert f["inputs"] == f"6 thermal images in {(root / 'images').resolve()}"
+    assert 40.0 < float(f["flying_height"].split()[0]) < 50.0  # the scene's 45 m above its ground
+    assert "images covering each" in (proj / "survey" / "report.html").read_text().lower()
     log = (proj / "run.log").read_text()
     # progress with counts and elapsed time; the libraries' own messages are in the log
     assert re.search(r"dense reference images: 6/6 \(\d+\.\d s\)", log)

@@ -205,6 +205,51 @@ def test_every_gcp_measurement_is_reported_with_its_residual(block):
     assert "GCP image measurements" in (block["out"] / "report.html").read_text()
 
 
+def test_report_header_point_table_ellipses_and_vectors_at_the_points(block):
+    """The report's header (version, the command as typed, CRS, inputs, flying height near the scene's); survey.json
+    carries what its maps need: the given coordinates of every GCP and check point (the vectors' map positions), the
+    centres' covariance whose diagonal is cameras.json's σ², and the footprints' area and overlap."""
+    import shlex
+
+    import thermogrammetry
+    from report_fields import header_fields
+    from thermogrammetry.pipeline.survey.report_figures import control_points
+
+    s = json.loads((block["out"] / "survey.json").read_text())
+    page = (block["out"] / "report.html").read_text()
+    f = header_fields(page)
+    user = block["root"] / "survey" / "user"
+    assert f["software"] == f"thermogrammetry {thermogrammetry.__version__}"
+    assert f["command"].startswith(shlex.join(["thermogrammetry", "survey", str(block["root"] / "survey" / "images"),
+                                               "-o", str(block["out"])]))
+    assert f["crs"].startswith(f"EPSG:{block['scene'].terrain.epsg} (")
+    assert f"{s['images_total']} thermal images in {(block['root'] / 'survey' / 'images').resolve()}" in f["inputs"]
+    assert f"GCPs: {(user / 'gcps.csv').resolve()}" in f["inputs"]
+    cfg = block["scene"].config
+    assert abs(s["footprints"]["flying_height_m"] - cfg.flight_height_m) < 0.1 * cfg.flight_height_m
+    gsd = cfg.flight_height_m * cfg.pixel_pitch_um * 1e-6 / (cfg.focal_mm * 1e-3)
+    assert s["footprints"]["gsd_m"] == pytest.approx(gsd, rel=0.1) and s["footprints"]["images_per_cell_max"] >= 3
+    # the map positions are the given coordinates, point by point (not list positions)
+    given = {}
+    for name in ("gcps.csv", "checkpoints.csv"):
+        for ln in (user / name).read_text().strip().splitlines()[1:]:
+            c = ln.split(",")
+            given[c[0]] = (float(c[1]), float(c[2]))
+    pts = control_points(s)
+    assert len(pts) == s["gcps"]["n"] + s["checkpoints"]["n"] >= 6
+    for p in pts:
+        assert p["xy"] == pytest.approx(given[p["id"]], abs=1e-6), p["id"]
+        assert f"<td class=l>{p['id']}</td>" in page
+    # the ellipses' covariance: its diagonal is the σ² of cameras.json (one adjustment, one covariance)
+    cams = {im.name: im for im in OrientedCameras.load(block["out"] / "cameras.json")}
+    cov = {im["name"]: np.asarray(im["center_cov_m2"]) for im in s["images"] if "center_cov_m2" in im}
+    assert len(cov) == s["images_oriented"]
+    for n_, C in cov.items():
+        np.testing.assert_allclose(np.sqrt(np.diag(C)), cams[n_].center_std, rtol=1e-9)
+        assert np.all(np.linalg.eigvalsh(C) > 0)
+    assert "error ellipses of the camera centres" in page and "magnified ×" in page
+
+
 def test_the_block_says_how_well_it_determines_its_camera(block):
     """The UAV block (relief, GCPs at several heights, 56 frames) self-calibrates fx, fy and the distortion; its
     covariance determines the focal length to 0.06 % and separates it from the flying height (correlation 0.18,
@@ -393,6 +438,8 @@ def test_real_m3t_gimbal_attitude_and_a_single_strip(m3t, tmp_path):
                  *cache]) == 0
     s = json.loads((o2 / "survey.json").read_text())
     assert s["crs"] == "EPSG:32631" and s["images_oriented"] == 16
+    assert s["camera_file"] == {"file": str(tmp_path / "camera.json"), "format": "camera.json",
+                                "conversion_max_residual_px": 0.0}
     assert "attitude" in s["blocks"][0]["datum"]
     est = OrientedCameras.load(o2 / "cameras.json")
     dr = np.array([_rotvec_deg(im.R, by_name[im.name].R) for im in est.images])

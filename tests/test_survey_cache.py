@@ -8,31 +8,17 @@ import json
 
 import numpy as np
 import pytest
-import tifffile
 
 from thermogrammetry.cli.main import main
 
-FRAMES = (20, 21, 22, 34, 35, 36)  # 2 lines x 3 frames of the small survey scene
+from survey_truth import SMALL_BLOCK_FRAMES as FRAMES
+from survey_truth import write_small_block
 
 
 @pytest.fixture(scope="module")
 def block(tmp_path_factory):
-    from survey_truth import small_survey_config
-    from thermogrammetry.synthetic.survey import make_survey, render_frame
-
     root = tmp_path_factory.mktemp("cacheblock")
-    sc = make_survey(small_survey_config())
-    (root / "images").mkdir()
-    lines = ["image,X,Y,Z,sX,sY,sZ"]
-    for k in FRAMES:
-        f = sc.frames[k]
-        tifffile.imwrite(root / "images" / f"{f.name}.tif", render_frame(sc, k)["image_k"].astype(np.float32))
-        c = f.pose.center
-        lines.append(f"{f.name},{c[0]:.4f},{c[1]:.4f},{c[2]:.4f},0.03,0.03,0.05")
-    (root / "gnss.csv").write_text("\n".join(lines) + "\n")
-    sc.camera.save(root / "camera.json")
-    args = ["--input-unit", "K", "--gnss", str(root / "gnss.csv"), "--crs", f"EPSG:{sc.terrain.epsg}", "--workers", "0"]
-    return root, args
+    return root, write_small_block(root)[1]
 
 
 def _outputs(out):

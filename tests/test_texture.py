@@ -328,6 +328,15 @@ def test_cli_texture_outputs(cli_out, scene, views):
     assert doc["extensionsUsed"] == ["KHR_materials_unlit"]
     assert all("KHR_materials_unlit" in m["extensions"] for m in doc["materials"])
     assert "°C" in (out / "report.html").read_text()
+    import shlex
+
+    from report_fields import header_fields
+
+    f = header_fields((out / "report.html").read_text())  # the report's header: the command as typed, the inputs
+    assert f["command"] == shlex.join(["thermogrammetry", "texture", str(survey), "--mesh", str(survey / "mesh.obj"), "-o",
+                                       str(out), "--unit", "C", "--texel-size", "0.05"])
+    assert f"mesh: {(survey / 'mesh.obj').resolve()}" in f["inputs"] and f["inputs"].endswith("obj")
+    assert f["inputs"].startswith(f"{len(views)} images of the survey in {survey.resolve()}")
     assert "map_Kd textured.png" in (out / "textured.mtl").read_text()
 
 

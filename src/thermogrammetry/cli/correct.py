@@ -19,7 +19,7 @@ def correct(
     out: Path = typer.Option(..., "-o", "--out", help="Output folder."),
     cameras: Optional[Path] = typer.Option(None, "--cameras", help="cameras.json: oriented cameras (thermogrammetry/cameras v1, written by survey and closerange; closerange's former format is also read); with --thermal."),
     thermal: Optional[str] = typer.Option(None, "--thermal", help="Image/camera name in --cameras."),
-    camera: Optional[Path] = typer.Option(None, "--camera", help="camera.json (interior orientation, from `calibrate`)."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="Interior orientation: camera.json (from `calibrate`), a Metashape XML, an OpenCV YAML/XML or a one-camera COLMAP cameras.txt."),
     pose: Optional[Path] = typer.Option(None, "--pose", help="pose.json: R,t (cam_from_world) or omega/phi/kappa_deg + X0,Y0,Z0."),
     planes: Optional[Path] = typer.Option(None, "--planes", help="planes.csv with normal_x,normal_y,normal_z,d_m."),
     points: Optional[Path] = typer.Option(None, "--points", help="points.csv (id,X,Y,Z): with --planes that list their ids, correct only inside each plane's outline."),
@@ -51,6 +51,10 @@ def correct(
     except ThermogrammetryError as exc:
         console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(2)
+    if "camera_file" in res:
+        from ..io.camera_file import describe_camera_file
+
+        console.print(describe_camera_file(res["camera_file"]), markup=False, highlight=False, soft_wrap=True)
     console.print(f"{n_ok} pixels corrected; outputs in {out}: corrected.tif ({unit}) angle_deg.tif "
                   "distance_m.tif valid.tif")
 

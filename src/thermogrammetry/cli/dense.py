@@ -65,5 +65,5 @@ def dense(
                   f"completeness {100 * rep['completeness']:.1f} %, {rep['seconds']:.1f} s", highlight=False)
     for n in rep["notes"]:
         print_plain(console, f"note: {n}")
-    files = " ".join(rep["cloud_files"] + ["dsm.tif"] + (["dsm_filled.tif"] if rep.get("dsm_filled") else []) + ["dense.json"])
+    files = " ".join(rep["cloud_files"] + ["dsm.tif"] + (["dsm_filled.tif"] if rep.get("dsm_filled") else []) + ["dense.json", "report.html"])
     print_plain(console, f"outputs in {out}: {files}")

@@ -26,12 +26,14 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status."""
     from .._interrupt import Interrupted, install_handlers, restore_handlers
     from .._memory import bound_heap_growth
+    from ..reporting import cli_command
 
     bound_heap_growth()  # long numeric runs: freed temporaries go back to the system (results unchanged)
     _register()
     install_handlers()  # Ctrl-C / SIGTERM: one line, exit 130 / 143, OUT as before (see thermogrammetry._interrupt)
     try:
-        app(args=argv, prog_name="thermogrammetry", standalone_mode=True)
+        with cli_command(sys.argv[1:] if argv is None else argv):  # the reports' command line: what the user typed
+            app(args=argv, prog_name="thermogrammetry", standalone_mode=True)
     except SystemExit as exc:  # typer/click exit
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 1)

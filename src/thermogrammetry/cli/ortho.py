@@ -80,4 +80,4 @@ def ortho(
                              f"{rep['sigma']['netd_source']['method'].split(' (')[0]})")
     print_plain(console, f"outputs in {out}: ortho.tif ortho.qml ortho_u16.tif ortho_source.tif ortho.json ortho_angle.tif "
                          "ortho_distance.tif ortho_gradient.tif" + (" ortho_filled_mask.tif" if rep.get("fill") else "")
-                         + (" ortho_sigma.tif" if rep.get("sigma") else ""))
+                         + (" ortho_sigma.tif" if rep.get("sigma") else "") + " report.html")

@@ -122,6 +122,10 @@ def survey(
         inp, opt = survey_inputs(**args)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         fail(str(exc))
+    if inp.camera_file is not None:
+        from ..io.camera_file import describe_camera_file
+
+        console.print(describe_camera_file(inp.camera_file), markup=False, highlight=False, soft_wrap=True)
     t0 = time.perf_counter()
     try:
         with _Progress(console) as prog:
@@ -170,7 +174,7 @@ def survey_inputs(*, images, out, input_unit, camera, rgb, rig, gnss, crs, gcps,
         An unusable argument or file (the message names it); the caller exits with status 2.
     """
     from ..errors import ThermogrammetryError
-    from ..io.camera_file import read_camera_file
+    from ..io.camera_file import open_camera_file
     from ..pipeline.survey import SurveyInput, SurveyOptions
 
     if dji_sdk is not None:
@@ -208,7 +212,8 @@ def survey_inputs(*, images, out, input_unit, camera, rgb, rig, gnss, crs, gcps,
     for p in (gcp_measurements, check_measurements):
         if p is not None:
             read_measurements_csv(p)
-    cam = read_camera_file(camera) if camera is not None else None
+    cam_file = open_camera_file(camera) if camera is not None else None
+    cam = cam_file.camera if cam_file is not None else None
     extra = {}
     for flag, val, sizes in (("--lever-arm", lever_arm, (3,)), ("--gnss-sigma", gnss_sigma, (2, 3))):
         if val is None:
@@ -244,5 +249,6 @@ def survey_inputs(*, images, out, input_unit, camera, rgb, rig, gnss, crs, gcps,
                         cache=None if cache is None else str(cache))
     inp = SurveyInput([str(p) for p in images], [str(p) for p in rgb], cam, str(gcps) if gcps else None,
                       str(gcp_measurements) if gcp_measurements else None, str(checkpoints) if checkpoints else None,
-                      str(check_measurements) if check_measurements else None, rig=rig_file)
+                      str(check_measurements) if check_measurements else None, rig=rig_file,
+                      camera_file=None if cam_file is None else cam_file.to_dict())
     return inp, opt

@@ -41,6 +41,9 @@ def texture(
                                   "(poses only); mesh: the first step; off: as they are (see docs/verbs/texture.md)."),
     max_faces: Optional[int] = typer.Option(None, "--max-faces", help="Refuse a mesh of more triangles than this "
                                                                     "(default 2000000)."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="The thermal camera's calibration for the texturing, in place "
+                                          "of the survey's: camera.json, a Metashape XML, an OpenCV YAML/XML or a one-camera "
+                                          "COLMAP cameras.txt."),
 ) -> None:
     """Texture a mesh with temperatures: best image per face, occlusion by ray casting, source of every texel."""
     from rich.console import Console
@@ -61,10 +64,14 @@ def texture(
             raise ThermogrammetryError(f"-o {out}: exists and is not a folder")
         with progress(console, "texture") as prog:
             d = run_texture(survey_dir, mesh, out, unit=None if u is None else u.value, correct=correct, levelling=lev.value, rig_path=rig, config=cfg, max_faces=max_faces,
-                            fit_poses=fit_poses, progress=_stage_lines(prog))
+                            fit_poses=fit_poses, progress=_stage_lines(prog), camera=camera)
     except (ThermogrammetryError, ValueError, OSError) as exc:
         print_error(console, exc)
         raise typer.Exit(2)
+    if d.get("camera_file"):
+        from ..io.camera_file import describe_camera_file
+
+        print_plain(console, describe_camera_file(d["camera_file"]) + f", in place of the survey's {', '.join(d['camera_file']['replaces'])}")
     vis = d.get("faces_visible", d["faces_seen"])
     console.print(f"textured {d['faces_textured']}/{d['faces_total']} faces ({100 * d.get('faces_visible_textured', d['faces_textured']) / max(vis, 1):.1f} % "
                   f"of the {vis} visible), {d['texels_textured']}/{d['texels_total']} texels; wrote {out}", highlight=False)

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
+from ..reporting import ReportHeader, header_html
 from ..store import ProjectStore, Step
 from . import network as nw
 from .solve import NetworkResult, Observations, solve_network
@@ -344,6 +345,9 @@ def _step_report(project: ProjectStore) -> dict:
              "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
              "td,th{border:1px solid #999;padding:2px 6px;text-align:right}th{background:#eee}</style></head><body>",
              "<h1>Close-range orientation and directional correction</h1>",
+             header_html(ReportHeader("closerange", inputs=[
+                 (len({r[0] for r in inp["rows"]}), "images measured", []), (len(inp["control"]), "control points", []),
+                 (len(inp["rows"]), "image measurements", []), (max(0, len(pls) - 1), "planes", [])])),
              "<p>Method: Sawicki, Stein, Więcek — optical cameras by DLT with least-squares refinement, pass points "
              "intersected, thermal camera from pass points only, planes from marked points (eq. 5–6), temperature "
              "correction eq. 7–8 per pixel. Standard deviations propagated from an a-priori image σ of "

@@ -10,6 +10,7 @@ and Metashape's as in :mod:`thermogrammetry.io.metashape` and :meth:`~thermogram
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import CorruptFileError, DataFileError, InvalidInputError
 
-__all__ = ["CAMERA_FILE_FORMATS", "camera_file_format", "read_camera_file"]
+__all__ = ["CAMERA_FILE_FORMATS", "CameraFile", "camera_file_format", "read_camera_file", "open_camera_file", "describe_camera_file"]
 
 #: the formats :func:`read_camera_file` reads
 CAMERA_FILE_FORMATS = ("camera.json", "Metashape XML", "OpenCV YAML/XML", "COLMAP cameras.txt")
@@ -72,6 +73,44 @@ def _read_opencv(path: Path) -> Camera:
                                   size, name=path.stem)
     except InvalidInputError as exc:
         raise CorruptFileError(f"{path}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class CameraFile:
+    """A camera read from a user's file (:func:`open_camera_file`): the camera, the file's format and the
+    conversion's residual (px, max over the frame: 0 where the file's model is the camera's, as for OpenCV, COLMAP
+    and camera.json; a Metashape calibration with K4 is converted by a fit)."""
+
+    camera: Camera
+    path: str
+    format: str
+    conversion_max_residual_px: float
+
+    def to_dict(self) -> dict:
+        return {"file": self.path, "format": self.format, "conversion_max_residual_px": self.conversion_max_residual_px}
+
+    def describe(self) -> str:
+        """One line for a user: the file, its format and what the conversion lost."""
+        return describe_camera_file(self.to_dict())
+
+
+def describe_camera_file(info: dict) -> str:
+    """One line for a user from :meth:`CameraFile.to_dict`: the file, its format and what the conversion lost."""
+    res = info["conversion_max_residual_px"]
+    conv = "read exactly" if res == 0 else f"converted, max residual {res:.3g} px over the frame"
+    return f"camera {info['file']} ({info['format']}; {conv})"
+
+
+def open_camera_file(path) -> CameraFile:
+    """:func:`read_camera_file` with the file's format and the conversion's residual (:class:`CameraFile`)."""
+    path = Path(path)
+    fmt = camera_file_format(path)
+    res = 0.0
+    if fmt == "Metashape XML":
+        from .metashape import read_metashape_calibration
+
+        res = float(getattr(read_metashape_calibration(path), "max_residual_px", 0.0) or 0.0)
+    return CameraFile(read_camera_file(path), str(path), fmt, res)
 
 
 def read_camera_file(path) -> Camera:

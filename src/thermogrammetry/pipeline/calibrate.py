@@ -17,6 +17,7 @@ thermal imagery".
 from __future__ import annotations
 
 import contextlib
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import List
@@ -25,6 +26,7 @@ import numpy as np
 
 from .._validate import parse_size
 from ..errors import ConfigError
+from ..reporting import ReportHeader, command_line, folders_of, insert_header, python_call
 
 __all__ = ["CalibrateRun", "CalibrateUsageError", "run_calibrate", "read_image"]
 
@@ -258,6 +260,7 @@ def run_calibrate(images, target, corners, grid, spacing_mm, asymmetric, diamete
     bad input a :class:`~thermogrammetry.errors.ThermogrammetryError`, before anything is written. A failed
     adjustment is a result (``failed``), OUT unchanged.
     """
+    call, t0 = python_call(run_calibrate, locals()), time.perf_counter()  # (the report's command line and time)
     coded = coded or {}
     progress = progress or _no_progress
     from ..calibration.outputs import flush
@@ -416,6 +419,11 @@ def run_calibrate(images, target, corners, grid, spacing_mm, asymmetric, diamete
         return CalibrateRun(reports, failed=failed[0])
     from .._atomic import OutputSet
 
+    inputs = ([(n_images, "target images", folders_of(images))] if not csv_route else
+              [(n_images, "images measured", []), (None, "control points", [str(Path(control).resolve())]),
+               (None, "image measurements", [str(Path(measurements).resolve())])])
+    mem.write_text("report.html", insert_header(mem.read_text("report.html"), ReportHeader(
+        "calibrate", inputs=inputs, command=command_line() or call, seconds=time.perf_counter() - t0)))
     # the whole set or nothing: staged beside OUT, moved into place, calibrate-manifest.json written last
     with OutputSet(output, "calibrate") as stage:
         keys = flush(mem, FolderProject(stage.stage))

@@ -201,14 +201,16 @@ def run_correct(thermal_image, out, *, cameras=None, thermal: str | None = None,
     from ..products.correction import correct_oriented_image
     from .closerange import _unit_of, read_text
 
+    cam_file = None
     if cameras is not None:
         if not thermal:
             raise ConfigError("--cameras needs --thermal NAME (the image to correct)")
         cam, R, t = _orientation_from_cameras(cameras, thermal)
     elif camera is not None and pose is not None:
-        from ..camera import Camera
+        from ..io.camera_file import open_camera_file
 
-        cam = Camera.load(camera)
+        cam_file = open_camera_file(camera)  # camera.json, Metashape XML, OpenCV YAML/XML or COLMAP cameras.txt
+        cam = cam_file.camera
         R, t = _pose_from_json(_read_json(pose, "pose file"), str(pose))
     else:
         raise ConfigError("give the orientation: --cameras cameras.json --thermal NAME, or --camera camera.json --pose pose.json")
@@ -292,8 +294,14 @@ def run_correct(thermal_image, out, *, cameras=None, thermal: str | None = None,
         if sigma_angle_deg is not None:
             put("sigma_k.tif", encode_raster_tiff(cr.sigma_k, unit="K", quantity="sigma_temperature",
                                                   description="σ of the corrected temperature from the angle σ (K)"))
-        stage.commit({"thermal_image": str(thermal_image), "unit": unit, "pixels_corrected": n_ok})
-    return {"pixels_corrected": n_ok, "unit": unit}
+        summary = {"thermal_image": str(thermal_image), "unit": unit, "pixels_corrected": n_ok}
+        if cam_file is not None:
+            summary["camera_file"] = cam_file.to_dict()
+        stage.commit(summary)
+    out_summary = {"pixels_corrected": n_ok, "unit": unit}
+    if cam_file is not None:
+        out_summary["camera_file"] = cam_file.to_dict()
+    return out_summary
 
 
 def _read_dsm(dsm: Path):

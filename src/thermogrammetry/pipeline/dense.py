@@ -13,7 +13,8 @@ Outputs in ``out`` (one output set, :class:`~thermogrammetry._atomic.OutputSet`:
 all, a user's own files in OUT are kept): ``cloud.las``, ``cloud.ply``, ``dsm.tif`` (COG; band 1 height in m,
 nodata NaN, as measured; with ``fill=True`` a band 2 flags cells filled from their nearest neighbour),
 ``dsm_filled.tif`` (unless ``surface_fill=False``: the DSM's holes filled by
-:func:`~thermogrammetry.products.dsm.fill_surface`, band 2 = 1 where interpolated), ``dense.json``.
+:func:`~thermogrammetry.products.dsm.fill_surface`, band 2 = 1 where interpolated), ``dense.json``, ``report.html``
+(:mod:`thermogrammetry.pipeline.product_reports`).
 
 References
 ----------
@@ -85,6 +86,15 @@ def run_dense(survey_dir, out_dir, *, gsd: float | None = None, config: DenseCon
     (:func:`~thermogrammetry.io.limits.max_cells`) as far as the cameras' extent tells it; the DSM grid is checked
     again once the points give its extent.
     """
+    from ..reporting import driver_call
+
+    with driver_call(run_dense, locals()):  # the report's command line when called from Python
+        return _run_dense(survey_dir, out_dir, gsd, config, workers, scheduler, fill, tile, on_image, dji_sdk,
+                          surface_fill, max_hole_m, cloud_options, max_cells)
+
+
+def _run_dense(survey_dir, out_dir, gsd, config, workers, scheduler, fill, tile, on_image, dji_sdk, surface_fill,
+               max_hole_m, cloud_options, max_cells) -> dict:
     from .._atomic import check_output_apart
     from ..io.limits import check_cells
     from ..tasks import check_workers
@@ -257,4 +267,7 @@ def _write_dense(out: Path, sv: SurveyFrames, survey_dir, gsd, cfg: DenseConfig,
         "dji_sdk": sv.dji_sdk,
     }
     write_atomic_text(out / "dense.json", json.dumps(report, indent=1, default=float) + "\n")
+    from .product_reports import dense_report_html
+
+    write_atomic_text(out / "report.html", dense_report_html(out, report, sv, survey_dir))
     return report

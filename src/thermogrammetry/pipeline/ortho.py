@@ -3,7 +3,8 @@
 The algorithms (visibility, image choice, sampling, the 16-bit encoding, the gradient) are in
 :mod:`thermogrammetry.products.ortho` and take arrays; this module knows the files: it reads the survey
 folder (:class:`~thermogrammetry.pipeline.frames.SurveyFrames`) and the DSM GeoTIFF, runs one task per tile on
-the task runner (:mod:`thermogrammetry.tasks`), and writes the rasters and ``ortho.json`` as one output set
+the task runner (:mod:`thermogrammetry.tasks`), and writes the rasters, ``ortho.json`` and ``report.html``
+(:mod:`thermogrammetry.pipeline.product_reports`) as one output set
 (:class:`~thermogrammetry._atomic.OutputSet`: OUT appears complete or not at all; a user's own files in OUT
 are kept). The method is described in :mod:`thermogrammetry.products.ortho`.
 
@@ -254,6 +255,15 @@ def run_ortho(survey_dir, dsm_path, out_dir, *, gsd: float | None = None, unit: 
     ``sigma``: ``ortho_sigma.tif`` with the σ model of :mod:`thermogrammetry.products.ortho_sigma` (True, or a
     :class:`~thermogrammetry.products.ortho_sigma.SigmaConfig`); False: not written.
     """
+    from ..reporting import driver_call
+
+    with driver_call(run_ortho, locals()):  # the report's command line when called from Python
+        return _run_ortho(survey_dir, dsm_path, out_dir, gsd, unit, sampling, correct, correction, workers, scheduler,
+                          tile, config, on_tile, dji_sdk, fill, max_hole_m, max_cells, sigma)
+
+
+def _run_ortho(survey_dir, dsm_path, out_dir, gsd, unit, sampling, correct, correction, workers, scheduler, tile,
+               config, on_tile, dji_sdk, fill, max_hole_m, max_cells, sigma) -> dict:
     from ..errors import ConfigError, DataFileError
     from ..io.limits import check_cells
     from ..products.correction import as_correction_config
@@ -521,4 +531,7 @@ def _write_ortho(out: Path, sv, grid, meta, cfg, margin_m, corr, unit_out, label
         "notes": notes,
     }
     write_atomic_text(out / "ortho.json", json.dumps(report, indent=1) + "\n")
+    from .product_reports import ortho_report_html
+
+    write_atomic_text(out / "report.html", ortho_report_html(out, report, sv, survey_dir, dsm_path))
     return report

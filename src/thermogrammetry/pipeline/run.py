@@ -33,6 +33,7 @@ from typing import Callable, Sequence
 from .. import __version__
 from .._atomic import check_output_folder, write_atomic_text
 from ..errors import ConfigError, ThermogrammetryError
+from ..reporting import driver_call
 from .runlog import RunLog, digest, file_digest, options_digest, stat_digest
 
 __all__ = ["STEPS", "PRODUCTS", "parse_products", "check_rerun_from", "run_project", "ProjectRun", "StepResult"]
@@ -257,9 +258,11 @@ def run_project(project, inp, opt, *, products: Sequence[str] = tuple(PRODUCTS),
     rerun_from = check_rerun_from(rerun_from, products)
     project.mkdir(parents=True, exist_ok=True)
     own_log = log is None
+    call = driver_call(run_project, locals())  # the reports' command line when called from Python
     log = log or RunLog(project / "run.log")
     try:
-        return _run(project, inp, opt, products, rerun_from, log, progress)
+        with call:
+            return _run(project, inp, opt, products, rerun_from, log, progress)
     finally:
         if own_log:
             log.close()
@@ -339,10 +342,10 @@ def _run(project: Path, inp, opt, products, rerun_from, log: RunLog, progress) -
             results.append(res)
             break
     if not out.bad_input and (any(r.status != "skipped" for r in results) or not (project / "report.html").is_file()):
-        from .run_report import write_run_report
+        from .run_report import run_header, write_run_report
 
         _write_if_changed(record_path, _record_text(recs, products))
-        write_run_report(project, results, recs, products)
+        write_run_report(project, results, recs, products, run_header(project, results, recs, inp.images))
     return out
 
 

@@ -4,13 +4,14 @@ figures) with links to the step's own report and outputs."""
 from __future__ import annotations
 
 import html
-import time
 from pathlib import Path
 
-from .. import __version__
-from .._atomic import write_atomic_text
+import json
 
-__all__ = ["write_run_report"]
+from .._atomic import write_atomic_text
+from ..reporting import ReportHeader, folders_of, header_html
+
+__all__ = ["write_run_report", "run_header"]
 
 #: per step: (label, relative path) of the outputs linked when present
 LINKS = {
@@ -40,11 +41,36 @@ def _figures(name: str, s: dict) -> list[str]:
         return [f"points: {s['points']}", f"DSM: {s['dsm_cells'][0]} × {s['dsm_cells'][1]} cells at {s['gsd_m']} m",
                 f"DSM completeness: {100 * s['completeness']:.1f} %", f"values: {s['unit']}"]
     return [f"ortho: {s['size'][0]} × {s['size'][1]} cells at {s['gsd_m']} m in {s['unit']}",
+            *([f"the frames' footprint covered: {100 * s['footprint_coverage']:.1f} %"]
+              if s.get("footprint_coverage") is not None else []),
             f"ortho coverage of its box: {100 * s['coverage']:.1f} %", f"images used: {s['images_used']}"]
 
 
-def write_run_report(project: Path, results: list, recs: dict, products) -> Path:
-    """Write ``project/report.html`` from the step results of this run and the records of run.json."""
+def run_header(project: Path, results: list, recs: dict, images=()) -> ReportHeader:
+    """The header of the project's index page: the images given (``images``: the files or folders), the CRS and the
+    flying height of the survey, the ortho's cell and area, the time of this run's steps."""
+    summ = {k: (r.get("summary") or {}) for k, r in recs.items()}
+    for r in results:
+        if r.summary:
+            summ[r.name] = r.summary
+    sv, ortho = summ.get("survey", {}), summ.get("ortho", {})
+    try:
+        geo = json.loads((project / "survey" / "survey.json").read_text(encoding="utf-8")).get("footprints") or {}
+    except (OSError, ValueError):
+        geo = {}
+    cells = ortho.get("cells")
+    return ReportHeader(
+        "run", inputs=[(sv.get("images_total"), "images", folders_of(images))] if images else [],
+        crs=sv.get("crs"), georeferenced=bool(sv.get("crs")) if "crs" in sv else None, gsd_m=ortho.get("gsd_m"),
+        gsd_note="orthophoto cell", flying_height_m=geo.get("flying_height_m"),
+        flying_height_note="median camera height above the sparse cloud's median height",
+        area_m2=cells * ortho["gsd_m"] ** 2 if cells and ortho.get("gsd_m") else None,
+        area_note="orthophoto cells with a value", seconds=sum(r.seconds for r in results if r.status != "skipped"))
+
+
+def write_run_report(project: Path, results: list, recs: dict, products, header: ReportHeader | None = None) -> Path:
+    """Write ``project/report.html`` from the step results of this run and the records of run.json (``header``:
+    :func:`run_header`'s, None: one without the inputs)."""
     rows = []
     for r in results:
         rec = recs.get(r.name, {})
@@ -59,7 +85,6 @@ def write_run_report(project: Path, results: list, recs: dict, products) -> Path
         rows.append(f"<tr><td><b>{r.name}</b></td><td class='{r.status}'>{status}</td><td>{secs:.1f} s"
                     f"{'<br><small>finished ' + html.escape(when) + '</small>' if when else ''}</td>"
                     f"<td><ul>{figs}</ul></td><td>{links}</td></tr>")
-    stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     text = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>thermogrammetry run: {html.escape(project.name)}</title>
 <style>
@@ -70,8 +95,8 @@ td ul {{ margin: 0; padding-left: 1.2em; }}
 .ran {{ color: #060; }} .skipped {{ color: #555; }} .failed, .err {{ color: #b00; font-weight: bold; }}
 </style></head><body>
 <h1>Project {html.escape(project.name)}</h1>
-<p>thermogrammetry {html.escape(__version__)} · products {html.escape(', '.join(products))} · this page written {stamp}.
-A step is skipped when its inputs, options and upstream step are unchanged (hashes in <a href="run.json">run.json</a>);
+{header_html(header or run_header(project, results, recs))}
+<p>Products {html.escape(', '.join(products))}. A step is skipped when its inputs, options and upstream step are unchanged (hashes in <a href="run.json">run.json</a>);
 progress and the libraries' messages are in <a href="run.log">run.log</a>.</p>
 <table><tr><th>step</th><th>status (this run)</th><th>time</th><th>key figures</th><th>outputs</th></tr>
 {chr(10).join(rows)}

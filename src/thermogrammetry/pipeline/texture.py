@@ -53,11 +53,13 @@ import json
 import os
 import posixpath
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ConfigError, DataFileError, InvalidInputError, ThermogrammetryError, UnsupportedFormatError
+from ..reporting import ReportHeader, command_line, figure_png, header_html, python_call
 
 __all__ = ["DEFAULT_MAX_FACES", "read_mesh", "frames_unit", "load_views", "check_views_unit", "load_rig_views", "run_texture", "texture_report_html"]
 
@@ -233,18 +235,6 @@ def load_rig_views(cameras, rig: dict, *, source: str = "rig.json"):
     return views, skipped, unit
 
 
-def _fig_png(fig) -> str:
-    import base64
-    import io
-
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return f'<img src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
-
-
 def _default_viewpoint(result, views):
     """A virtual camera behind the best-covering image, pulled back 30 % to show context."""
     V = result.vertices
@@ -258,9 +248,10 @@ def _default_viewpoint(result, views):
 
 
 def texture_report_html(result, views, skipped, unit: str, pose_fit: dict | None = None,
-                        photometric_fit: dict | None = None) -> str:
+                        photometric_fit: dict | None = None, header=None) -> str:
     """The report page. ``unit``: unit of the written texture (``K``, ``C`` or ``counts``); the result holds kelvin
-    for temperature frames (shown in °C) and the frames' raw counts for count frames (shown as "raw counts")."""
+    for temperature frames (shown in °C) and the frames' raw counts for count frames (shown as "raw counts").
+    ``header``: the :class:`~thermogrammetry.reporting.ReportHeader` shown under the title (None: none)."""
     import html
 
     import matplotlib
@@ -289,13 +280,13 @@ def texture_report_html(result, views, skipped, unit: str, pose_fit: dict | None
         ax.set_axis_off()
         ax.set_title("textured mesh (untextured and background: white)")
         fig.colorbar(im, ax=ax, label="raw counts (not a temperature)" if counts else "temperature (°C)")
-        figs.append(_fig_png(fig))
+        figs.append(figure_png(fig, dpi=100))
     fig, ax = plt.subplots(figsize=(6, 3))
     h = s["views_per_face_histogram"]
     ax.bar(range(len(h)), h)
     ax.set_xlabel("images with a positive score")
     ax.set_ylabel("faces")
-    figs.append(_fig_png(fig))
+    figs.append(figure_png(fig, dpi=100))
     cnt = np.bincount(result.source[result.source >= 0], minlength=len(views))
     rows = "".join(f"<tr><td>{i}</td><td>{html.escape(v.name)}</td><td>{int(cnt[i])}</td><td>{int(result.occluded_texels[i])}</td>"
                    f"<td>{result.offsets_k[i]:+.3f}</td></tr>" for i, v in enumerate(views))
@@ -337,7 +328,7 @@ def texture_report_html(result, views, skipped, unit: str, pose_fit: dict | None
         fit_note += f"<p>No photometric pose refinement: {html.escape(str(ph['reason']))}.</p>"
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>thermogrammetry texture</title>
 <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}</style></head><body>
-<h1>Thermal texture</h1>
+<h1>Thermal texture</h1>{header_html(header) if header is not None else ''}
 <h2>Coverage</h2>
 <table><tr><th>faces</th><td>{s['faces_total']}</td></tr><tr><th>faces scored by an image</th><td>{s['faces_seen']}</td></tr>
 <tr><th>faces visible (a texel inside an image, within the angle limit, not occluded)</th><td>{vis}</td></tr>
@@ -571,8 +562,30 @@ def _link_frame(cameras, im: dict, store) -> str:
 STAGE_PHOTOMETRIC_FIT = "photometric pose fit (views)"
 
 
+def with_camera_file(cameras, camera_file):
+    """``cameras`` (OrientedCameras) with the thermal camera(s) of the same image size replaced by the camera of
+    ``camera_file`` (:class:`~thermogrammetry.io.camera_file.CameraFile`: a lab calibration held for the texturing);
+    returns ``(cameras, record)`` with ``record = {**camera_file.to_dict(), "replaces": [camera ids]}``. A camera of
+    another image size than every thermal camera is refused (:class:`ConfigError` naming both sizes)."""
+    from dataclasses import replace
+
+    size = tuple(camera_file.camera.image_size)
+    ids = sorted({im.camera_id for im in cameras.images if str(getattr(im.sensor, "value", im.sensor)) == "thermal"})
+    hit = [cid for cid in ids if tuple(cameras.cameras[cid].image_size) == size]
+    if not hit:
+        sizes = sorted({tuple(cameras.cameras[cid].image_size) for cid in ids})
+        raise ConfigError(f"--camera {camera_file.path}: image size {size[0]}x{size[1]}; the survey's thermal cameras "
+                          f"are {', '.join(f'{w}x{h}' for w, h in sizes) or 'none'}; expected the calibration of the "
+                          "thermal camera at its frames' size")
+    new = dict(cameras.cameras)
+    for cid in hit:
+        new[cid] = camera_file.camera
+    return replace(cameras, cameras=new), {**camera_file.to_dict(), "replaces": hit}
+
+
 def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, correct: bool = False, levelling: str = "none",
-                rig_path=None, config=None, progress=None, fit_poses: str = "auto", max_faces: int | None = None) -> dict:
+                rig_path=None, config=None, progress=None, fit_poses: str = "auto", max_faces: int | None = None,
+                camera=None) -> dict:
     """The ``texture`` verb as a function; returns the ``texture.json`` content as a dict.
 
     ``unit``: ``"K"`` or ``"C"`` for kelvin frames (default ``"K"``); must stay ``None`` for frames in raw counts
@@ -582,7 +595,9 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     bending the block; ``texture.json`` ``pose_fit`` says what happened, ``cameras_fitted.json`` holds the poses
     used), then refines them photometrically (:func:`photometric_fit_views`, ``texture.json`` ``photometric_fit``);
     ``"mesh"``: the first step only; ``"off"``: the survey's poses as they are. ``max_faces``: the mesh's triangle cap
-    (default :data:`DEFAULT_MAX_FACES`). ``progress``: optional callable ``progress(stage, done, total)`` called as the
+    (default :data:`DEFAULT_MAX_FACES`). ``camera``: a camera file (camera.json, Metashape XML, OpenCV YAML/XML, COLMAP
+    cameras.txt) whose calibration replaces the survey's thermal camera of the same size (:func:`with_camera_file`;
+    ``texture.json`` ``camera_file``). ``progress``: optional callable ``progress(stage, done, total)`` called as the
     work goes: :data:`STAGE_PHOTOMETRIC_FIT` after each view of the photometric pose fit, then the stages of
     :func:`thermogrammetry.products.texture.texture_mesh` (per view, per chunk of texels and of face corners).
     """
@@ -597,8 +612,14 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
     from .._atomic import OutputSet, check_output_apart, sync_folder
     from ..store import FolderProject
 
+    call, t0 = python_call(run_texture, locals()), time.perf_counter()  # (the report's command line and time)
     check_output_apart(out_dir, [("survey folder", survey_dir)])
     cameras = OrientedCameras.load(survey_dir)
+    camera_record = None
+    if camera is not None:
+        from ..io.camera_file import open_camera_file
+
+        cameras, camera_record = with_camera_file(cameras, open_camera_file(camera))
     if max_faces is not None and (isinstance(max_faces, bool) or int(max_faces) != max_faces or max_faces < 1):
         raise ConfigError(f"max_faces={max_faces!r}: expected a positive number of triangles")
     V, F = read_mesh(mesh_path, max_faces=DEFAULT_MAX_FACES if max_faces is None else int(max_faces))
@@ -707,13 +728,17 @@ def run_texture(survey_dir, mesh_path, out_dir, *, unit: str | None = None, corr
                  "uint16_mapping": u16_info,
                  "rig": None if rig_path is None else str(rig_path),
                  "clean_radius_px": {"value": int(cfg.clean_radius_px), "reason": clean_note or "default"},
-                 "pose_fit": pose_fit, "photometric_fit": photo_fit}
+                 "pose_fit": pose_fit, "photometric_fit": photo_fit, "camera_file": camera_record}
         if winding_note:
             extra["mesh_winding"] = {"reversed": True, "reason": winding_note}
         extra["preview_palette"] = palette
         text = tx.texture_json(result, unit_out, mesh_source=str(mesh_path), survey_source=str(survey_dir), extra=extra)
         store.write_text("texture.json", text)
-        store.write_text("report.html", texture_report_html(result, views, skipped, unit_out, pose_fit, photo_fit))
+        header = ReportHeader("texture", inputs=[(len(views), "images of the survey", [str(Path(survey_dir).resolve())]),
+                                                 (None, "mesh", [str(Path(mesh_path).resolve())])],
+                              crs=cameras.crs, georeferenced=cameras.crs is not None, command=command_line() or call,
+                              seconds=time.perf_counter() - t0)
+        store.write_text("report.html", texture_report_html(result, views, skipped, unit_out, pose_fit, photo_fit, header))
         sync_folder(outputs.stage)
         outputs.commit()
 

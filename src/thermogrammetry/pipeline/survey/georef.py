@@ -263,6 +263,7 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
     extra = _survey_extra(project, inp, rec, names, oriented, meta, lt_verdict, notes, t_ids, tie_out,
                           rig=(rig_used, rig_reg, rig_master, rig_unpaired, rig_out, rig_only) if inp.rig is not None else None)
     extra["camera_start"] = _camera_start(inputs, rec, meta, camera)
+    extra["camera_file"] = inp.camera_file  # --camera's file, format and conversion residual (or None)
     from ...sfm.georef_checks import gcp_measurement_report
 
     extra.update(gcp_measurement_report(rec, fa_all, ctrl, names))

@@ -215,3 +215,4 @@ class SurveyInput:
     checkpoints: str | None = None
     check_measurements: str | None = None
     rig: Any = None  # thermogrammetry.sfm.rig.RigFile (rig mode) or None
+    camera_file: dict | None = None  # where ``camera`` came from: io.camera_file.CameraFile.to_dict()

@@ -41,6 +41,27 @@ def _point_values(project, inputs, rec, names, images_used, obs_mask):
         return vals / cnt, unit
 
 
+def _centre_covariances(fa_all) -> dict:
+    """{image index: (3, 3) a-posteriori covariance of its projection centre (m²)} from the final adjustments'
+    covariance (rows ``<pose>.X0/Y0/Z0``); images of a block without one, and rig views, are absent."""
+    out = {}
+    for ci, images, fa, datum, geo in fa_all:
+        cov, names = fa.covariance, fa.param_names
+        if cov is None or not names:
+            continue
+        p = fa.result.problem
+        col = {n: k for k, n in enumerate(names)}
+        for i, v in fa.view_of_image.items():
+            if p.view_rig[v] >= 0:
+                continue
+            k = [col.get(f"{p.pose_names[p.view_pose[v]]}.{a}") for a in ("X0", "Y0", "Z0")]
+            if None not in k:
+                C = np.asarray(cov[np.ix_(k, k)], float)
+                if np.isfinite(C).all():
+                    out[int(i)] = C
+    return out
+
+
 def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_errors, gcp_rejected, notes, results, extra=None,
                    rig_only=None):
     from ...io.oriented import OrientedCameras, OrientedImage
@@ -83,6 +104,7 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
     V = np.concatenate(rms_all) if rms_all else np.zeros((0, 2))
     rms = float(np.sqrt(np.mean(np.sum(V**2, axis=1)))) if len(V) else None
     n_total = len(names) + len(inputs["failed"])
+    centre_cov = _centre_covariances(fa_all)
     status = []
     for i, n in enumerate(names):
         s = rec.status[i]
@@ -93,7 +115,8 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
                        "tie_points": int(len(v)) if v is not None else 0,
                        "rms_px": float(np.sqrt(np.mean(np.sum(v**2, 1)))) if v is not None and len(v) else None,
                        "unit": inputs["images"][i]["unit"], "sensor": inputs["images"][i]["sensor"],
-                       **({"rig_only": True} if ok and i in (rig_only or {}) else {})})
+                       **({"rig_only": True} if ok and i in (rig_only or {}) else {}),
+                       **({"center_cov_m2": centre_cov[i].tolist()} if ok and i in centre_cov else {})})
     # GNSS misfit per image: adjusted antenna position − given GNSS position (a surveyor's check of every centre)
     gnss_d, flagged = [], []
     for ci, images, fa, datum, geo in fa_all:
@@ -172,10 +195,13 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
         "cameras": {cid: {"params": c.param_dict, "std": dict(zip(c.param_names, [None if not np.isfinite(x) else float(x)
                                                                                    for x in (c.param_std if c.param_std is not None else [np.nan] * len(c.param_names))]))}
                     for cid, c in cams.items()},
-        "gcp_residuals": [{"id": ctrl.gcp_ids[g], "dx": float(e[0]), "dy": float(e[1]), "dz": float(e[2])}
+        "gcp_residuals": [{"id": ctrl.gcp_ids[g], "dx": float(e[0]), "dy": float(e[1]), "dz": float(e[2]),
+                           "x": float(ctrl.gcp_xyz[g][0]), "y": float(ctrl.gcp_xyz[g][1]), "z": float(ctrl.gcp_xyz[g][2]),
+                           "sigma_given": [float(v) for v in ctrl.gcp_sigma[g]]}
                           for g, e in zip([g for *_, fa, datum, geo in fa_all for g in np.nonzero(fa.gcp_used)[0]], gcp_errors)],
         "gcp_rejected_measurements": gcp_rejected,
         "checkpoint_errors": [{"id": c["id"], "n_images": c["n_images"], "reason": c.get("reason", ""),
+                               **_given_xyz(ctrl, c["id"]),
                                **({"dx": float(c["error"][0]), "dy": float(c["error"][1]), "dz": float(c["error"][2]),
                                    **({"sx": float(c["std"][0]), "sy": float(c["std"][1]), "sz": float(c["std"][2])}
                                       if c.get("std") is not None else {"sx": None, "sy": None, "sz": None,
@@ -195,6 +221,14 @@ def _write_outputs(project, inputs, rec, fa_all, names, crs, ctrl, checks, gcp_e
         project.write_bytes("cameras.gpkg", cameras_gpkg_bytes(oc, float(np.median(zs)) if len(zs) else None))
     SurveyStore(project).save_survey(summary)
     return {"images_oriented": summary["images_oriented"], "components": summary["components"], "rms_px": rms, "crs": crs}
+
+
+def _given_xyz(ctrl, cid) -> dict:
+    """``x``, ``y``, ``z``: the given coordinates of check point ``cid`` (its map position in the report)."""
+    if cid not in ctrl.check_ids:
+        return {}
+    X = ctrl.check_xyz[ctrl.check_ids.index(cid)]
+    return {"x": float(X[0]), "y": float(X[1]), "z": float(X[2])}
 
 
 def _write_colmap(project, oc, rec, names, oriented_idx, obs_mask, pts_ok, values):

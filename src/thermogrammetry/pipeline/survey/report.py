@@ -1,21 +1,17 @@
-"""thermogrammetry.pipeline.survey.report"""
+"""``report.html`` of ``survey``: the header (:mod:`thermogrammetry.reporting`), the blocks, cameras and
+accuracy tables, the per-point table of the GCPs and check points, and the maps of
+:mod:`.report_figures` (sparse cloud, overlap, camera-centre error ellipses, residuals at the points)."""
 
 from __future__ import annotations
 
-import base64
 import html
 import io
 
 import numpy as np
 
+from ...reporting import ReportHeader, figure_png, html_page, log_counts_axis, map_origin
 
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return f'<img src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
+_png = figure_png  # (the name older callers import)
 
 
 def _f(v, fmt="{:.4f}"):
@@ -56,17 +52,13 @@ def _gcp_measurement_tables(s) -> list:
 
 
 def write_survey_report(project) -> None:
+    """``report.html`` from the store's ``survey.json``, ``cameras.json`` and ``sparse.ply``."""
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     s = project.read_json("survey.json")
-    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>thermogrammetry survey</title><style>"
-             "body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}table{border-collapse:collapse;margin:.5em 0}"
-             "td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}th{background:#eee}td.l{text-align:left}"
-             ".bad{color:#a00}</style></head><body>"]
-    parts.append("<h1>Survey report</h1>")
+    geo = s.get("footprints") or survey_geometry(project)
+    parts = []
     parts.append(f"<p><b>{s['images_oriented']} of {s['images_total']} images oriented</b> in {len(s['components'])} block(s) "
                  f"{s['components']}; reprojection RMS {_f(s['reprojection_rms_px'], '{:.3f}')} px; "
                  f"{s.get('points', 0)} tie points; CRS {html.escape(str(s['crs'] or 'local frame (not georeferenced)'))}; "
@@ -144,11 +136,7 @@ def write_survey_report(project) -> None:
     parts.append("<h2>Accuracy</h2>")
     parts.append(_axis_table("GCP residuals (adjusted − given)", s["gcps"]))
     parts.append(_axis_table("Check points (intersected − given; never in the adjustment)", s["checkpoints"]))
-    if s.get("checkpoint_errors"):
-        parts.append("<table><tr><th>check point</th><th>images</th><th>dX</th><th>dY</th><th>dZ</th><th>σX</th><th>σY</th><th>σZ</th></tr>" + "".join(
-            f"<tr><td class=l>{html.escape(c['id'])}</td><td>{c['n_images']}</td>" + (
-                "".join(f"<td>{_f(c[k])}</td>" for k in ("dx", "dy", "dz", "sx", "sy", "sz")) if "dx" in c
-                else f"<td class=l colspan=6>{html.escape(c.get('reason', ''))}</td>") + "</tr>" for c in s["checkpoint_errors"]) + "</table>")
+    parts += _point_table(s)
     if s.get("gnss", {}).get("n"):
         parts.append(_axis_table("Camera centres against GNSS (adjusted antenna − given)", s["gnss"]))
         if s.get("gnss_flagged"):
@@ -166,74 +154,13 @@ def write_survey_report(project) -> None:
                          + ", ".join(f"{html.escape(f['image'])} ({f['from_common_deg']:.1f}° beyond the block's common difference)"
                                    for f in a["flagged"]) + "</p>")
     parts += _gcp_measurement_tables(s)
-    # figures
-    try:
-        cams = project.read_json("cameras.json")
-        C = np.array([im["center"] for im in cams["images"]])
-        fig, ax = plt.subplots(figsize=(7, 6))
-        if project.exists("sparse.ply"):
-            from plyfile import PlyData
-
-            v = PlyData.read(io.BytesIO(project.read_bytes("sparse.ply")))["vertex"]
-            P = np.column_stack([v["x"], v["y"], v["z"]])
-            if len(P) > 20000:
-                P = P[np.random.default_rng(0).choice(len(P), 20000, replace=False)]
-            sc = ax.scatter(P[:, 0], P[:, 1], c=P[:, 2], s=1, cmap="terrain")
-            fig.colorbar(sc, ax=ax, label="height of tie points (m)")
-        ax.plot(C[:, 0], C[:, 1], "r^", ms=5, label="camera centres")
-        for k, im in enumerate(cams["images"]):
-            if len(C) <= 60:
-                ax.annotate(im["name"][-6:], C[k, :2], fontsize=6)
-        ax.set_aspect("equal")
-        ax.set_xlabel("X (m)")
-        ax.set_ylabel("Y (m)")
-        ax.legend(loc="upper right")
-        ax.set_title("Camera positions over the sparse cloud")
-        parts.append("<h2>Figures</h2>" + _png(fig))
-    except Exception as exc:  # noqa: BLE001 - a figure that cannot be drawn must not lose the report
-        parts.append(f"<p>camera figure not drawn: {html.escape(str(exc))}</p>")
-    ims = [im for im in s["images"] if im["oriented"]]
-    if ims:
-        fig, ax = plt.subplots(figsize=(max(6, 0.18 * len(ims)), 3))
-        ax.bar(range(len(ims)), [im["rms_px"] or 0 for im in ims], color="#47a")
-        ax.set_xticks(range(len(ims)))
-        ax.set_xticklabels([im["name"][-8:] for im in ims], rotation=90, fontsize=6)
-        ax.set_ylabel("reprojection RMS (px)")
-        ax.set_title("Tie-point residuals per image")
-        parts.append(_png(fig))
-    hist = s.get("tie_point_multiplicity", {}).get("histogram", [])
-    if hist:
-        fig, ax = plt.subplots(figsize=(5, 2.6))
-        ax.bar(range(len(hist)), hist, color="#777")
-        ax.set_xlabel("images per tie point")
-        ax.set_ylabel("points")
-        ax.set_yscale("log")
-        parts.append(_png(fig))
-    ce = [c for c in s.get("checkpoint_errors", []) if "dx" in c]
-    if ce:
-        try:
-            fig, ax = plt.subplots(figsize=(5, 5))
-            import csv as _csv  # noqa: F401
-
-            xs = np.arange(len(ce))
-            ax.quiver(xs, np.zeros(len(ce)), [c["dx"] for c in ce], [c["dy"] for c in ce], angles="xy", scale_units="xy",
-                      scale=max(1e-9, max(np.hypot(c["dx"], c["dy"]) for c in ce)) / 0.8, color="#c33")
-            for k, c in enumerate(ce):
-                ax.annotate(f"{c['id']}\ndZ {c['dz'] * 100:.1f} cm", (k, -0.3), fontsize=7, ha="center")
-            ax.set_xlim(-1, len(ce))
-            ax.set_ylim(-1, 1)
-            ax.set_yticks([])
-            ax.set_title("Check-point planimetric error vectors (arrow length ∝ |dXY|)")
-            parts.append(_png(fig))
-        except Exception:  # noqa: BLE001
-            pass
+    parts += _figures(project, s, geo)
     if s.get("steps"):
         parts.append("<h2>Time per step</h2><table><tr><th>step</th><th>s</th><th>status</th></tr>" + "".join(
             f"<tr><td class=l>{st['name']}</td><td>{st['seconds']:.1f}</td><td class=l>{st['status']}</td></tr>" for st in s["steps"]) + "</table>")
     if s.get("notes"):
         parts.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in s["notes"]) + "</ul>")
-    parts.append("</body></html>")
-    project.write_text("report.html", "".join(parts))
+    project.write_text("report.html", html_page("thermogrammetry survey", "Survey report", survey_header(s, geo), parts))
 
 
 def _mapper_auto_text(a: dict) -> str:
@@ -242,3 +169,152 @@ def _mapper_auto_text(a: dict) -> str:
                        f"/{a.get('images')} images, {a.get('incremental_oriented')} in all; the global one's "
                        f"{a.get('global_largest_block')}/{a.get('images')}, {a.get('global_oriented')} in all: "
                        f"{a.get('kept')} kept)")
+
+
+def _sparse_points(project) -> np.ndarray:
+    """(n, 3) points of ``sparse.ply`` ((0, 3) when there is none)."""
+    if not project.exists("sparse.ply"):
+        return np.zeros((0, 3))
+    from plyfile import PlyData
+
+    v = PlyData.read(io.BytesIO(project.read_bytes("sparse.ply")))["vertex"]
+    return np.column_stack([v["x"], v["y"], v["z"]]).astype(float)
+
+
+def survey_geometry(project) -> dict:
+    """``survey.json``'s ``footprints`` (:func:`.report_figures.block_geometry`) from ``cameras.json`` and the sparse
+    cloud's median height; {} without them."""
+    from .report_figures import block_geometry
+
+    if not project.exists("cameras.json"):
+        return {}
+    try:
+        P = _sparse_points(project)
+        return block_geometry(project.read_json("cameras.json"), float(np.median(P[:, 2])) if len(P) else None)
+    except Exception as exc:  # noqa: BLE001 - the report's figures must not fail the survey
+        return {"not_computed": f"{type(exc).__name__}: {exc}"}
+
+
+def survey_header(s: dict, geo: dict) -> ReportHeader:
+    """The header of the survey report from ``survey.json`` (``s``) and its ``footprints`` (``geo``)."""
+    ins = s.get("inputs", {})
+    n_rgb = sum(1 for im in s.get("images", []) if im.get("sensor") == "rgb")
+    inputs = [(s["images_total"] - n_rgb, "thermal images", ins.get("image_folders", []))]
+    if n_rgb or ins.get("rgb_folders"):
+        inputs.append((n_rgb, "RGB images", ins.get("rgb_folders", [])))
+    for key, what in (("gcps", "GCPs"), ("gcp_measurements", "GCP image measurements"), ("checkpoints", "check points"),
+                      ("check_measurements", "check-point image measurements"), ("rig", "rig file")):
+        if ins.get(key):
+            inputs.append((None, what, [ins[key]]))
+    return ReportHeader(
+        "survey", inputs=inputs, crs=s.get("crs"), georeferenced=bool(s.get("crs")), gsd_m=geo.get("gsd_m"),
+        gsd_note="of the images at nadir: flying height / focal length", flying_height_m=geo.get("flying_height_m"),
+        flying_height_note="median camera height above the sparse cloud's median height",
+        area_m2=geo.get("area_m2"), area_note="union of the image footprints on that height, as in the overlap map",
+        seconds=s.get("seconds"))
+
+
+def _point_table(s: dict) -> list[str]:
+    """One row per GCP and check point: residual dX, dY, dZ and σ (GCPs: the σ given; check points: the σ of their
+    intersection)."""
+    rows = []
+    for g in s.get("gcp_residuals", []):
+        sg = g.get("sigma_given") or [None] * 3
+        rows.append(f"<tr><td class=l>{html.escape(str(g['id']))}</td><td class=l>GCP</td><td></td>"
+                    + "".join(f"<td>{_f(g[k])}</td>" for k in ("dx", "dy", "dz"))
+                    + "".join(f"<td>{_f(v)}</td>" for v in sg) + "<td class=l>σ given</td></tr>")
+    for c in s.get("checkpoint_errors", []):
+        if "dx" in c:
+            cells = "".join(f"<td>{_f(c[k])}</td>" for k in ("dx", "dy", "dz", "sx", "sy", "sz"))
+            note = "σ of the intersection" if c.get("sx") is not None else html.escape(c.get("sigma_refused", "") or "no σ")
+        else:
+            cells, note = "<td colspan=6></td>", html.escape(c.get("reason", ""))
+        rows.append(f"<tr><td class=l>{html.escape(str(c['id']))}</td><td class=l>check point</td><td>{c['n_images']}</td>"
+                    f"{cells}<td class=l>{note}</td></tr>")
+    if not rows:
+        return []
+    return ["<h3>Per point (residual = adjusted or intersected − given, m)</h3><table><tr><th>point</th><th>kind</th>"
+            "<th>images</th><th>dX</th><th>dY</th><th>dZ</th><th>σX</th><th>σY</th><th>σZ</th><th>σ</th></tr>"
+            + "".join(rows) + "</table>"]
+
+
+def _figure(draw, *args):
+    """``draw(*args)``, or a line saying why the figure was not drawn (a figure must not lose the report)."""
+    try:
+        return draw(*args)
+    except Exception as exc:  # noqa: BLE001
+        import matplotlib.pyplot as plt
+
+        plt.close("all")
+        return f"<p class=bad>figure not drawn: {html.escape(type(exc).__name__)}: {html.escape(str(exc))}</p>"
+
+
+def _figures(project, s: dict, geo: dict) -> list[str]:
+    from . import report_figures as rf
+
+    out = ["<h2>Figures</h2>"]
+    cams = project.read_json("cameras.json") if project.exists("cameras.json") else None
+    if cams and cams.get("images"):
+        C = np.array([im["center"] for im in cams["images"]], float)
+        P = _sparse_points(project)
+        if len(P) > 20000:
+            P = P[np.random.default_rng(0).choice(len(P), 20000, replace=False)]
+        origin = map_origin(C[:, 0], C[:, 1])  # one origin for every map of the report
+        out.append(_figure(rf.sparse_figure, P, C, [im["name"] for im in cams["images"]], origin))
+        if geo.get("ground_z_m") is not None:
+            def overlap():
+                counts, ext, cell = rf.overlap_counts([q for _, q in rf.footprints(cams, geo["ground_z_m"])])
+                return (rf.overlap_figure(counts, ext, C, geo["ground_z_m"], origin)
+                        + f"<p class=caption>Images covering each {cell:.2g} m ground cell: the footprints of "
+                          f"cameras.gpkg ({geo.get('images_with_footprint')} images), i.e. the image corners on the plane "
+                          f"at the sparse cloud's median height; median {_f(geo.get('images_per_cell_median'), '{:g}')}, "
+                          f"at most {geo.get('images_per_cell_max')} images per covered cell.</p>")
+            out.append(_figure(overlap))
+        cov = _centre_cov(s, cams)
+        if np.isfinite(cov).all(axis=(1, 2)).any():
+            def ellipses():
+                img, mag = rf.ellipse_figure(C, cov, origin)
+                sd = 100 * np.sqrt(np.nanmedian(np.diagonal(cov, axis1=1, axis2=2), axis=0))
+                return img + (f"<p class=caption>1 σ error ellipses of the camera centres (from the covariance of the "
+                              f"final adjustment), drawn magnified ×{mag:g}; the dots' colour is σZ. Median σX, σY, σZ "
+                              f"{sd[0]:.1f}, {sd[1]:.1f}, {sd[2]:.1f} cm.</p>")
+            out.append(_figure(ellipses))
+        pts = rf.control_points(s)
+        if pts:
+            def control():
+                img, mag = rf.control_figure(pts, C, origin)
+                return img + (f"<p class=caption>Planimetric residuals dX, dY drawn at each point's given position, "
+                              f"magnified ×{mag:g} (key arrow above the map); dZ written beside each point.</p>")
+            out.append(_figure(control))
+    ims = [im for im in s["images"] if im["oriented"]]
+    if ims:
+        out.append(_figure(rf.residual_bars, ims))
+    hist = s.get("tie_point_multiplicity", {}).get("histogram", [])
+    if hist:
+        def multiplicity():
+            import matplotlib.pyplot as plt
+
+            fig, ax = plt.subplots(figsize=(5, 2.6))
+            ax.bar(range(len(hist)), hist, color="#777")
+            ax.set_xlabel("images per tie point")
+            ax.set_ylabel("points")
+            ax.set_yscale("log")
+            log_counts_axis(ax.yaxis)
+            ax.set_title("Tie points by the number of images observing them", fontsize=10)
+            return figure_png(fig)
+        out.append(_figure(multiplicity))
+    return out
+
+
+def _centre_cov(s: dict, cams: dict) -> np.ndarray:
+    """(n, 3, 3) covariance of each camera centre of ``cameras.json`` (m²): survey.json's ``center_cov_m2``, else
+    the diagonal of its ``center_std`` (correlations unknown), NaN when neither is known."""
+    by_name = {im["name"]: im for im in s.get("images", [])}
+    out = np.full((len(cams["images"]), 3, 3), np.nan)
+    for k, im in enumerate(cams["images"]):
+        c = by_name.get(im["name"], {}).get("center_cov_m2")
+        if c is not None:
+            out[k] = np.asarray(c, float)
+        elif im.get("center_std") is not None and all(v is not None for v in im["center_std"]):
+            out[k] = np.diag(np.asarray(im["center_std"], float) ** 2)
+    return out

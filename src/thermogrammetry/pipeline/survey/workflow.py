@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 from ...store import ProjectStore
@@ -63,7 +64,7 @@ def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | Non
                on_step: Callable | None = None):
     """Run every step; writes ``report.html`` and the step reports. Returns the list of StepReport."""
     from ...store import run_steps
-    from .report import write_survey_report
+    from .report import survey_geometry, write_survey_report
 
     opt = opt or SurveyOptions()
     t0 = time.perf_counter()
@@ -94,9 +95,22 @@ def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | Non
         s = SurveyStore(project).load_survey()
         s["seconds"] = time.perf_counter() - t0
         s["steps"] = [{"name": r.name, "seconds": r.seconds, "status": r.status} for r in reports]
+        s["inputs"] = _inputs_record(inp)
+        s["footprints"] = survey_geometry(project)
         SurveyStore(project).save_survey(s)
         write_survey_report(project)
     return reports
+
+
+def _inputs_record(inp: SurveyInput) -> dict:
+    """survey.json's ``inputs``: the folders of the thermal and RGB images and the control files, as absolute paths."""
+    from ...reporting import folders_of
+
+    files = {k: str(Path(getattr(inp, k)).resolve()) for k in ("gcps", "gcp_measurements", "checkpoints", "check_measurements")
+             if getattr(inp, k)}
+    rig = getattr(inp.rig, "source", None) if inp.rig is not None else None
+    return {"image_folders": folders_of(inp.images), "rgb_folders": folders_of(inp.rgb), **files,
+            **({"rig": str(rig)} if rig else {})}
 
 
 @dataclass
@@ -130,10 +144,11 @@ def survey_to_folder(out, inp: SurveyInput, opt: SurveyOptions | None = None, *,
     failed step leaves OUT as it was. An OUT that is an input folder, or lies inside or around one, is refused first
     (:func:`check_survey_output`)."""
     from ..._atomic import OutputSet, sync_folder
+    from ...reporting import driver_call
     from ...store import FolderProject
 
     check_survey_output(out, inp, opt=opt)
-    with OutputSet(out, "survey") as outputs:
+    with driver_call(survey_to_folder, locals()), OutputSet(out, "survey") as outputs:
         # files are flushed once before the staging folder is published, not one by one (several hundred)
         project = FolderProject(outputs.stage, durable=False)
         reports = run_survey(project, inp, opt, progress=progress, on_step=on_step)
