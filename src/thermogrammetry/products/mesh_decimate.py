@@ -4,7 +4,9 @@ Decimation is quadric edge collapse (Garland & Heckbert 1997) as implemented by 
 (the ``fast-simplification`` package), the open border kept in place. Its error is measured, not assumed: the
 distance from points on the mesh before (its vertices, at most ``samples`` of them, chosen with a fixed seed) to the
 mesh after (:func:`point_mesh_distance`), reported as RMS and maximum. Face flags (``filled``) follow the faces:
-a face after decimation takes the flag of the face before whose centroid is nearest to its own.
+a face after decimation is flagged when the face before nearest to its centroid (point-to-triangle distance), or to
+any of the three points half-way from its centroid to its corners, was flagged (a face made partly by filling is
+flagged).
 
 References
 ----------
@@ -68,10 +70,11 @@ def closest_point_on_triangles(P, A, B, C) -> np.ndarray:
     return out
 
 
-def point_mesh_distance(P, V, F, *, candidates: int = 16, chunk: int = 200_000) -> np.ndarray:
+def point_mesh_distance(P, V, F, *, candidates: int = 16, chunk: int = 200_000, return_face: bool = False):
     """(M,) distance (m) of each point to the mesh ``(V, F)``: the least distance to the ``candidates`` triangles
     whose centroids are nearest (exact when the mesh's triangles are small against the distances, as after
-    decimation of a fine mesh or on a subdivided reference; an upper bound otherwise)."""
+    decimation of a fine mesh or on a subdivided reference; an upper bound otherwise). With ``return_face`` also the
+    (M,) index of that triangle."""
     from scipy.spatial import cKDTree
 
     P = np.asarray(P, float)
@@ -79,17 +82,23 @@ def point_mesh_distance(P, V, F, *, candidates: int = 16, chunk: int = 200_000) 
     tree = cKDTree(cen)
     k = min(candidates, len(F))
     out = np.empty(len(P))
+    face = np.empty(len(P), np.int64)
     for s in range(0, len(P), chunk):
         p = P[s:s + chunk]
         _, idx = tree.query(p, k=k)
         idx = idx.reshape(len(p), k)
         best = np.full(len(p), np.inf)
+        bf = idx[:, 0].copy()
         for j in range(k):
             t = F[idx[:, j]]
             q = closest_point_on_triangles(p, V[t[:, 0]], V[t[:, 1]], V[t[:, 2]])
-            best = np.minimum(best, np.linalg.norm(p - q, axis=1))
+            dj = np.linalg.norm(p - q, axis=1)
+            better = dj < best
+            best = np.where(better, dj, best)
+            bf = np.where(better, idx[:, j], bf)
         out[s:s + chunk] = best
-    return out
+        face[s:s + chunk] = bf
+    return (out, face) if return_face else out
 
 
 def decimate(V, F, flags, n_faces: int, *, samples: int = 200_000, seed: int = 0):
@@ -99,8 +108,6 @@ def decimate(V, F, flags, n_faces: int, *, samples: int = 200_000, seed: int = 0
     of the mesh before to the mesh after, see the module docstring). With ``n_faces`` at or above the face count
     the mesh is returned as it is (``rms_m`` 0).
     """
-    from scipy.spatial import cKDTree
-
     n0 = len(F)
     rep = {"faces_before": int(n0), "faces_after": int(n0), "rms_m": 0.0, "max_m": 0.0, "decimated": False}
     if n_faces >= n0 or n0 < 8:
@@ -114,9 +121,11 @@ def decimate(V, F, flags, n_faces: int, *, samples: int = 200_000, seed: int = 0
     F2 = np.asarray(F2, np.int64)
     if len(F2) == 0:
         return V, F, flags, rep
-    c0 = V[F].mean(axis=1)
-    _, near = cKDTree(c0).query(V2[F2].mean(axis=1))
-    flags2 = np.asarray(flags)[near]
+    fl = np.asarray(flags, bool)
+    c2 = V2[F2].mean(axis=1)
+    flags2 = fl[point_mesh_distance(c2, V, F, return_face=True)[1]]
+    for k in range(3):  # and half-way from the centroid to each corner: a face partly made by filling is flagged
+        flags2 |= fl[point_mesh_distance(0.5 * (c2 + V2[F2[:, k]]), V, F, return_face=True)[1]]
     rng = np.random.default_rng(seed)
     pick = np.arange(len(V)) if len(V) <= samples else np.sort(rng.choice(len(V), samples, replace=False))
     d = point_mesh_distance(V[pick], V2, F2)

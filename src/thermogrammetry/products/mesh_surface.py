@@ -11,16 +11,18 @@ at the nodes they share, and the triangles they emit meet exactly on the shared 
 meshes are stitched by welding equal vertices, with no seam.
 
 1. **Outliers** (Rusu et al. 2008): the mean distance of a point to its ``k`` nearest neighbours; a point whose mean
-   distance is above a global threshold (``median + 3 × 1.4826 × MAD`` of that statistic, estimated once for the
+   distance is above a global threshold (``median + 3 × 1.4826 × max(MAD, 0.2 median)`` of it, estimated once for the
    cloud) is removed.
 2. **Normals**: principal axes of the ``k_normal`` nearest neighbours (Hoppe et al. 1992), the sign taken from the
-   cloud's own normal where it has one (a dense cloud's, a PLY's ``nx ny nz``), else from the nearest coarse
-   representative point, whose signs were propagated over the whole cloud along a minimum spanning tree of the
+   cloud's own normal where it has one (a dense cloud's, a PLY's ``nx ny nz``), else from the most parallel of the
+   four nearest coarse representative points, whose signs were propagated over the whole cloud along a minimum spanning tree of the
    representatives' neighbour graph (Hoppe et al. 1992, §3.3; :func:`orient_representatives`).
 3. **Signed distance** at the lattice nodes within ``band`` cells of a point: the Gaussian-weighted mean over the
    ``k_sdf`` nearest points of the distance of the node to each point's tangent plane, ``n_i · (x - p_i)``
-   (positive on the side the normals point to, i.e. the side the surface was seen from). Nodes further from the
-   data have no value.
+   (positive on the side the normals point to, i.e. the side the surface was seen from), over those neighbours
+   whose normal is within 35° of the nearest point's (at an edge the two faces are not averaged into a chamfer:
+   each node takes the face it is nearest to, as the tangent plane of the nearest point does in Hoppe et al.).
+   Nodes further from the data have no value.
 4. **Marching cubes** (Lorensen & Cline 1987; Lewiner et al. 2003, scikit-image) over the cubes whose eight
    corners have a value: the zero set, triangles wound so that their normals (right-hand rule) point to the
    positive side.
@@ -139,18 +141,19 @@ def outlier_statistic(tree, pts, k: int, bound_m: float) -> np.ndarray:
 
 
 def outlier_threshold(stat: np.ndarray, mads: float) -> float:
-    """``median + mads × 1.4826 × MAD`` of the finite values of the outlier statistic."""
+    """``median + mads × 1.4826 × max(MAD, 0.2 × median)`` of the finite values of the outlier statistic."""
     s = stat[np.isfinite(stat)]
     if len(s) == 0:
         return float("inf")
     med = float(np.median(s))
     mad = float(np.median(np.abs(s - med)))
-    return med + mads * 1.4826 * max(mad, 0.05 * med)
+    return med + mads * 1.4826 * max(mad, 0.2 * med)  # a regular grid has MAD ~ 0: its border points are no outliers
 
 
-def pca_normals(tree, pts, query, k: int, bound_m: float) -> tuple[np.ndarray, np.ndarray]:
+def pca_normals(tree, pts, query, k: int, bound_m: float, *, variation: bool = False):
     """Unit normal (smallest principal axis of the ``k`` nearest points within ``bound_m``) at each query point,
-    unsigned, and a validity flag (at least 5 neighbours). Returns ``(normals (M, 3), valid (M,))``."""
+    unsigned, and a validity flag (at least 5 neighbours). Returns ``(normals (M, 3), valid (M,))``, and with
+    ``variation`` also the surface variation ``λ0 / (λ0 + λ1 + λ2)`` (Pauly et al. 2002; 0 on a plane, 1/3 at most)."""
     d, idx = tree.query(query, k=k, distance_upper_bound=bound_m)
     ok = np.isfinite(d)
     cnt = ok.sum(axis=1)
@@ -160,8 +163,10 @@ def pca_normals(tree, pts, query, k: int, bound_m: float) -> tuple[np.ndarray, n
     mean = (nb * w).sum(axis=1) / np.maximum(cnt, 1)[:, None]
     q = (nb - mean[:, None, :]) * w
     cov = np.matmul(q.transpose(0, 2, 1), q)
-    _, vec = np.linalg.eigh(cov)
+    lam, vec = np.linalg.eigh(cov)
     n = vec[:, :, 0]
+    if variation:
+        return n, cnt >= 5, lam[:, 0] / np.maximum(lam.sum(axis=1), 1e-300)
     return n, cnt >= 5
 
 
@@ -336,9 +341,15 @@ def mesh_block(pts, file_normals, rep_pts, rep_normals, lattice: Lattice, b, cfg
     ref = None
     if fn is not None:
         ref = fn[used].astype(float)
+    # the sign from the most parallel of the 4 nearest representatives (at an edge the nearest one may be the other
+    # face's, at right angles: no sign at all)
     rtree = cKDTree(rep_pts)
-    _, ri = rtree.query(pts[used])
-    rep_ref = rep_normals[ri]
+    kr = min(4, len(rep_pts))
+    _, ri = rtree.query(pts[used], k=kr)
+    ri = np.asarray(ri).reshape(len(used), kr)
+    dots = np.einsum("mkj,mj->mk", rep_normals[ri], n_used)
+    best = np.argmax(np.abs(dots), axis=1)
+    rep_ref = rep_normals[ri[np.arange(len(used)), best]]
     if ref is not None:
         has = np.linalg.norm(ref, axis=1) > 0
         rep_ref = np.where(has[:, None], ref, rep_ref)
@@ -350,6 +361,9 @@ def mesh_block(pts, file_normals, rep_pts, rep_normals, lattice: Lattice, b, cfg
     fin = np.isfinite(d)
     idx0 = np.where(fin, idx, 0)
     fin &= ok_n[idx0]
+    # only neighbours whose normal agrees with the nearest one's: two faces of an edge are not averaged into a chamfer
+    agree = np.einsum("mkj,mj->mk", normals[idx0], normals[idx0[:, 0]]) > np.cos(np.radians(35.0))
+    fin &= agree
     w = np.where(fin, np.exp(-(np.where(fin, d, 0.0) / h) ** 2), 0.0)
     sd = np.einsum("mkj,mkj->mk", normals[idx0], X[:, None, :] - pts[idx0])
     wsum = w.sum(axis=1)

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import ConfigError
 
-__all__ = ["ScanHole", "ScanCloud", "scan_cloud", "building_wall_hole"]
+__all__ = ["ScanHole", "ScanCloud", "scan_cloud", "building_wall_hole", "building_scan"]
 
 
 @dataclass(frozen=True)
@@ -85,3 +85,26 @@ def scan_cloud(vertices, faces, *, density: float, noise_m: float, hole: ScanHol
     P = X + rng.normal(0.0, noise_m, X.shape)
     off = np.asarray(offset, float)
     return ScanCloud(P + off, X + off, face)
+
+
+def building_scan(scene, *, density: float, noise_m: float, hole_area_m2: float = 1.0, ground_m: float = 2.5,
+                  seed: int = 0, offset=(0.0, 0.0, 0.0)) -> tuple[ScanCloud, ScanHole]:
+    """A terrestrial scan of the synthetic building (:func:`~thermogrammetry.synthetic.building.make_building`):
+    its walls, roof, occluder and the ground within ``ground_m`` of the walls (and around the occluder), without
+    the ground under the occluder (a scanner does not see it), a square hole of ``hole_area_m2`` in the east wall
+    (:func:`building_wall_hole`). Returns ``(cloud, hole)``."""
+    c = scene.config
+    hole = building_wall_hole(scene, hole_area_m2)
+    cl = scan_cloud(scene.vertices, scene.faces, density=density, noise_m=0.0, hole=hole, seed=seed)
+    X = cl.truth
+    ox, oy, oz = c.occluder_size_m
+    xc, yc = c.occluder_x_m, -c.occluder_distance_m
+    inside = ((np.abs(X[:, 0] - xc) < ox / 2 - 1e-6) & (np.abs(X[:, 1] - yc) < oy / 2 - 1e-6) & (X[:, 2] < oz - 1e-6))
+    y0 = min(-ground_m, yc - oy / 2 - 1.0)
+    keep = ~inside & (X[:, 0] >= -ground_m) & (X[:, 0] <= c.length_m + ground_m) & (X[:, 1] >= y0) \
+        & (X[:, 1] <= c.depth_m + ground_m)
+    X, face = X[keep], cl.face[keep]
+    rng = np.random.default_rng([seed, 0x5CA8])
+    P = X + rng.normal(0.0, noise_m, X.shape)
+    off = np.asarray(offset, float)
+    return ScanCloud(P + off, X + off, face), hole
