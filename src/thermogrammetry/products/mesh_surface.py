@@ -150,10 +150,9 @@ def outlier_threshold(stat: np.ndarray, mads: float) -> float:
     return med + mads * 1.4826 * max(mad, 0.2 * med)  # a regular grid has MAD ~ 0: its border points are no outliers
 
 
-def pca_normals(tree, pts, query, k: int, bound_m: float, *, variation: bool = False):
+def pca_normals(tree, pts, query, k: int, bound_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Unit normal (smallest principal axis of the ``k`` nearest points within ``bound_m``) at each query point,
-    unsigned, and a validity flag (at least 5 neighbours). Returns ``(normals (M, 3), valid (M,))``, and with
-    ``variation`` also the surface variation ``λ0 / (λ0 + λ1 + λ2)`` (Pauly et al. 2002; 0 on a plane, 1/3 at most)."""
+    unsigned, and a validity flag (at least 5 neighbours). Returns ``(normals (M, 3), valid (M,))``."""
     d, idx = tree.query(query, k=k, distance_upper_bound=bound_m)
     ok = np.isfinite(d)
     cnt = ok.sum(axis=1)
@@ -163,10 +162,8 @@ def pca_normals(tree, pts, query, k: int, bound_m: float, *, variation: bool = F
     mean = (nb * w).sum(axis=1) / np.maximum(cnt, 1)[:, None]
     q = (nb - mean[:, None, :]) * w
     cov = np.matmul(q.transpose(0, 2, 1), q)
-    lam, vec = np.linalg.eigh(cov)
+    _, vec = np.linalg.eigh(cov)
     n = vec[:, :, 0]
-    if variation:
-        return n, cnt >= 5, lam[:, 0] / np.maximum(lam.sum(axis=1), 1e-300)
     return n, cnt >= 5
 
 
