@@ -498,3 +498,155 @@ def _(t):
     argv = compare_argv(t, a, "--against", str(tiny_ortho(t, "B")))
     argv[argv.index("-o") + 1] = str(a.parent)
     return argv, ["is the ortho's folder", "apart from the inputs"], None
+
+
+# ------------------------------------------------------------------------------------------------ mesh
+def plane_cloud(t: Path, *, name: str = "plane.xyz", n: int = 40, offset=(X0, Y0, 100.0)) -> Path:
+    """An n x n grid of points, 5 cm apart, on a horizontal plane at ``offset`` (x y z text, 3 decimals)."""
+    g = np.arange(n) * 0.05
+    x, y = np.meshgrid(g, g)
+    P = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)] + np.asarray(offset)
+    p = t / name
+    np.savetxt(p, P, fmt="%.3f")
+    return p
+
+
+def mesh_argv(t: Path, cloud: Path, *extra, out: Path | None = None) -> list[str]:
+    return ["mesh", str(cloud), "-o", str(out or t / "OUT"), "--workers", "0", *extra]
+
+
+@_c("mesh: OUT is the dense folder")
+def _(t):
+    d = t / "dense"
+    d.mkdir()
+    (d / "dense.json").write_text(json.dumps({"crs": CRS, "cloud_files": ["cloud.xyz"]}))
+    return mesh_argv(t, d, out=d), ["is the dense folder", "apart from the inputs"], None
+
+
+@_c("mesh: OUT inside the dense folder")
+def _(t):
+    d = t / "dense"
+    d.mkdir()
+    (d / "dense.json").write_text(json.dumps({"crs": CRS}))
+    return mesh_argv(t, d, out=d / "OUT"), ["lies inside the dense folder", "apart from the inputs"], d / "OUT"
+
+
+@_c("mesh: folder without dense.json")
+def _(t):
+    (t / "clouds").mkdir()
+    return mesh_argv(t, t / "clouds"), ["clouds: a folder without dense.json", "output folder of `thermogrammetry dense`"], t / "OUT"
+
+
+@_c("mesh: dense.json listing no cloud that exists")
+def _(t):
+    d = t / "dense"
+    d.mkdir()
+    (d / "dense.json").write_text(json.dumps({"crs": CRS, "cloud_files": ["cloud.las", "cloud.ply"]}))
+    return mesh_argv(t, d), ["dense.json lists ['cloud.las', 'cloud.ply']", "none of them is in the folder"], t / "OUT"
+
+
+@_c("mesh: unknown cloud suffix")
+def _(t):
+    p = t / "scan.pcd"
+    p.write_text("VERSION .7\n")
+    return mesh_argv(t, p), ["scan.pcd: unknown cloud suffix '.pcd'", ".las, .laz, .ply, .e57, .xyz"], t / "OUT"
+
+
+@_c("mesh: cloud file missing")
+def _(t):
+    return mesh_argv(t, t / "nope.las"), ["nope.las: no such file or folder"], t / "OUT"
+
+
+@_c("mesh: LAS file of text")
+def _(t):
+    p = t / "scan.las"
+    p.write_text("not a point cloud\n")
+    return mesh_argv(t, p), ["scan.las: cannot read as LAS/LAZ"], t / "OUT"
+
+
+@_c("mesh: PLY without x y z")
+def _(t):
+    p = t / "scan.ply"
+    p.write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float u\nproperty float v\nend_header\n1 2\n")
+    return mesh_argv(t, p), ["scan.ply: the PLY vertex element has ['u', 'v']", "expected x y z"], t / "OUT"
+
+
+@_c("mesh: XYZ with a word in a coordinate")
+def _(t):
+    p = t / "scan.xyz"
+    p.write_text("1 2 3\n4 5 6\n7 eight 9\n")
+    return mesh_argv(t, p), ["scan.xyz, line 3: '7 eight 9'", "at least three numbers"], t / "OUT"
+
+
+@_c("mesh: XYZ with a NaN coordinate")
+def _(t):
+    p = plane_cloud(t)
+    p.write_text(p.read_text() + "1 nan 3\n")
+    return mesh_argv(t, p), ["plane.xyz: point 1600 (0-based) has non-finite coordinates", "[1.0, nan, 3.0]"], t / "OUT"
+
+
+@_c("mesh: too few points")
+def _(t):
+    p = t / "few.xyz"
+    p.write_text("0 0 0\n1 0 0\n0 1 0\n")
+    return mesh_argv(t, p), ["few.xyz: 3 point(s)", "at least 100"], t / "OUT"
+
+
+@_c("mesh: --edge 0")
+def _(t):
+    return mesh_argv(t, plane_cloud(t), "--edge", "0"), ["--edge 0.0", "positive target edge length"], t / "OUT"
+
+
+@_c("mesh: --edge nan")
+def _(t):
+    return mesh_argv(t, plane_cloud(t), "--edge", "nan"), ["--edge nan", "positive target edge length"], t / "OUT"
+
+
+@_c("mesh: --faces 2")
+def _(t):
+    return mesh_argv(t, plane_cloud(t), "--faces", "2"), ["--faces 2", "whole number of triangles >= 4"], t / "OUT"
+
+
+@_c("mesh: --edge and --faces")
+def _(t):
+    return mesh_argv(t, plane_cloud(t), "--edge", "0.1", "--faces", "100"), ["--edge 0.1 and --faces 100", "give one of them"], t / "OUT"
+
+
+@_c("mesh: --fill-holes -1")
+def _(t):
+    return mesh_argv(t, plane_cloud(t), "--fill-holes", "-1"), ["--fill-holes -1.0", "in m² (>= 0"], t / "OUT"
+
+
+@_c("mesh: --crs not a CRS")
+def _(t):
+    return mesh_argv(t, plane_cloud(t), "--crs", "EPSG:999999"), ["--crs 'EPSG:999999'", "not a coordinate reference system"], t / "OUT"
+
+
+@_c("mesh: --crs geographic")
+def _(t):
+    return mesh_argv(t, plane_cloud(t), "--crs", "EPSG:4326"), ["CRS EPSG:4326 is geographic", "projected CRS in metres"], t / "OUT"
+
+
+@_c("mesh: --crs contradicting the file's")
+def _(t):
+    p = t / "scan.ply"
+    p.write_text("ply\nformat ascii 1.0\ncomment crs EPSG:32633\nelement vertex 1\nproperty float x\nproperty float y\n"
+                 "property float z\nend_header\n1 2 3\n")
+    return mesh_argv(t, p, "--crs", "EPSG:32632"), ["--crs EPSG:32632", "states its CRS as EPSG:32633", "reproject"], t / "OUT"
+
+
+@_c("mesh: --workers 1000")
+def _(t):
+    return mesh_argv(t, plane_cloud(t))[:-2] + ["--workers", "1000"], ["--workers 1000", "more worker processes"], t / "OUT"
+
+
+@_c("mesh: E57 without pye57, or a damaged E57")
+def _(t):
+    p = t / "scan.e57"
+    p.write_bytes(b"ASTM-E57" + bytes(40))
+    try:
+        import pye57  # noqa: F401
+        expected = ["scan.e57: cannot read as E57"]
+    except ImportError:
+        expected = ["scan.e57: reading E57 needs the pye57 package", "pip install pye57"]
+    return mesh_argv(t, p), expected, t / "OUT"

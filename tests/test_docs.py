@@ -43,7 +43,7 @@ def test_mkdocs_build_strict(tmp_path):
                        cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
     cli = (tmp_path / "site" / "cli" / "index.html").read_text(encoding="utf-8")
-    for verb in ("demo", "convert", "calibrate", "closerange", "survey", "plan", "dense", "ortho", "evaluate",
+    for verb in ("demo", "convert", "calibrate", "closerange", "survey", "plan", "dense", "mesh", "ortho", "evaluate",
                  "texture", "facade", "correct"):
         assert f"Usage: thermogrammetry {verb}" in cli, verb
         assert (DOCS / "verbs" / f"{verb}.md").is_file(), verb

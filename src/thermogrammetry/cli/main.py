@@ -13,7 +13,7 @@ from ..errors import ThermogrammetryError
 from .app import app
 
 #: verb modules, imported in this order (each adds its command(s) to ``app``)
-VERB_MODULES: tuple[str, ...] = ("convert", "closerange", "correct", "calibrate", "survey", "plan", "dense", "ortho", "run", "evaluate",
+VERB_MODULES: tuple[str, ...] = ("convert", "closerange", "correct", "calibrate", "survey", "plan", "dense", "mesh", "ortho", "run", "evaluate",
                                   "texture", "facade", "demo")
 
 
