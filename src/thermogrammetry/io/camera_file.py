@@ -101,18 +101,6 @@ def describe_camera_file(info: dict) -> str:
     return f"camera {info['file']} ({info['format']}; {conv})"
 
 
-def open_camera_file(path) -> CameraFile:
-    """:func:`read_camera_file` with the file's format and the conversion's residual (:class:`CameraFile`)."""
-    path = Path(path)
-    fmt = camera_file_format(path)
-    res = 0.0
-    if fmt == "Metashape XML":
-        from .metashape import read_metashape_calibration
-
-        res = float(getattr(read_metashape_calibration(path), "max_residual_px", 0.0) or 0.0)
-    return CameraFile(read_camera_file(path), str(path), fmt, res)
-
-
 def read_camera_file(path) -> Camera:
     """Read one camera calibration from any of :data:`CAMERA_FILE_FORMATS` (:func:`camera_file_format`).
 
@@ -133,12 +121,18 @@ def read_camera_file(path) -> Camera:
         The file cannot be read, or is none of the formats, or holds no single usable camera; the message names
         the file and what was expected.
     """
+    return open_camera_file(path).camera
+
+
+def open_camera_file(path) -> CameraFile:
+    """:func:`read_camera_file` with the file's format and the conversion's residual (:class:`CameraFile`); the file
+    is read once."""
     path = Path(path)
     fmt = camera_file_format(path)
     if fmt == "camera.json":
-        return Camera.load(path)
+        return CameraFile(Camera.load(path), str(path), fmt, 0.0)
     if fmt == "OpenCV YAML/XML":
-        return _read_opencv(path)
+        return CameraFile(_read_opencv(path), str(path), fmt, 0.0)
     if fmt == "Metashape XML":
         from .metashape import read_metashape_calibration
 
@@ -149,11 +143,11 @@ def read_camera_file(path) -> Camera:
                                    f"its conversion is {res:.2f} px off at worst (> 0.1 px): export it from Metashape without K4, or "
                                    "convert it with thermogrammetry.io.read_metashape_calibration and save the camera "
                                    "if that residual is acceptable")
-        return conv.camera
+        return CameraFile(conv.camera, str(path), fmt, res)
     from .colmap import read_colmap_cameras
 
     cams = read_colmap_cameras(path)
     if len(cams) != 1:
         raise CorruptFileError(f"{path}: a COLMAP camera list with {len(cams)} cameras; expected exactly one "
                                "(or give a camera.json, a Metashape XML or an OpenCV YAML)")
-    return next(iter(cams.values()))
+    return CameraFile(next(iter(cams.values())), str(path), fmt, 0.0)
