@@ -63,6 +63,11 @@ def _update_arrays(h, *arrays) -> None:
         h.update(a.tobytes())
 
 
+#: ``{id(features dict): (the dict, its digest)}`` of :meth:`TieCache.features_digest` (oldest first)
+_DIGESTS: dict = {}
+_DIGESTS_SIZE = 64
+
+
 def _camera_text(cam) -> str:
     return "none" if cam is None else json.dumps(cam.to_dict(), sort_keys=True, default=str)
 
@@ -88,12 +93,21 @@ class TieCache:
 
     @staticmethod
     def features_digest(features: dict) -> str:
-        """Digest of one image's features (the arrays of its ``features/<name>.npz``)."""
+        """Digest of one image's features (the arrays of its ``features/<name>.npz``). Remembered for the last
+        dicts seen (by identity, the dict held alive beside its digest): the matching's pairs come image-major and
+        read each image's features through one shared, read-only dict (``store._load_npz_cached``)."""
+        hit = _DIGESTS.get(id(features))
+        if hit is not None and hit[0] is features:
+            return hit[1]
         h = hashlib.sha256()
         for k in sorted(features):
             h.update(k.encode())
             _update_arrays(h, features[k])
-        return h.hexdigest()
+        digest = h.hexdigest()
+        _DIGESTS[id(features)] = (features, digest)
+        while len(_DIGESTS) > _DIGESTS_SIZE:
+            _DIGESTS.pop(next(iter(_DIGESTS)))
+        return digest
 
     @staticmethod
     def matches_key(fi: dict, fj: dict, cam_i, cam_j, options) -> str:
