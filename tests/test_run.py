@@ -56,13 +56,11 @@ def project(block, tmp_path_factory):
             raise KeyboardInterrupt  # as if the run were killed in the middle of the mosaic
         return real(*a, on_tile=boom, **kw)
 
-    t0 = time.perf_counter()
     ortho_mod.run_ortho = killed
     try:
         assert main(["run", *args, "-o", str(proj)]) in (1, 130)  # (click: "Aborted!", the status of an interrupt)
     finally:
         ortho_mod.run_ortho = real
-    t_killed = time.perf_counter() - t0
     rec_killed = json.loads((proj / "run.json").read_text())
     ortho_after_kill = (proj / "ortho").exists()
 
@@ -72,13 +70,11 @@ def project(block, tmp_path_factory):
         return real(*a, **kw)
 
     ortho_mod.run_ortho = noisy
-    t0 = time.perf_counter()
     try:
         code = main(["run", *args, "-o", str(proj)])
     finally:
         ortho_mod.run_ortho = real
-    t_resumed = time.perf_counter() - t0
-    return {"root": root, "args": args, "proj": proj, "code": code, "t_first": t_killed + t_resumed,
+    return {"root": root, "args": args, "proj": proj, "code": code,
             "rec_killed": rec_killed, "ortho_after_kill": ortho_after_kill}
 
 
@@ -162,18 +158,25 @@ def test_dask_messages_stay_off_the_terminal(block, tmp_path, capfd):
     assert "a dask warning for the log only" in log and "raw stderr of a worker process" in log
 
 
-def test_second_run_skips_every_step_and_changes_no_file(project):
+def test_second_run_skips_every_step_and_changes_no_file(project, monkeypatch):
+    """Nothing is computed again: the step drivers are replaced by ones that fail when called (checked, not timed;
+    measured: first run, killed and resumed, ~9 s, this one ~0.1 s)."""
+    import thermogrammetry.pipeline.dense as dense_mod
+    import thermogrammetry.pipeline.ortho as ortho_mod
+    import thermogrammetry.pipeline.survey as survey_mod
+
+    def called(*a, **kw):
+        raise AssertionError("a step ran again in a run that had nothing to do")
+
+    for mod, name in ((survey_mod, "survey_to_folder"), (dense_mod, "run_dense"), (ortho_mod, "run_ortho")):
+        monkeypatch.setattr(mod, name, called)
     proj = project["proj"]
     before = _snapshot(proj)
-    t0 = time.perf_counter()
     assert main(["run", *project["args"], "-o", str(proj)]) == 0
-    dt = time.perf_counter() - t0
     assert _snapshot(proj) == before
     log = (proj / "run.log").read_text()
     last = log[log.rindex("steps survey, dense, ortho"):]
     assert last.count(": skipped (") == 3 and "running" not in last
-    # measured: first run (killed + resumed) ~9 s, this one ~0.1 s
-    assert dt <= 0.10 * project["t_first"], (dt, project["t_first"])
 
 
 def test_an_input_change_changes_the_survey_hash(project):
