@@ -205,8 +205,7 @@ def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.nd
                     # levels extrapolated to the edge along the ray: a background slope (a hot spot,
                     # vignetting) otherwise moves the mid level by slope x the segment's offset
                     si, so = s[a_in:b_in + 1] - e, s[a_out:b_out + 1] - e
-                    li = float(np.polyval(np.polyfit(si, inner, 1), 0.0))
-                    lo_ = float(np.polyval(np.polyfit(so, outer, 1), 0.0))
+                    li, lo_ = _line_at_zero(si, inner), _line_at_zero(so, outer)
                 else:
                     li, lo_ = np.median(inner), np.median(outer)
                 if sgn * (lo_ - li) <= 0:
@@ -259,6 +258,14 @@ def refine_circle_edges(gray: np.ndarray, centres_px: np.ndarray, shape_q: np.nd
         if ok[k]:
             c[k] = start
     return c, ok, outlines, measured
+
+
+def _line_at_zero(x: np.ndarray, y: np.ndarray) -> float:
+    """Value at ``x = 0`` of the least-squares line through ``(x, y)`` (closed form; what ``np.polyfit(x, y, 1)``
+    evaluated at 0 gives, up to rounding, without its per-call overhead: this runs twice per ray)."""
+    xm, ym = x.mean(), y.mean()
+    dx = x - xm
+    return float(ym - xm * (dx @ (y - ym)) / (dx @ dx))
 
 
 def _robust_plane(x: np.ndarray, y: np.ndarray, v: np.ndarray, rounds: int = 3) -> np.ndarray:

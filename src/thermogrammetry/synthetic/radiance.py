@@ -82,6 +82,14 @@ def _by_chunks(band, t: np.ndarray) -> np.ndarray:
     return out.reshape(t.shape) if t.ndim else out[0]
 
 
+def _by_chunks_rows(step, rows: np.ndarray) -> np.ndarray:
+    """``step`` (a function of (n, m) rows, one value per row) applied to ``rows`` in chunks of :data:`_CHUNK` rows."""
+    out = np.empty(len(rows), dtype=np.float64)
+    for i in range(0, len(rows), _CHUNK):
+        out[i : i + _CHUNK] = step(rows[i : i + _CHUNK])
+    return out
+
+
 @dataclass(frozen=True)
 class BandPlanckCurve:
     """Planck radiance integrated over ``band_um`` (W m⁻² sr⁻¹), flat spectral response.
@@ -156,8 +164,22 @@ class BandPlanckCurve:
                 wien = C2 / (lam_c * np.log1p(C1L * dlam / (lam_c**5 * s)))
                 t = np.where(outside & np.isfinite(wien) & (wien > 0), wien, t)
             n_iter = iterations + (6 if np.any(outside) else 0)
+            lam, w = self._quadrature
+            k = w * C1L / lam**5  # the same factor as signal's and derivative's, left to right
+
+            def newton(ts):  # one Newton step on a chunk: signal and derivative from one x (values as theirs)
+                tc, sc = ts[:, 0], ts[:, 1]
+                x = C2 / (lam * tc[:, None])
+                ex = np.exp(x)
+                f = np.sum(k / np.expm1(x), axis=-1)
+                d = np.sum(k * ex * x / (tc[:, None] * (ex - 1.0) ** 2), axis=-1)
+                return tc - (f - sc) / d
+
+            sf = np.broadcast_to(s, t.shape).reshape(-1)
             for _ in range(n_iter):
-                t = t - (self.signal(t) - s) / self.derivative(t)
+                _check_positive_t(t)
+                tf = np.asarray(t, np.float64).reshape(-1)
+                t = _by_chunks_rows(newton, np.stack([tf, sf], axis=1)).reshape(np.shape(t))
                 t = np.clip(t, 1.0, None)
         return np.where(s > 0, t, np.nan)
 
