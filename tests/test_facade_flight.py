@@ -89,3 +89,37 @@ def test_palette_is_monotonic_in_luminance_and_the_agc_stretches_each_frame(scen
     assert np.all(np.diff(lum) > 0)
     rgb = facade_flight_frame_8bit(render_facade_flight_frame(scene, 1))
     assert rgb[..., 0].max() == 255 and rgb.reshape(-1, 3).sum(1).min() < 30
+
+
+def test_the_field_of_view_focal_through_the_distortion_is_the_lens_focal(scene):
+    """The camera table's pinhole focal length of a 57° HFOV (589.4 px on 640 px), expressed through the true radial
+    distortion, is the synthetic lens's focal length (built from tan(28.5°) independently): 653.4 px."""
+    from thermogrammetry.camera.database import focal_through_distortion, table_focal
+
+    tab = table_focal("DJI", "M2ED", (640, 480))
+    assert tab.fov_half_extent_px == 320.0
+    np.testing.assert_allclose(tab.f_px, 320.0 / np.tan(np.radians(28.5)), rtol=1e-12)
+    f = focal_through_distortion(tab.f_px, tab.fov_half_extent_px, CFG.k1, CFG.k2)
+    np.testing.assert_allclose(f, scene.camera["fx"], rtol=1e-9)
+    assert focal_through_distortion(tab.f_px, 320.0) == tab.f_px
+    assert np.isnan(focal_through_distortion(tab.f_px, 320.0, -3.0))  # folds the edge back
+
+
+def test_restart_camera_only_for_a_field_of_view_start_that_the_distortion_moves():
+    from thermogrammetry.pipeline.survey.camera_start import restart_camera
+
+    g = {"f_px": 589.37, "focal_sigma_px": 38.3, "fov_half_extent_px": 320.0, "focal_source": "camera_table:M2ED"}
+    inputs = {"images": [{"sensor": "thermal", "camera_guess": dict(g)}]}
+    survey = {"camera_start": {"thermal": {"focal_source": "camera_table:DJI Mavic 2 Enterprise Dual"}},
+              "cameras": {"thermal": {"params": {"fx": 599.0, "k1": -0.259, "k2": 0.012}}},
+              "blocks": [{"self_calibration": ["fx", "fy", "k1", "k2"]}]}
+    st = restart_camera(inputs, survey)["thermal"]
+    # 589.37 / (1 - 0.259 x 0.2948 + 0.012 x 0.0869) = 637.2 px
+    np.testing.assert_allclose(st["fx"], 589.37 / (1 - 0.259 * (320 / 589.37) ** 2 + 0.012 * (320 / 589.37) ** 4))
+    assert st["k1"] == -0.259
+    small = {**survey, "cameras": {"thermal": {"params": {"fx": 590.0, "k1": -0.02}}}}
+    assert restart_camera(inputs, small) == {}  # 3.5 px: within 0.5 σ
+    inputs["images"][0]["camera_guess"]["start"] = st
+    assert restart_camera(inputs, survey) == {}  # once
+    exif = {"images": [{"sensor": "thermal", "camera_guess": {**g, "fov_half_extent_px": None}}]}
+    assert restart_camera(exif, survey) == {}  # a focal length in mm: no field of view to express
