@@ -60,6 +60,8 @@ Baseline (main at 0ff41c6, 2026-12-04, 2 cores; ``python benchmarks/survey_facad
   Matching again in the restart (verification through the first pass's distortion) was worse on every seed:
   1.67/1.49/1.05° RMS, 1.68/1.88/1.48 % for seeds 0/1/2 (seed 3: 1.34°, 1.67 %); not kept.
 
+  ``-- --refine-ties lsm`` with the restart: seed 0 2.32/4.08°, 1.91 %; seed 1 0.86/1.76°, 1.07 % (mixed).
+
   12 of the 321 verified pairs of seed 0 are wrong (matched one window period apart: transfer error through the
   true wall plane 340-1700 px; the shift lies along the epipolar lines of the sideways motion, so the essential
   matrix passes it). With the true camera the rotation errors are a smooth bend: pitch +0.9° on the lowest strip,
