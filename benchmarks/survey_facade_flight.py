@@ -62,6 +62,10 @@ Baseline (main at 0ff41c6, 2026-12-04, 2 cores; ``python benchmarks/survey_facad
 
   ``-- --refine-ties lsm`` with the restart: seed 0 2.32/4.08°, 1.91 %; seed 1 0.86/1.76°, 1.07 % (mixed).
 
+  The sensor's fixed pattern estimated from the frames (``_fixed_pattern``, as the low-texture fallback does) and
+  removed before the primary features (an in-process experiment, not kept): seed 0 4.79/24.96°, 8.58 % (one frame
+  oriented 25° off inside the block), seed 2 47/50 in the block, 1.84/3.48°, 2.32 % -- worse.
+
   12 of the 321 verified pairs of seed 0 are wrong (matched one window period apart: transfer error through the
   true wall plane 340-1700 px; the shift lies along the epipolar lines of the sideways motion, so the essential
   matrix passes it). With the true camera the rotation errors are a smooth bend: pitch +0.9° on the lowest strip,
