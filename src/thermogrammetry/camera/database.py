@@ -23,7 +23,7 @@ import re
 from dataclasses import dataclass, field
 
 __all__ = ["Lens", "ThermalCore", "CameraEntry", "TableFocal", "CAMERA_TABLE", "LENS_FOCAL_SIGMA",
-           "normalise_model", "find_camera", "table_focal"]
+           "normalise_model", "find_camera", "table_focal", "focal_through_distortion"]
 
 
 #: relative σ of a nominal lens focal length (see the module docstring)
@@ -86,6 +86,7 @@ class TableFocal:
     upscale: float
     source: str = ""
     extra: dict = field(default_factory=dict)
+    fov_half_extent_px: float | None = None  # from a field of view: the half extent (px) it spans (w/2 or diagonal/2)
 
 
 _S = "manufacturer spec sheet"
@@ -201,6 +202,24 @@ def _fov_focal(fov_deg: float, extent_px: float, tol_deg: float | None) -> tuple
     return f, math.hypot(df, LENS_FOCAL_SIGMA * f)
 
 
+def focal_through_distortion(f_pinhole_px: float, half_extent_px: float, k1: float = 0.0, k2: float = 0.0,
+                             k3: float = 0.0) -> float:
+    """The focal length (px) that puts a field of view's edge ray at the frame edge through radial distortion.
+
+    A published field of view is the angle the frame's edge sees *through the lens*: ``tan(FOV/2) = half_extent /
+    f_pinhole`` only for a lens without distortion. Through the OpenCV radial model the edge ray at normalised radius
+    ``x = tan(FOV/2)`` lands at ``f · x · (1 + k1 x² + k2 x⁴ + k3 x⁶)``, so the focal length consistent with the field
+    of view is ``f_pinhole / (1 + k1 x² + k2 x⁴ + k3 x⁶)``: 10 % longer than the pinhole value for a 57° lens with
+    k1 = -0.35 (barrel distortion widens the field a focal length covers; Brown 1971, Close-range camera calibration,
+    Photogrammetric Engineering 37(8)).
+    """
+    x2 = (float(half_extent_px) / float(f_pinhole_px)) ** 2
+    d = 1.0 + k1 * x2 + k2 * x2 * x2 + k3 * x2 ** 3
+    if not d > 0.2:  # a distortion that folds the field's edge back: no consistent focal length
+        return float("nan")
+    return float(f_pinhole_px) / d
+
+
 def table_focal(make, model, image_size, focal_mm: float | None = None) -> TableFocal | None:
     """The focal length in pixels of the image's own grid (``image_size`` (w, h)) with its σ, for a camera of the
     table: from ``focal_mm`` (the files' EXIF focal length) and the core's pixel pitch, else from the lens's field of
@@ -237,7 +256,7 @@ def table_focal(make, model, image_size, focal_mm: float | None = None) -> Table
         f, s = _fov_focal(fov, ext, lens.fov_tol_deg)
         tol = f" ± {lens.fov_tol_deg:g}°" if lens.fov_tol_deg is not None else ""
         return TableFocal(f_px=f, sigma_px=s, how=f"{kind} field of view {fov:g}°{tol}{ups} (camera table: {entry.name})",
-                          **base)
+                          fov_half_extent_px=0.5 * ext, **base)
     why = ("the table lists several lenses and the file names none" if len(core.lenses) > 1 else
            "the table has no lens for this camera")
     return TableFocal(f_px=None, sigma_px=None, how=f"camera table: {entry.name}: {why}", **base)

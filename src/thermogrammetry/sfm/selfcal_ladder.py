@@ -10,7 +10,7 @@ from ..results import Termination
 from .reconstruction import restore_to, snapshot_of
 
 __all__ = ["FocalKnown", "FOCAL_PRIOR_K", "MAX_ITERATIONS_RETRY", "SELF_CALIBRATION_LADDER", "FIXED_INTERIOR_LADDER", "INTRINSICS_PLAUSIBLE", "intrinsics_problem",
-           "intrinsics_check", "ladder_sets", "fixed_interior_rungs", "adjust_block"]
+           "intrinsics_check", "ladder_sets", "fixed_interior_rungs", "adjust_block", "fov_focal_priors", "FOV_PRIOR_ITERATIONS"]
 
 
 #: self-calibration steps down this ladder (each rung intersected with the parameters asked for) while the
@@ -52,10 +52,12 @@ class FocalKnown(dict):
     ``focal_priors``): a block that cannot determine its focal length (a flat field flown at one height: focal
     length and heights are a twin) keeps the lens's value within its σ instead of running away."""
 
-    def __init__(self, known=(), prior=None, sigma=None):
+    def __init__(self, known=(), prior=None, sigma=None, fov=None):
         super().__init__(known)
         self.prior = dict(prior or {})
         self.sigma = dict(sigma or {})
+        # camera index -> half extent (px) of the field of view the prior came from (None: a focal length)
+        self.fov = {c: v for c, v in dict(fov or {}).items() if v}
 
     def priors(self) -> dict:
         """Camera index -> (focal length px, σ px) for the cameras with both."""
@@ -68,6 +70,33 @@ class FocalKnown(dict):
 #: strip (16 frames on one line over flat ground) the weighted prior alone let fx run to 886 px against 758 ± 38 px
 #: (3.4 σ; rotations 0.93° RMS from the whole flight's) where holding it gives 0.28°
 FOCAL_PRIOR_K = 3.0
+
+
+#: a focal prior from a field of view (:class:`FocalKnown` ``fov``) is expressed through the distortion the block
+#: self-calibrates (:func:`~thermogrammetry.camera.database.focal_through_distortion`) and the block adjusted again,
+#: at most this many times, until the prior moves by less than FOV_PRIOR_TOL of its σ
+FOV_PRIOR_ITERATIONS = 4
+FOV_PRIOR_TOL = 0.1
+
+
+def fov_focal_priors(fa, sets: dict, focal_known, used: dict) -> dict:
+    """Camera index -> (focal px, σ px): the field-of-view priors of :class:`FocalKnown` through each camera's
+    self-calibrated radial distortion (``fa.cameras_after``), for the cameras whose fx, fy and k1 are free and whose
+    prior moves by more than :data:`FOV_PRIOR_TOL` σ from ``used`` (the priors of the adjustment ``fa``)."""
+    from ..camera.database import focal_through_distortion
+
+    out = {}
+    for c, ext in (getattr(focal_known, "fov", None) or {}).items():
+        free = {n.lower() for n in sets.get(c, ())}
+        cam = (getattr(fa, "cameras_after", None) or {}).get(c)
+        f0, s0 = focal_known.prior.get(c), focal_known.sigma.get(c)
+        if cam is None or not f0 or not s0 or not {"fx", "fy", "k1"} <= free or c not in used:
+            continue
+        p = cam.param_dict
+        f = focal_through_distortion(f0, ext, p.get("k1", 0.0), p.get("k2", 0.0), p.get("k3", 0.0))
+        if np.isfinite(f) and abs(f - used[c][0]) > FOV_PRIOR_TOL * used[c][1]:
+            out[c] = (f, s0 * f / f0)
+    return out
 
 
 #: an adjustment of the ladder that stops at its iteration limit (with an accepted self-calibration) is adjusted
@@ -197,6 +226,7 @@ def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dic
     start_state = keep()
     steps: list[str] = []
     first = True
+    n_fov = 0
     names = lambda v: ", ".join(v) or "nothing"  # noqa: E731
     while True:
         sets = {c: ladder[c][level[c]] for c in cams_in}
@@ -234,6 +264,15 @@ def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dic
         if not why:
             fa.focal_priors_used = {c: kw["focal_priors"][c] for c in kw.get("focal_priors", {})
                                     if {"fx", "fy"} <= {n.lower() for n in sets.get(c, ())}}
+            upd = fov_focal_priors(fa, sets, focal_known, fa.focal_priors_used) if n_fov < FOV_PRIOR_ITERATIONS else {}
+            if upd:
+                # the prior was a field of view: the focal length it implies through the distortion just estimated
+                n_fov += 1
+                kw = {**kw, "focal_priors": {**kw["focal_priors"], **upd}}
+                steps.append("focal prior from the field of view expressed through the self-calibrated distortion: "
+                             + ", ".join(f"{start[c].name or c}: {fa.focal_priors_used[c][0]:.1f} -> {f:.1f} ± {sg:.1f} px"
+                                         for c, (f, sg) in upd.items()) + "; adjusted again")
+                continue
             return fa, sets, steps
         held = ""
         if check == "focal" and cam is not None:

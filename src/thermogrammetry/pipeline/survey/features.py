@@ -134,7 +134,12 @@ def _initial_cameras(inputs: dict, camera=None, rgb_camera=None) -> tuple[dict, 
             else:
                 w, h, f = im["width"], im["height"], im["camera_guess"]["f_px"]
                 pitch = im["camera_guess"].get("pitch_um")
-                cams[cid] = Camera("opencv", (w, h), dict(fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2),
+                # a restart from a first orientation's self-calibration (workflow._restart_from_self_calibration):
+                # its focal length and radial distortion
+                st = im["camera_guess"].get("start") or {}
+                f = float(st.get("fx", f))
+                cams[cid] = Camera("opencv", (w, h), dict(fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2,
+                                                          **{k: float(st[k]) for k in ("k1", "k2") if k in st}),
                                    pixel_pitch_um=pitch, name=cid)
         ids.append(groups[key])
     return cams, ids

@@ -16,7 +16,7 @@ from ...sfm.rig_block import rig_by_registration, rig_own_before, rig_refuse, ri
 from ...sfm.selfcal_ladder import FocalKnown, adjust_block
 from ...store import ProjectStore
 from .controls import _gnss_xyz, _read_manual_ties, _read_markers
-from .camera_start import _camera_start, _focal_from_exif, _focal_prior, _focal_prior_sigma  # noqa: F401 (re-exported)
+from .camera_start import _camera_start, _focal_from_exif, _focal_prior, _focal_prior_fov, _focal_prior_sigma  # noqa: F401
 from .inputs import _attitudes
 from .lowtexture import _low_texture_self_calibration, _low_texture_sequence_used
 from .options import SurveyInput, SurveyOptions
@@ -327,9 +327,9 @@ def _self_calibration(project: ProjectStore, inp: SurveyInput, opt: SurveyOption
     # self-calibration is there to correct (a factor 2.3 on the synthetic video of tests/test_io_video.py)
     focal_known = {k: _focal_from_exif(inputs, rec, k) for k in range(len(meta["camera_ids"]))}
     # the guard's reference: the files' (or the camera table's) focal length, not the last adjustment's
-    focal_known = FocalKnown({k: v for k, v in focal_known.items()},
-                             {k: _focal_prior(inputs, rec, k) for k in range(len(meta["camera_ids"]))},
-                             {k: _focal_prior_sigma(inputs, rec, k) for k in range(len(meta["camera_ids"]))})
+    ks = range(len(meta["camera_ids"]))
+    focal_known = FocalKnown(dict(focal_known), {k: _focal_prior(inputs, rec, k) for k in ks},
+                             {k: _focal_prior_sigma(inputs, rec, k) for k in ks}, fov={k: _focal_prior_fov(inputs, rec, k) for k in ks})
     self_cal, lt_note = _low_texture_self_calibration(project, meta["camera_ids"], self_cal, focal_known)
     notes += [lt_note] if lt_note else []
     return self_cal, focal_known, notes

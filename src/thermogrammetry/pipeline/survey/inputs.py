@@ -117,7 +117,9 @@ def _camera_guess(width, height, md) -> dict:
         if tab is not None:
             break
     table = ({"camera_table": {"camera": tab.camera, "native_size": list(tab.native_size), "upscale": tab.upscale,
-                               "how": tab.how, "source": tab.source}} if tab is not None else {})
+                               "how": tab.how, "source": tab.source,
+                               **({"fov_half_extent_px": tab.fov_half_extent_px} if tab.fov_half_extent_px else {})}}
+             if tab is not None else {})
 
     def guess(f, source, pitch_um, focal_source, sigma_px):
         return {"f_px": f, "source": source, "pitch_um": pitch_um, "focal_source": focal_source,
@@ -144,8 +146,11 @@ def _camera_guess(width, height, md) -> dict:
         f = f35 * np.hypot(width, height) / 43.2666
         return guess(f, f"EXIF 35 mm-equivalent focal {f35:g} mm", pitch, "exif", LENS_FOCAL_SIGMA * f)
     if tab is not None and tab.f_px:
-        return guess(tab.f_px, f"no focal length in the file: {tab.how}", tab.pixel_pitch_um,
-                     f"camera_table:{tab.camera}", tab.sigma_px)
+        g = guess(tab.f_px, f"no focal length in the file: {tab.how}", tab.pixel_pitch_um, f"camera_table:{tab.camera}",
+                  tab.sigma_px)
+        if tab.fov_half_extent_px:  # the start is a field of view: its focal length follows the block's distortion
+            g["fov_half_extent_px"] = float(tab.fov_half_extent_px)
+        return g
     if focal:
         return guess(focal / 0.017, f"EXIF focal {focal:g} mm, pixel pitch assumed 17 µm", 17.0, "assumed", None)
     return guess(1.0 * max(width, height), "no focal length in the file: 1.0 x image width assumed (self-calibrated)",

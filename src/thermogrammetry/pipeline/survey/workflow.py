@@ -40,6 +40,38 @@ def _retry_low_texture(project: ProjectStore, opt: SurveyOptions, reports) -> bo
     return not SurveyStore(project).load_low_texture().get("ran", True)
 
 
+def _restart_from_self_calibration(project: ProjectStore, plain, reports, on_step) -> list:
+    """The orientation and the final adjustment again, from the self-calibrated thermal camera, when its start was
+    the camera table's field of view and that field of view says another focal length through the distortion the
+    block found (:func:`~.camera_start.restart_camera`): the start's ``camera_guess.start`` in ``work/inputs.json``,
+    steps ``orient_restart`` and ``georef_restart``; the survey then reports the second orientation."""
+    from ...store import run_steps
+    from .camera_start import restart_camera
+
+    if not reports or not all(r.ok for r in reports) or not SurveyStore(project).has_survey():
+        return []
+    inputs = SurveyStore(project).load_inputs()
+    start = restart_camera(inputs, SurveyStore(project).load_survey())
+    if not start:
+        return []
+    for im in inputs["images"]:
+        if im.get("sensor", "thermal") == "thermal" and "thermal" in start:
+            im["camera_guess"]["start"] = start["thermal"]
+    SurveyStore(project).save_inputs(inputs)
+    by = {s.name: s for s in plain}
+    out = run_steps(project, [type(by["orient"])("orient_restart", by["orient"].run, by["orient"].description),
+                              type(by["georef"])("georef_restart", by["georef"].run, by["georef"].description)],
+                    on_step=on_step)
+    if SurveyStore(project).has_survey():
+        s = SurveyStore(project).load_survey()
+        st = start.get("thermal")
+        s.setdefault("notes", []).append(
+            f"thermal camera oriented again from its self-calibration: the camera table's field of view through the "
+            f"self-calibrated distortion gives {st['fx']:.1f} px (k1 {st['k1']:.3f}, k2 {st['k2']:.3f}) as the start")
+        SurveyStore(project).save_survey(s)
+    return out
+
+
 def survey_steps(inp: SurveyInput, opt: SurveyOptions, progress: Callable | None = None):
     """The survey as a list of :class:`~thermogrammetry.pipeline.steps.Step`."""
     from ...store import Step
@@ -91,6 +123,7 @@ def run_survey(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions | Non
         reports += run_steps(project, retry, on_step=on_step)
         if reports[-1].ok:  # (also when the fallback was not kept: survey.json then says why)
             reports += run_steps(project, [Step("georef_low_texture", plain[-1].run, plain[-1].description)], on_step=on_step)
+    reports += _restart_from_self_calibration(project, plain, reports, on_step)
     if SurveyStore(project).has_survey():
         s = SurveyStore(project).load_survey()
         s["seconds"] = time.perf_counter() - t0
