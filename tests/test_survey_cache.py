@@ -97,3 +97,39 @@ def test_a_cache_path_that_is_a_file_is_refused(block, tmp_path, capsys):
     err = capsys.readouterr().err
     assert str(bad) in err and "is a file" in err
     assert bad.read_text() == "mine" and not (tmp_path / "out").exists()
+
+
+def test_a_tracked_sequence_comes_back_from_the_cache_as_tracked(tmp_path):
+    """The low-texture tracker's result (4 frames of the synthetic plain-wall walk, tracked by
+    ``sfm.lowtexture.track_sequence``) is kept under a key of its frames, pattern, cameras and options, and read back
+    equal array for array; the key changes with a frame, the pattern, a camera and an option."""
+    from dataclasses import replace
+
+    from thermogrammetry.camera import Camera
+    from thermogrammetry.pipeline.survey.cache import TieCache
+    from thermogrammetry.sfm.lowtexture import TrackingOptions, track_sequence
+    from thermogrammetry.synthetic.lowtexture_facade import (LowTextureFacadeConfig, make_lowtexture_facade,
+                                                             render_lowtexture_frame)
+
+    sc = make_lowtexture_facade(LowTextureFacadeConfig(n_frames=4))
+    frames = [render_lowtexture_frame(sc, k) for k in range(4)]
+    cams = [sc.camera] * 4
+    st = track_sequence(lambda k: frames[k], 4, cameras=cams)
+    assert st.matches, st.reasons  # something to keep
+    cache = TieCache(tmp_path / "cache")
+    opt = TrackingOptions()
+    key = cache.tracks_key(iter(frames), None, cams, opt)
+    assert cache.get_tracks(key) is None
+    cache.put_tracks(key, st)
+    back = cache.get_tracks(key)
+    assert len(back.xy) == 4 and all(np.array_equal(a, b) for a, b in zip(st.xy, back.xy))
+    assert back.matches.keys() == st.matches.keys()
+    assert all(np.array_equal(st.matches[k], back.matches[k]) for k in st.matches)
+    assert back.reasons == st.reasons and back.n_putative == st.n_putative
+    other = frames[:3] + [frames[3] + np.float32(0.001)]
+    cam2 = Camera("opencv", sc.camera.image_size, {**sc.camera.param_dict, "fx": sc.camera.param_dict["fx"] + 1.0})
+    keys = {key, cache.tracks_key(iter(other), None, cams, opt),
+            cache.tracks_key(iter(frames), np.zeros_like(frames[0]), cams, opt),
+            cache.tracks_key(iter(frames), None, cams[:3] + [cam2], opt),
+            cache.tracks_key(iter(frames), None, cams, replace(opt, window_px=opt.window_px + 2))}
+    assert len(keys) == 5

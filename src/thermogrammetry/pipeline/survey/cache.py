@@ -2,7 +2,9 @@
 
 A feature file is keyed by the sha256 of the frame as the detector sees it (after the sensor's fixed pattern and a
 burned-in display are taken out), the feature options and the software; a pair's verified matches by the digests
-of both images' features, both starting cameras, the matching options and the software. "The software" is the
+of both images' features, both starting cameras, the matching options and the software; the low-texture tracker's
+result for a sequence of frames (features and verified consecutive matches) by the digests of all its frames as the
+tracker sees them, the sensor's pattern, the cameras, the tracking options and the software. "The software" is the
 source of the modules that compute them (:mod:`thermogrammetry.sfm`, :mod:`thermogrammetry.camera`, the survey's
 feature and matching steps) with the versions of NumPy and OpenCV: any change there starts a new set of keys, so a
 cache never gives what the running code would not compute. A hit is the same bytes the computation would write (the
@@ -11,7 +13,7 @@ not; only the time differs.
 
 What it is for: a second survey of the same frames -- other GNSS, GCPs or check points, another CRS, a subset of
 the frames, a different orientation or adjustment option -- skips the detection and the matching of every image
-and pair it has seen. Entries are written atomically (several surveys may share one cache at once); the folder is
+and pair it has seen, and the frame-to-frame tracking of a sequence it has tracked. Entries are written atomically (several surveys may share one cache at once); the folder is
 never cleaned by the survey (delete it to free the space: ~1.5 MB per frame with 3,000 SIFT features).
 """
 
@@ -139,6 +141,48 @@ class TieCache:
         np.savez(buf, inliers=np.asarray(inliers, np.int32).reshape(-1, 2), n_putative=np.int64(n_putative),
                  n_verified=np.int64(n_verified), reason=np.array(reason))
         self._store.write_bytes(f"matches/{key}.npz", buf.getvalue())
+
+    # -- a tracked sequence (the low-texture tracker) -----------------------------------------------------------------
+    @staticmethod
+    def tracks_key(frames, pattern, cameras, options) -> str:
+        """Key of a tracked sequence: ``frames`` an iterable of the (H, W) arrays the tracker gets (read one at a
+        time), ``pattern`` the sensor's fixed pattern or None, ``cameras`` one Camera (or None) per frame,
+        ``options`` (TrackingOptions)."""
+        h = hashlib.sha256(f"tracks {software_digest()} {options!r}".encode())
+        n = 0
+        for f in frames:
+            _update_arrays(h, f)
+            n += 1
+        h.update(f" {n} frames ".encode())
+        if pattern is not None:
+            _update_arrays(h, pattern)
+        h.update(" ".join(_camera_text(c) for c in (cameras or [])).encode())
+        return h.hexdigest()
+
+    def get_tracks(self, key: str):
+        """The :class:`~thermogrammetry.sfm.lowtexture.SequenceTracks` kept under ``key``, or None."""
+        from ...sfm.lowtexture import SequenceTracks
+
+        k = f"tracks/{key}.npz"
+        if not self._store.exists(k):
+            return None
+        with np.load(io.BytesIO(self._store.read_bytes(k))) as z:
+            n = int(z["n_frames"])
+            pairs = json.loads(str(z["pairs"]))  # [[a, b, reason, n_putative, has matches], ...]
+            xy = [z[f"xy_{a}"] for a in range(n)]
+            matches = {(a, b): z[f"m_{a}_{b}"] for a, b, _, _, has in pairs if has}
+        return SequenceTracks(xy, matches, {(a, b): r for a, b, r, _, _ in pairs},
+                              {(a, b): int(c) for a, b, _, c, _ in pairs})
+
+    def put_tracks(self, key: str, tracks) -> None:
+        keys = sorted(set(tracks.reasons) | set(tracks.n_putative) | set(tracks.matches))
+        pairs = [[int(a), int(b), str(tracks.reasons.get((a, b), "")), int(tracks.n_putative.get((a, b), 0)),
+                  (a, b) in tracks.matches] for a, b in keys]
+        arrays = {f"xy_{a}": np.asarray(x, np.float64).reshape(-1, 2) for a, x in enumerate(tracks.xy)}
+        arrays.update({f"m_{a}_{b}": np.asarray(m, np.int32).reshape(-1, 2) for (a, b), m in tracks.matches.items()})
+        buf = io.BytesIO()
+        np.savez(buf, n_frames=np.int64(len(tracks.xy)), pairs=np.array(json.dumps(pairs)), **arrays)
+        self._store.write_bytes(f"tracks/{key}.npz", buf.getvalue())
 
 
 def check_cache_path(path) -> None:

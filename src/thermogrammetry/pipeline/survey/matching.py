@@ -93,7 +93,7 @@ def _sequence_order_ratio(xyz) -> float | None:
 
 
 def _track_thermal_sequence(project: ProjectStore, inputs: dict, thermal: list, cams: dict, cam_ids: list,
-                            pattern_key: str | None) -> tuple[dict, list]:
+                            pattern_key: str | None, cache=None, from_cache: dict | None = None) -> tuple[dict, list]:
     """Low-texture fallback for a sequence (no positions, or positions in walk order): the thermal frames tracked
     frame to frame (input order).
 
@@ -101,7 +101,7 @@ def _track_thermal_sequence(project: ProjectStore, inputs: dict, thermal: list, 
     ``lowtexture/matches/<i>_<j>.npz`` of the verified consecutive pairs. Returns (feature counts by name, match
     results ``(i, j, n_putative, n_verified, reason)`` of the consecutive pairs).
     """
-    from ...sfm.lowtexture import track_sequence
+    from ...sfm.lowtexture import TrackingOptions, track_sequence
 
     names = [inputs["images"][k]["name"] for k in thermal]
     pattern = _load_npz(project, pattern_key)["pattern"] if pattern_key else None
@@ -121,8 +121,16 @@ def _track_thermal_sequence(project: ProjectStore, inputs: dict, thermal: list, 
             nm = inputs["images"][run[a]]["name"]
             return _masked_overlay(project, _read_frame(project, nm), overlay.get(nm))
 
-        st = track_sequence(load, len(run), pattern=pat,
-                            cameras=[cams[cam_ids[k]] for k in run])
+        run_cams = [cams[cam_ids[k]] for k in run]
+        key = (cache.tracks_key((load(a) for a in range(len(run))), pat, run_cams, TrackingOptions())
+               if cache is not None else None)
+        st = cache.get_tracks(key) if key is not None else None
+        if st is None:
+            st = track_sequence(load, len(run), pattern=pat, cameras=run_cams)
+            if key is not None:
+                cache.put_tracks(key, st)
+        elif from_cache is not None:
+            from_cache["tracks"] = from_cache.get("tracks", 0) + 1
         for a, k in enumerate(run):
             nm = inputs["images"][k]["name"]
             xy = st.xy[a]
@@ -224,7 +232,8 @@ def step_matching(project: ProjectStore, opt: SurveyOptions, camera=None, progre
             # the frames are taken as a sequence (acquisition order) and tracked frame to frame
             pattern_key = _fixed_pattern(project, inputs, th_names, highpass_sigma_px=LOW_TEXTURE_PATTERN_SIGMA_PX,
                                          key=LOW_TEXTURE_PATTERN_FINE_KEY)
-            counts_lt, res_lt = _track_thermal_sequence(project, inputs, thermal, cams, cam_ids, pattern_key)
+            counts_lt, res_lt = _track_thermal_sequence(project, inputs, thermal, cams, cam_ids, pattern_key, cache,
+                                                        from_cache)
             how = "pattern-corrected thermal frames tracked frame to frame (KLT), consecutive pairs verified"
         info["low_texture"] = {"features": how, "sequence": as_sequence, "order_ratio": order_ratio,
                                "fixed_pattern": bool(pattern_key), "thermal_connected": connected_thermal(res_lt),
