@@ -115,18 +115,11 @@ def _reasons(sv: dict) -> list[str]:
 
 
 def _score(out: Path, truth: dict, dist: dict) -> dict:
-    from thermogrammetry.synthetic.lowtexture_facade import pose_errors
+    from survey_lowtexture import _block_errors  # the largest block against the truth, as for the walks
 
-    s = json.loads((out / "survey.json").read_text())
-    if not (out / "cameras.json").is_file() or not s.get("images_oriented"):
+    e = _block_errors(out, truth)
+    if not e.get("n"):
         return {"n": 0}
-    block = {im["name"]: im.get("block") for im in s.get("images", [])}
-    est: dict = {}
-    for im in json.loads((out / "cameras.json").read_text())["images"]:
-        est.setdefault(block.get(im["name"]), {})[im["name"]] = (np.array(im["cam_from_world"]["R"]),
-                                                                 np.array(im["cam_from_world"]["t"]))
-    best = max(est.values(), key=len)
-    e = pose_errors(truth, best)
     if e["n"] >= 3:
         e["centre_rms_pct_dist"] = 100 * float(np.sqrt(np.mean(e["center_err_m"] ** 2))) / float(
             np.mean([dist[n] for n in e["names"]]))
