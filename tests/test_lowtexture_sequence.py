@@ -23,6 +23,15 @@ def walk():
     return sc, [render_lowtexture_frame(sc, k) for k in range(8)]
 
 
+@pytest.fixture(scope="module")
+def walk30(scene_cache):
+    """The 30-frame walk (seed 0) and its frames' folder, written once per run (cached_scenes). Module-scoped so that
+    the two surveys of it run on one worker, one after the other: the second reads the first's features, matches and
+    tracked sequence from the shared tie cache (tests/conftest.py groups the tests of a module-scoped fixture)."""
+    sc = make_lowtexture_facade(LowTextureFacadeConfig())
+    return sc, lowtexture_walk_folder(scene_cache, sc)
+
+
 def _true_pose_residuals(sc, st):
     """Reprojection residuals (px) of the tracks (>= 3 frames) triangulated with the TRUE poses."""
     from thermogrammetry.sfm.tracks import build_tracks
@@ -150,7 +159,7 @@ def test_pose_errors_under_a_similarity(walk):
     assert e["center_rms_rel"] < 0.005
 
 
-def test_survey_orients_the_walk_in_one_block(tmp_path, scene_cache):
+def test_survey_orients_the_walk_in_one_block(tmp_path, scene_cache, walk30):
     """``survey`` with DEFAULT options (``low_texture="auto"``) on the 30-frame walk (seed 0, 0.15 K): pycolmap builds no
     model and ``off`` orients nothing (benchmarks/survey_lowtexture.py --synthetic); ``auto`` tracks the sequence and
     its guard keeps the block (plane parallax 0.42 x the RMS, bound 0.85; planar share 0.85, bound 0.55).
@@ -163,8 +172,8 @@ def test_survey_orients_the_walk_in_one_block(tmp_path, scene_cache):
     from thermogrammetry.pipeline import FolderProject
     from thermogrammetry.pipeline.survey import SurveyInput, SurveyOptions, run_survey
 
-    sc = make_lowtexture_facade(LowTextureFacadeConfig())
-    copy_entry(lowtexture_walk_folder(scene_cache, sc), tmp_path / "scene")  # write_lowtexture_facade, once per run
+    sc, folder = walk30
+    copy_entry(folder, tmp_path / "scene")  # write_lowtexture_facade, once per run
     project = FolderProject(tmp_path / "out")
     run_survey(project, SurveyInput(images=[str(tmp_path / "scene" / "frames")]),
                SurveyOptions(gnss="none", cache=tie_cache(scene_cache)[1]))
@@ -234,7 +243,7 @@ def test_sequence_order_ratio():
     assert _sequence_order_ratio(C[:2]) is None and _sequence_order_ratio(np.zeros((5, 3))) is None
 
 
-def test_walk_with_gnss_is_tracked_as_a_sequence(tmp_path, scene_cache):
+def test_walk_with_gnss_is_tracked_as_a_sequence(tmp_path, scene_cache, walk30):
     """The 30-frame walk (seed 0) with RTK GNSS (σ 3 cm, in EPSG:2056 coordinates): the positions say the frames are
     a sequence (order ratio ~1), so the fallback tracks them as without positions. Before: positions sent the fallback
     to SIFT with homography-guided matching, whose blocks were rejected: 0/30, exit 1.
@@ -244,8 +253,8 @@ def test_walk_with_gnss_is_tracked_as_a_sequence(tmp_path, scene_cache):
     from thermogrammetry.cli.main import main
     from thermogrammetry.pipeline import FolderProject
 
-    sc = make_lowtexture_facade(LowTextureFacadeConfig())
-    copy_entry(lowtexture_walk_folder(scene_cache, sc), tmp_path / "scene")  # write_lowtexture_facade, once per run
+    sc, folder = walk30
+    copy_entry(folder, tmp_path / "scene")  # write_lowtexture_facade, once per run
     rng = np.random.default_rng(1)
     rows = ["image,X,Y,Z,sX,sY,sZ"]
     for n, p in zip(sc.names, sc.poses):
@@ -257,6 +266,8 @@ def test_walk_with_gnss_is_tracked_as_a_sequence(tmp_path, scene_cache):
                  "--crs", "EPSG:2056", "--workers", "0", *tie_cache(scene_cache)])
     assert code == 0
     project = FolderProject(out)
+    print("read from the tie cache:", {k: project.read_json(f"reports/{k}.json").get("summary", {}).get("from_cache")
+                                       for k in ("matching", "orient") if project.exists(f"reports/{k}.json")})
     lt = project.read_json("work/pairs.json")["features"]["low_texture"]
     assert lt["sequence"] is True and 0.95 <= lt["order_ratio"] <= 1.2, lt
     s = project.read_json("survey.json")

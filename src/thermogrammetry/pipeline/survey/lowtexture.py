@@ -244,12 +244,16 @@ def step_orient_low_texture(project: ProjectStore, opt: SurveyOptions, camera=No
         pp["features"]["low_texture"]["trigger"] = m["features"]["low_texture"]["trigger"]
         SurveyStore(project).save_pairs(pp)
     lt = m["features"].get("low_texture", {})
+    if m.get("from_cache"):  # what the fallback's matching read from the tie cache (the orient step's report says it)
+        out["from_cache"] = m["from_cache"]
     if "used" not in m["features"]:
         restore()
         out["low_texture"] = lt
         return _low_texture_verdict(project, out, {"ran": True, "trigger": trigger, "kept": False,
                                                    "why": "the fallback verified no consecutive pair"})
     out2 = step_orient(project, _low_texture_orient_options(project, opt), camera, progress, rgb_camera)
+    if m.get("from_cache"):
+        out2["from_cache"] = m["from_cache"]
     chk = _low_texture_check(project) if _low_texture_sequence_used(project) else {"blocks": [], "refused_images": [], "why": {}}
     if chk["refused_images"]:
         _low_texture_unregister(project, chk["why"])
