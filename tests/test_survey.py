@@ -259,6 +259,9 @@ def test_the_block_says_how_well_it_determines_its_camera(block):
     det = s["blocks"][0]["determinability"]["thermal"]
     assert 0 < det["focal_sigma_rel"] < 0.005 and abs(det["focal_height_correlation"]) < 0.6, det
     assert 0 < det["distortion_corner_sigma_px"] < 0.3 and 0 < det["mean_height_sigma_m"] < 0.1, det
+    # the choice per camera: the files' EXIF focal length enters as a weighted prior while fx, fy are estimated
+    cal = s["blocks"][0]["calibration"]["thermal"]
+    assert cal["choice"] == "prior" and {"fx", "fy", "k1"} <= set(cal["estimated"]) and "± " in cal["reason"], cal
 
 
 @pytest.fixture(scope="module")

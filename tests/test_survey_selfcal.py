@@ -212,3 +212,25 @@ def test_an_implausible_focal_length_holds_the_interior_orientation_and_calibrat
     fa, used, steps = sv._adjust_block(rec, None, np.arange(n), None, sv.SELF_CALIBRATION, focal_known={0: False})
     assert calls == [set(sv.SELF_CALIBRATION)] and set(used[0]) == set(sv.SELF_CALIBRATION)
     assert sv._fixed_interior_rungs(("fx", "fy", "k1"), [("fx", "fy", "k1")]) == [("k1",), ()]
+
+
+def test_calibration_choice_says_how_each_focal_length_was_treated_and_why():
+    """``blocks[].calibration``: per camera the treatment of its focal length (self-calibrate / prior / hold), the
+    parameters estimated and the reason, from what the ladder did."""
+    from types import SimpleNamespace
+
+    from thermogrammetry.sfm.selfcal_ladder import calibration_choice
+
+    ids = ["thermal", "rgb"]
+    fa = SimpleNamespace(focal_priors_used={0: (741.2, 37.1)})
+    steps = ["self-calibration of thermal: fx, fy refused: focal length 2692 px is more than 3 σ from 741 px; "
+             "adjusted again with thermal: k1, k2, p1, p2"]
+    got = calibration_choice(("fx", "fy", "k1"), {0: ("fx", "fy", "k1"), 1: ("fx", "fy")}, fa, [], ids)
+    assert got["thermal"]["choice"] == "prior" and "741.2 ± 37.1 px" in got["thermal"]["reason"]
+    assert got["thermal"]["estimated"] == ["fx", "fy", "k1"]
+    assert got["rgb"]["choice"] == "self-calibrate"
+    held = calibration_choice({0: ("fx", "fy", "k1", "k2")}, {0: ("k1", "k2", "p1", "p2")}, SimpleNamespace(), steps, ids)
+    assert held["thermal"]["choice"] == "hold" and "2692 px" in held["thermal"]["reason"]
+    given = calibration_choice({0: ()}, {0: ()}, SimpleNamespace(focal_priors_used=None), [], ids)
+    assert given == {"thermal": {"choice": "hold", "estimated": [], "reason": given["thermal"]["reason"]}}
+    assert "--camera" in given["thermal"]["reason"]

@@ -10,7 +10,8 @@ from ..results import Termination
 from .reconstruction import restore_to, snapshot_of
 
 __all__ = ["FocalKnown", "FOCAL_PRIOR_K", "MAX_ITERATIONS_RETRY", "SELF_CALIBRATION_LADDER", "FIXED_INTERIOR_LADDER", "INTRINSICS_PLAUSIBLE", "intrinsics_problem",
-           "intrinsics_check", "ladder_sets", "fixed_interior_rungs", "adjust_block", "fov_focal_priors", "FOV_PRIOR_ITERATIONS"]
+           "intrinsics_check", "ladder_sets", "fixed_interior_rungs", "adjust_block", "fov_focal_priors", "FOV_PRIOR_ITERATIONS",
+           "calibration_choice"]
 
 
 #: self-calibration steps down this ladder (each rung intersected with the parameters asked for) while the
@@ -290,3 +291,51 @@ def adjust_block(rec, xy, images, ctrl, self_cal, *, rigv=None, focal_known: dic
         steps.append(f"self-calibration of {', '.join(f'{start[c].name or c}: {names(sets[c])}' for c in down)} refused: {why}; "
                      f"adjusted again with {', '.join(f'{start[c].name or c}: ' + (', '.join(ladder[c][level[c]]) or 'held fixed') for c in down)}"
                      + held)
+
+
+def calibration_choice(requested, used: dict, adjustment, steps: list, camera_ids: list) -> dict:
+    """What a block's final adjustment did with each camera's interior orientation, and why: camera id ->
+    ``{"choice", "estimated", "reason"}``.
+
+    ``choice`` says how the focal length -- the parameter a weak block trades against its heights (Kraus 2007
+    §4.4) -- was treated: ``"self-calibrate"`` (estimated from the block alone), ``"prior"`` (estimated with a
+    weighted prior at the files' or the camera table's value) or ``"hold"`` (kept at its start: a calibration given
+    by the user, or a block that could not carry its estimation). ``estimated`` lists the parameters estimated.
+
+    Parameters
+    ----------
+    requested : sequence of str, or dict camera index -> sequence of str
+        The parameters asked for (``SurveyOptions.self_calibrate``; a camera given with ``--camera`` asks none).
+    used : dict camera index -> sequence of str
+        The parameters the accepted adjustment estimated (:func:`adjust_block`'s sets).
+    adjustment : the accepted final adjustment
+        Its ``focal_priors_used`` (camera index -> (focal px, σ px)) are the focal priors it applied.
+    steps : list of str
+        The ladder's steps (``self_calibration_steps``): the last one that names a camera gives a hold's reason.
+    camera_ids : list of str
+        Camera index -> id.
+    """
+    priors = getattr(adjustment, "focal_priors_used", None) or {}
+    out = {}
+    for c, names in sorted(used.items()):
+        names = [str(n) for n in names]
+        free = {n.lower() for n in names}
+        req = requested.get(c, ()) if isinstance(requested, dict) else (requested or ())
+        cid = str(camera_ids[c]) if c < len(camera_ids) else str(c)
+        if {"fx", "fy"} & free and c in priors:
+            f, sg = priors[c]
+            choice = "prior"
+            reason = (f"focal length estimated with a weighted prior at {float(f):.1f} ± {float(sg):.1f} px (the files' or "
+                      "the camera table's value): a block that cannot tell its focal length from its heights keeps it "
+                      "within that σ")
+        elif {"fx", "fy"} & free:
+            choice, reason = "self-calibrate", "focal length estimated from the block alone (no prior for this camera)"
+        else:
+            choice = "hold"
+            if not req:
+                reason = "no parameter asked to be estimated: the camera is held as given (--camera, a rig file or --self-calibrate)"
+            else:
+                why = next((st for st in reversed(steps) if "refused" in st or "held" in st), None)
+                reason = ("focal length held at its start: " + why) if why else "focal length held at its start"
+        out[cid] = {"choice": choice, "estimated": sorted(names), "reason": reason}
+    return out

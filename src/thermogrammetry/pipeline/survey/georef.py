@@ -13,7 +13,7 @@ from ...sfm.block_gates import (BLOCK_RMS_GATE_PX, BLOCK_ROTATION_SIGMA_DEG, GNS
                                 prune_gnss_contradicting, refuse_sigma, tie_rms, unconverged_sigma, unregister_images)
 from ...sfm.reconstruction import restore_to, snapshot_of
 from ...sfm.rig_block import rig_by_registration, rig_own_before, rig_refuse, rig_scale_local
-from ...sfm.selfcal_ladder import FocalKnown, adjust_block
+from ...sfm.selfcal_ladder import FocalKnown, adjust_block, calibration_choice
 from ...store import ProjectStore
 from .controls import _gnss_xyz, _read_manual_ties, _read_markers
 from .camera_start import _camera_start, _focal_from_exif, _focal_prior, _focal_prior_fov, _focal_prior_sigma  # noqa: F401
@@ -244,9 +244,9 @@ def step_georef(project: ProjectStore, inp: SurveyInput, opt: SurveyOptions, cam
                         "converged": not no_sigma, **({"sigma_refused": no_sigma} if no_sigma else {}),
                         **({"first_termination": list(fa.first_termination)} if getattr(fa, "first_termination", None) else {}),
                         "self_calibration": sorted({n for v in cal_used.values() for n in v}),
-                        **({"focal_prior": {str(meta["camera_ids"][c]): {"f_px": f, "sigma_px": sg}
-                                            for c, (f, sg) in fa.focal_priors_used.items()}}
-                           if getattr(fa, "focal_priors_used", None) else {}),
+                        "calibration": calibration_choice(self_cal, cal_used, fa, cal_steps, meta["camera_ids"]),
+                        **({"focal_prior": {str(meta["camera_ids"][c]): {"f_px": f, "sigma_px": sg} for c, (f, sg)
+                                            in fa.focal_priors_used.items()}} if getattr(fa, "focal_priors_used", None) else {}),
                         "self_calibration_steps": cal_steps, **({"gnss_offset": gnss_off} if gnss_off else {}),
                         **({"marker_sigma": fa.marker_sigma} if fa.marker_sigma else {}),
                         "determinability": {} if no_sigma else _determinability(rec, fa, images, meta),
@@ -360,7 +360,7 @@ def _second_pass(rec, xy, ctrl, names, self_cal, opt: SurveyOptions, oriented, f
             r = results[k_res]
             r.update({"images": len(images2), "sigma0": float(fa2.result.sigma0), "termination": fa2.result.termination.value,
                       "reason": fa2.result.reason, "self_calibration": sorted({n for v in cal2.values() for n in v}),
-                      "self_calibration_steps": steps2,
+                      "calibration": calibration_choice(self_cal, cal2, fa2, steps2, meta["camera_ids"]), "self_calibration_steps": steps2,
                       "added_at_gnss": r.get("added_at_gnss", []) + [names[i] for i in images2[n_own:]],
                       "converged": True, "determinability": _determinability(rec, fa2, images2, meta)})
             # (extend_with_gnss keeps only an adjustment that converged)
