@@ -72,22 +72,15 @@ def _check_positive_t(t: np.ndarray, name: str = "temperature_k") -> None:
 _CHUNK = 4096
 
 
-def _by_chunks(band, t: np.ndarray) -> np.ndarray:
-    """``band`` (a function of a 1-D array of temperatures, one value per temperature) applied to ``t`` of any shape
-    in chunks of :data:`_CHUNK`."""
+def _by_chunks(band, t: np.ndarray, *more: np.ndarray) -> np.ndarray:
+    """``band`` (a function of 1-D arrays of temperatures and of ``more`` arrays of ``t``'s shape, one value per
+    temperature) applied to ``t`` of any shape in chunks of :data:`_CHUNK`."""
     flat = t.reshape(-1)
+    others = [np.broadcast_to(m, t.shape).reshape(-1) for m in more]
     out = np.empty(flat.shape, dtype=np.float64)
     for i in range(0, flat.size, _CHUNK):
-        out[i : i + _CHUNK] = band(flat[i : i + _CHUNK])
+        out[i : i + _CHUNK] = band(flat[i : i + _CHUNK], *(m[i : i + _CHUNK] for m in others))
     return out.reshape(t.shape) if t.ndim else out[0]
-
-
-def _by_chunks_rows(step, rows: np.ndarray) -> np.ndarray:
-    """``step`` (a function of (n, m) rows, one value per row) applied to ``rows`` in chunks of :data:`_CHUNK` rows."""
-    out = np.empty(len(rows), dtype=np.float64)
-    for i in range(0, len(rows), _CHUNK):
-        out[i : i + _CHUNK] = step(rows[i : i + _CHUNK])
-    return out
 
 
 @dataclass(frozen=True)
@@ -118,27 +111,34 @@ class BandPlanckCurve:
         lam = 0.5 * (hi - lo) * x + 0.5 * (hi + lo)
         return lam, 0.5 * (hi - lo) * w
 
+    @cached_property
+    def _weights(self) -> np.ndarray:
+        """The quadrature's weights times C1L / λ⁵ (the factor of :meth:`signal`, :meth:`derivative` and the Newton
+        steps of :meth:`temperature`, evaluated left to right as they were written)."""
+        lam, w = self._quadrature
+        return w * C1L / lam**5
+
     def signal(self, temperature_k) -> np.ndarray:
         """Band radiance in W m⁻² sr⁻¹ of a blackbody at ``temperature_k`` (any shape)."""
         t = np.asarray(temperature_k, dtype=np.float64)
         _check_positive_t(t)
-        lam, w = self._quadrature
+        lam, k = self._quadrature[0], self._weights
 
         def band(tc):
             x = C2 / (lam * tc[:, None])
-            return np.sum(w * C1L / lam**5 / np.expm1(x), axis=-1)
+            return np.sum(k / np.expm1(x), axis=-1)
 
         return _by_chunks(band, t)
 
     def derivative(self, temperature_k) -> np.ndarray:
         """d(band radiance)/dT in W m⁻² sr⁻¹ K⁻¹."""
         t = np.asarray(temperature_k, dtype=np.float64)
-        lam, w = self._quadrature
+        lam, k = self._quadrature[0], self._weights
 
         def band(tc):
             x = C2 / (lam * tc[:, None])
             ex = np.exp(x)
-            return np.sum(w * C1L / lam**5 * ex * x / (tc[:, None] * (ex - 1.0) ** 2), axis=-1)
+            return np.sum(k * ex * x / (tc[:, None] * (ex - 1.0) ** 2), axis=-1)
 
         return _by_chunks(band, t)
 
@@ -164,23 +164,19 @@ class BandPlanckCurve:
                 wien = C2 / (lam_c * np.log1p(C1L * dlam / (lam_c**5 * s)))
                 t = np.where(outside & np.isfinite(wien) & (wien > 0), wien, t)
             n_iter = iterations + (6 if np.any(outside) else 0)
-            lam, w = self._quadrature
-            k = w * C1L / lam**5  # the same factor as signal's and derivative's, left to right
+            lam, k = self._quadrature[0], self._weights
 
-            def newton(ts):  # one Newton step on a chunk: signal and derivative from one x (values as theirs)
-                tc, sc = ts[:, 0], ts[:, 1]
+            def newton(tc, sc):  # one Newton step on a chunk: signal and derivative from one x (values as theirs)
                 x = C2 / (lam * tc[:, None])
                 ex = np.exp(x)
                 f = np.sum(k / np.expm1(x), axis=-1)
                 d = np.sum(k * ex * x / (tc[:, None] * (ex - 1.0) ** 2), axis=-1)
                 return tc - (f - sc) / d
 
-            sf = np.broadcast_to(s, t.shape).reshape(-1)
             for _ in range(n_iter):
+                t = np.asarray(t, np.float64)
                 _check_positive_t(t)
-                tf = np.asarray(t, np.float64).reshape(-1)
-                t = _by_chunks_rows(newton, np.stack([tf, sf], axis=1)).reshape(np.shape(t))
-                t = np.clip(t, 1.0, None)
+                t = np.clip(_by_chunks(newton, t, s), 1.0, None)
         return np.where(s > 0, t, np.nan)
 
     def table(self, t_min_k: float = 180.0, t_max_k: float = 500.0, step_k: float = 0.01) -> "CurveTable":
