@@ -45,26 +45,26 @@ def _restart_from_self_calibration(project: ProjectStore, plain, reports, on_ste
     the camera table's field of view and that field of view says another focal length through the distortion the
     block found (:func:`~.camera_start.restart_camera`): the start's ``camera_guess.start`` in ``work/inputs.json``,
     steps ``orient_restart`` and ``georef_restart``; the survey then reports the second orientation."""
-    from ...store import run_steps
+    from ...store import Step, run_steps
     from .camera_start import restart_camera
 
     if not reports or not all(r.ok for r in reports) or not SurveyStore(project).has_survey():
         return []
     inputs = SurveyStore(project).load_inputs()
-    start = restart_camera(inputs, SurveyStore(project).load_survey())
-    if not start:
+    thermal = [im for im in inputs["images"] if im.get("sensor", "thermal") == "thermal"]
+    if len({(im["width"], im["height"]) for im in thermal}) != 1:
+        return []  # the start is set per thermal frame: only a block of one thermal camera is oriented again
+    st = restart_camera(inputs, SurveyStore(project).load_survey()).get("thermal")
+    if st is None:
         return []
-    for im in inputs["images"]:
-        if im.get("sensor", "thermal") == "thermal" and "thermal" in start:
-            im["camera_guess"]["start"] = start["thermal"]
+    for im in thermal:
+        im["camera_guess"]["start"] = st
     SurveyStore(project).save_inputs(inputs)
     by = {s.name: s for s in plain}
-    out = run_steps(project, [type(by["orient"])("orient_restart", by["orient"].run, by["orient"].description),
-                              type(by["georef"])("georef_restart", by["georef"].run, by["georef"].description)],
+    out = run_steps(project, [Step(f"{name}_restart", by[name].run, by[name].description) for name in ("orient", "georef")],
                     on_step=on_step)
     if SurveyStore(project).has_survey():
         s = SurveyStore(project).load_survey()
-        st = start.get("thermal")
         s.setdefault("notes", []).append(
             f"thermal camera oriented again from its self-calibration: the camera table's field of view through the "
             f"self-calibrated distortion gives {st['fx']:.1f} px (k1 {st['k1']:.3f}, k2 {st['k2']:.3f}) as the start")
